@@ -1,0 +1,104 @@
+"""The ``metadagger`` command line: thin wrappers that build a config and call the library.
+
+A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Callable, Optional, TypeVar
+
+import typer
+
+from metadagger.errors import UserError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.")
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
+app.add_typer(bench_app, name="bench")
+
+F = TypeVar("F", bound=Callable[..., object])
+
+
+def user_errors(fn: F) -> F:
+    """Turn a UserError raised by ``fn`` into one clear line and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except UserError as exc:
+            typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
+            raise typer.Exit(code=2) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+TASK = typer.Option("carracing", "--task", help="Task name: carracing or fetch.")
+PRESET = typer.Option("quick", "--preset", help="Preset from configs/<task>.yaml: quick, paper or ci.")
+
+
+@app.command()
+@user_errors
+def demo(
+    task: str = TASK,
+    preset: str = PRESET,
+    out: Path = typer.Option(Path("runs/demo"), "--out", help="Run folder to write to."),
+    rounds: Optional[int] = typer.Option(None, "--rounds", help="Override the preset's DAgger rounds."),
+    epochs: Optional[int] = typer.Option(None, "--epochs", help="Override the preset's BC epochs per fit."),
+) -> None:
+    """BC from expert demos, then DAgger rounds; both evaluated on unseen seeds."""
+    from metadagger.demo import demo_config, run_demo
+
+    config = demo_config(task, preset, rounds=rounds, epochs=epochs)
+    result = run_demo(config, out)
+    typer.echo(result.table)
+    typer.echo(f"wrote {result.folder}")
+
+
+@app.command()
+@user_errors
+def expert(
+    task: str = TASK,
+    seeds: str = typer.Option("0-9", "--seeds", help="Seeds: a range '0-99', a list '1,5,9' or one seed."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Also write the per-seed rows as JSON here."),
+) -> None:
+    """Measure the task's expert (acting through the learner's action space) on seeds."""
+    from metadagger.config import parse_seeds
+    from metadagger.evaluation.expert import evaluate_expert, expert_table
+    from metadagger.io import write_json
+    from metadagger.tasks import make_task
+
+    rows = evaluate_expert(make_task(task), parse_seeds(seeds))
+    typer.echo(expert_table(rows))
+    if out is not None:
+        write_json(out, rows)
+        typer.echo(f"wrote {out}")
+
+
+@bench_app.command("env")
+@user_errors
+def bench_env_cmd(
+    task: str = TASK,
+    seeds: str = typer.Option("0-2", "--seeds", help="Seeds to step."),
+    steps: int = typer.Option(300, "--steps", min=1, help="Steps per seed."),
+    out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
+) -> None:
+    """Steps per second of our env against upstream's, on the same seeds and actions."""
+    from metadagger.bench import bench_env, write_bench
+    from metadagger.config import parse_seeds
+
+    result = bench_env(task, seeds=parse_seeds(seeds), steps=steps)
+    write_bench(result, out)
+    typer.echo({k: v for k, v in result.items() if not isinstance(v, (dict, list))})
+    typer.echo(f"wrote {out}")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,36 @@
+"""Summary statistics of evaluation rollouts: success rates with Wilson intervals, means."""
+
+from __future__ import annotations
+
+import math
+from typing import Iterable, Mapping
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval for a binomial proportion (95% for ``z=1.96``)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def summarize(rows: Iterable[Mapping[str, float]]) -> dict[str, float]:
+    """Success rate (with 95% Wilson interval), mean reward, mean steps and total expert queries
+    of per-episode rows with keys ``success``, ``reward``, ``steps`` (and optionally ``expert_queries``)."""
+    rows = list(rows)
+    n = len(rows)
+    wins = sum(bool(r["success"]) for r in rows)
+    lo, hi = wilson_interval(wins, n)
+    return {
+        "episodes": n,
+        "successes": wins,
+        "success_rate": wins / n if n else 0.0,
+        "success_ci_low": lo,
+        "success_ci_high": hi,
+        "mean_reward": sum(float(r["reward"]) for r in rows) / n if n else 0.0,
+        "mean_steps": sum(float(r["steps"]) for r in rows) / n if n else 0.0,
+        "expert_queries": int(sum(int(r.get("expert_queries", 0)) for r in rows)),
+    }

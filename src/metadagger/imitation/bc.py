@@ -1,0 +1,175 @@
+"""Behavioural cloning: a supervised fit of a policy to (observation, expert label) pairs.
+
+With ``head_only=True`` the trunk stays fixed, so its features are computed once per image
+(:class:`FeatureCache`) and only layer n is fitted on them: the cheap fit MetaL DAgger repeats
+for every seed and every DAgger round.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch.nn.utils import parameters_to_vector
+from tqdm.auto import tqdm
+
+from metadagger.errors import UserError
+from metadagger.imitation.data import Dataset
+from metadagger.policies import Policy
+
+
+@dataclass(frozen=True)
+class BCConfig:
+    """How one behavioural-cloning fit runs (defaults follow the paper's Table 8)."""
+
+    lr: float = 1e-4
+    """Adam learning rate."""
+    batch_size: int = 10
+    """Samples per gradient step."""
+    epochs: int = 50
+    """Passes over the dataset."""
+    weight_decay: float = 0.0
+    """Adam weight decay (L2)."""
+    head_only: bool = False
+    """Fit layer n only, on cached trunk features; the trunk is left unchanged."""
+    seed: int = 0
+    """Seed of the shuffling order."""
+
+    def __post_init__(self) -> None:
+        if not self.lr > 0:
+            raise ValueError(f"BCConfig.lr must be > 0, got {self.lr}")
+        if not isinstance(self.batch_size, int) or self.batch_size < 1:
+            raise ValueError(f"BCConfig.batch_size must be an integer >= 1, got {self.batch_size!r}")
+        if not isinstance(self.epochs, int) or self.epochs < 1:
+            raise ValueError(f"BCConfig.epochs must be an integer >= 1, got {self.epochs!r}")
+        if not self.weight_decay >= 0:
+            raise ValueError(f"BCConfig.weight_decay must be >= 0, got {self.weight_decay}")
+        if not isinstance(self.seed, int):
+            raise ValueError(f"BCConfig.seed must be an integer, got {self.seed!r}")
+
+
+class FeatureCache:
+    """Trunk features of images, each computed once while the trunk's weights stay the same.
+
+    Images are keyed by their bytes, so the cache can be shared by every fit on a growing
+    (aggregated) dataset; a change of the trunk's weights empties it.
+
+    Args:
+        policy: the policy whose trunk computes the features.
+        batch_size: images per trunk forward pass.
+    """
+
+    def __init__(self, policy: Policy, *, batch_size: int = 256):
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        self.policy = policy
+        self.batch_size = batch_size
+        #: images passed through the trunk so far (each distinct image once)
+        self.computed = 0
+        self._rows: dict[bytes, int] = {}
+        self._store = torch.empty(0, policy.net.feature_dim)
+        self._trunk_digest = self._digest_trunk()
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def _digest_trunk(self) -> bytes:
+        weights = parameters_to_vector(self.policy.net.trunk.parameters()).detach().numpy()
+        return hashlib.blake2b(weights.tobytes(), digest_size=16).digest()
+
+    def features(self, obs: np.ndarray) -> torch.Tensor:
+        """Features (N, feature_dim) of uint8 images (N, H, W, C), computing only unseen images."""
+        digest = self._digest_trunk()
+        if digest != self._trunk_digest:
+            self._rows.clear()
+            self._store = self._store[:0]
+            self._trunk_digest = digest
+        obs = np.ascontiguousarray(obs)
+        keys = [hashlib.blake2b(image, digest_size=16).digest() for image in obs]
+        missing: dict[bytes, int] = {}
+        for i, key in enumerate(keys):
+            if key not in self._rows and key not in missing:
+                missing[key] = i
+        if missing:
+            new = torch.from_numpy(obs[list(missing.values())])
+            # no_grad rather than inference_mode: the cached tensors later feed a head that trains
+            with torch.no_grad():
+                chunks = [self.policy.net.features(new[s : s + self.batch_size]) for s in range(0, len(new), self.batch_size)]
+            start = len(self._store)
+            self._store = torch.cat([self._store, *chunks])
+            self._rows.update({key: start + j for j, key in enumerate(missing)})
+            self.computed += len(missing)
+        return self._store[torch.tensor([self._rows[key] for key in keys], dtype=torch.long)]
+
+
+def _check_data(policy: Policy, data: Dataset) -> None:
+    arch = policy.arch
+    if len(data) == 0:
+        raise UserError("cannot fit on an empty dataset: collect at least one demonstration first")
+    if list(data.obs.shape[1:]) != list(arch["obs_shape"]):
+        raise UserError(f"dataset images are {data.obs.shape[1:]} but the policy expects {tuple(arch['obs_shape'])}; use data from the policy's task")
+    if data.discrete != policy.discrete or (not data.discrete and data.labels.shape[1] != arch["n_outputs"]):
+        kind = "int64 class labels" if policy.discrete else f"float32 labels of width {arch['n_outputs']}"
+        raise UserError(f"dataset labels are {data.labels.dtype} {data.labels.shape[1:]} but the policy needs {kind}; use data from the policy's task")
+
+
+def fit_bc(
+    policy: Policy,
+    data: Dataset,
+    config: BCConfig,
+    *,
+    progress: bool = False,
+    cache: FeatureCache | None = None,
+) -> dict[str, Any]:
+    """Fit ``policy`` in place to ``data`` with Adam: cross-entropy (discrete) or MSE (continuous).
+
+    Args:
+        policy: the policy to train (its network is updated in place).
+        data: observations and expert labels.
+        config: optimiser settings; ``config.head_only`` fits layer n on cached trunk features.
+        progress: show a progress bar over epochs.
+        cache: features to reuse across calls (head-only fits only); a fresh one if None.
+
+    Returns:
+        ``{"loss": [mean training loss per epoch], "samples": N, "seconds": wall time}``.
+    """
+    _check_data(policy, data)
+    started = time.perf_counter()
+    net = policy.net
+    if config.head_only:
+        cache = cache if cache is not None else FeatureCache(policy)
+        if cache.policy is not policy:
+            raise UserError("the FeatureCache was built for another policy; build one with FeatureCache(policy)")
+        inputs, model = cache.features(data.obs), net.head
+    else:
+        if cache is not None:
+            raise UserError("a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache=")
+        inputs, model = torch.from_numpy(data.obs), net
+    targets = torch.from_numpy(data.labels)
+    params = [p for p in model.parameters() if p.requires_grad]
+    if not params:
+        raise UserError("the policy has no trainable parameters left to fit; do not freeze the head")
+    optimizer = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
+    loss_fn = F.cross_entropy if policy.discrete else F.mse_loss
+    generator = torch.Generator().manual_seed(config.seed)
+    losses: list[float] = []
+    n = len(data)
+    bar = tqdm(range(config.epochs), desc="bc", disable=not progress, leave=False)
+    for _ in bar:
+        total = 0.0
+        order = torch.randperm(n, generator=generator)
+        for start in range(0, n, config.batch_size):
+            batch = order[start : start + config.batch_size]
+            loss = loss_fn(model(inputs[batch]), targets[batch])
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            total += loss.item() * len(batch)
+        losses.append(total / n)
+        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}

@@ -1,0 +1,152 @@
+"""Rollouts in a learner env: the learner (or the expert) acts, the expert labels every state."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Protocol
+
+import gymnasium as gym
+import numpy as np
+from tqdm.auto import tqdm
+
+from metadagger.imitation.data import Dataset
+from metadagger.policies import Policy
+from metadagger.tasks.base import Task
+
+
+class EarlyStop(Protocol):
+    """Ends a rollout early, counted as a failure (e.g. the learner strays too far from the expert)."""
+
+    def reset(self) -> None:
+        """Forget the previous episode."""
+
+    def update(self, learner_action: Any, expert_label: Any) -> bool:
+        """Record one step; True means stop now and count the episode as a failure."""
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """One episode in a learner env.
+
+    Attributes:
+        obs: (T, H, W, C) uint8 observations the learner acted on.
+        expert_labels: the expert's label for each observation: (T,) int64 or (T, d) float32.
+        learner_actions: the action taken at each observation, same layout as ``expert_labels``.
+        reward: summed env reward.
+        steps: env steps taken (= T).
+        success: the task's success rule at the end; False if an early stop fired.
+        expert_queries: expert labels kept for training (= T).
+        seed: the ``reset`` seed.
+        early_stopped: whether an :class:`EarlyStop` ended the episode.
+    """
+
+    obs: np.ndarray
+    expert_labels: np.ndarray
+    learner_actions: np.ndarray
+    reward: float
+    steps: int
+    success: bool
+    expert_queries: int
+    seed: int
+    early_stopped: bool = False
+
+    def to_dataset(self) -> Dataset:
+        """The (observation, expert label) pairs of this episode."""
+        return Dataset(obs=self.obs, labels=self.expert_labels)
+
+
+def _stack(values: list[Any], discrete: bool) -> np.ndarray:
+    if discrete:
+        return np.asarray(values, dtype=np.int64).reshape(len(values))
+    return np.asarray(values, dtype=np.float32).reshape(len(values), -1)
+
+
+def rollout(
+    env: gym.Env,
+    *,
+    seed: int,
+    policy: Policy | None,
+    max_steps: int | None = None,
+    early_stop: EarlyStop | None = None,
+) -> Trajectory:
+    """Run one episode from ``env.reset(seed=seed)``.
+
+    Args:
+        env: a learner env (``info["expert_label"]`` labels each returned observation).
+        seed: reset seed.
+        policy: the learner; ``None`` lets the expert act with its own labels (a demonstration).
+        max_steps: stop after this many steps even if the env has not ended (not a success).
+        early_stop: stops the episode as a failure when its ``update`` returns True.
+
+    Returns:
+        The trajectory; every visited observation is labelled by the expert.
+    """
+    if max_steps is not None and max_steps <= 0:
+        raise ValueError(f"max_steps must be positive or None, got {max_steps}")
+    discrete = isinstance(env.action_space, gym.spaces.Discrete)
+    obs, info = env.reset(seed=seed)
+    if early_stop is not None:
+        early_stop.reset()
+    observations, labels, actions = [], [], []
+    reward, success, stopped = 0.0, False, False
+    while True:
+        label = info["expert_label"]
+        action = label if policy is None else policy(obs)
+        # copied because an env may reuse its observation buffer between steps
+        observations.append(np.array(obs, dtype=np.uint8, copy=True))
+        labels.append(label)
+        actions.append(action)
+        obs, step_reward, terminated, truncated, info = env.step(action)
+        reward += float(step_reward)
+        # the action was executed, so the step counts even when the early stop then fires
+        stopped = early_stop is not None and early_stop.update(action, label)
+        if stopped:
+            break
+        if terminated or truncated:
+            success = bool(info.get("is_success", False))
+            break
+        if max_steps is not None and len(observations) >= max_steps:
+            break
+    steps = len(observations)
+    return Trajectory(
+        obs=np.stack(observations),
+        expert_labels=_stack(labels, discrete),
+        learner_actions=_stack(actions, discrete),
+        reward=reward,
+        steps=steps,
+        success=success,
+        expert_queries=steps,
+        seed=int(seed),
+        early_stopped=stopped,
+    )
+
+
+def collect(
+    task: Task,
+    seeds: Iterable[int],
+    *,
+    policy: Policy | None,
+    progress: bool = False,
+    early_stop_factory: Callable[[], EarlyStop] | None = None,
+    max_steps: int | None = None,
+) -> list[Trajectory]:
+    """One :func:`rollout` per seed in a single learner env of ``task`` (reused across seeds).
+
+    Args:
+        task: the task whose learner env is used.
+        seeds: reset seeds, one episode each.
+        policy: the learner, or ``None`` for expert demonstrations.
+        progress: show a progress bar.
+        early_stop_factory: builds one :class:`EarlyStop` for this call.
+        max_steps: per-episode step cap (see :func:`rollout`).
+    """
+    seeds = list(seeds)
+    env = task.make_env()
+    early_stop = early_stop_factory() if early_stop_factory is not None else None
+    try:
+        return [
+            rollout(env, seed=seed, policy=policy, max_steps=max_steps, early_stop=early_stop)
+            for seed in tqdm(seeds, desc=f"{task.name} rollouts", disable=not progress, leave=False)
+        ]
+    finally:
+        env.close()

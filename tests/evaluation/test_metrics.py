@@ -1,0 +1,22 @@
+import pytest
+
+from metadagger.evaluation.metrics import summarize, wilson_interval
+
+
+def test_wilson_matches_known_values():
+    lo, hi = wilson_interval(8, 10)
+    assert lo == pytest.approx(0.4902, abs=1e-3)
+    assert hi == pytest.approx(0.9433, abs=1e-3)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+def test_summarize_counts_and_means():
+    rows = [
+        {"success": True, "reward": 800.0, "steps": 900, "expert_queries": 900},
+        {"success": False, "reward": 200.0, "steps": 300, "expert_queries": 0},
+    ]
+    s = summarize(rows)
+    assert s["successes"] == 1 and s["episodes"] == 2
+    assert s["success_rate"] == 0.5
+    assert s["mean_reward"] == 500.0 and s["mean_steps"] == 600.0
+    assert s["expert_queries"] == 900

@@ -1,0 +1,106 @@
+"""Behavioural cloning and the feature cache on the toy corridor task."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from toy_task import TOY_ARCH
+from torch.nn.utils import parameters_to_vector
+
+from metadagger.errors import UserError
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.data import Dataset
+from metadagger.policies import make_policy
+
+FAST = BCConfig(lr=3e-3, epochs=20, batch_size=16)
+
+
+def trunk_vector(policy) -> torch.Tensor:
+    return parameters_to_vector(policy.net.trunk.parameters()).detach().clone()
+
+
+def test_bc_reduces_loss_and_fits_the_demo(policy, demo):
+    result = fit_bc(policy, demo, FAST)
+    assert len(result["loss"]) == FAST.epochs and result["samples"] == len(demo)
+    assert result["loss"][-1] < 0.2 * result["loss"][0]
+    if policy.discrete:
+        assert np.mean(policy.act_batch(demo.obs) == demo.labels) >= 0.9
+
+
+def test_bc_is_deterministic(task, demo):
+    heads, losses = [], []
+    for _ in range(2):
+        policy = make_policy(task, seed=4, **TOY_ARCH)
+        losses.append(fit_bc(policy, demo, BCConfig(lr=3e-3, epochs=5, seed=11))["loss"])
+        heads.append(policy.head_vector())
+    assert losses[0] == losses[1]
+    assert torch.equal(heads[0], heads[1])
+
+
+def test_head_only_fit_leaves_the_trunk_unchanged(policy, demo):
+    trunk, head = trunk_vector(policy), policy.head_vector()
+    result = fit_bc(policy, demo, BCConfig(lr=3e-3, epochs=10, head_only=True))
+    assert torch.equal(trunk_vector(policy), trunk)
+    assert not torch.equal(policy.head_vector(), head)
+    assert result["loss"][-1] < result["loss"][0]
+
+
+def test_frozen_trunk_full_fit_trains_only_the_head(policy, demo):
+    policy.freeze_trunk()
+    trunk = trunk_vector(policy)
+    fit_bc(policy, demo, BCConfig(lr=3e-3, epochs=2))
+    assert torch.equal(trunk_vector(policy), trunk)
+
+
+def test_feature_cache_computes_each_image_once(policy, demo):
+    cache = FeatureCache(policy, batch_size=7)
+    first = cache.features(demo.obs)
+    with torch.no_grad():
+        expected = policy.net.features(torch.from_numpy(demo.obs))
+    torch.testing.assert_close(first, expected)
+    distinct = len({image.tobytes() for image in demo.obs})
+    assert cache.computed == len(cache) == distinct
+
+    doubled = demo.concat(demo)
+    fit_bc(policy, doubled, BCConfig(epochs=1, head_only=True), cache=cache)
+    assert cache.computed == distinct  # nothing recomputed for images seen before
+
+    with torch.no_grad():
+        policy.net.trunk[0].weight.mul_(2.0)  # a new trunk invalidates every cached feature
+    cache.features(demo.obs[:3])
+    assert len(cache) == len({image.tobytes() for image in demo.obs[:3]})
+
+
+def test_fit_rejects_mismatched_data_and_cache(policy, demo):
+    with pytest.raises(UserError, match="empty dataset"):
+        fit_bc(policy, Dataset.empty(demo), FAST)
+    wrong = Dataset(obs=np.zeros((2, 8, 8, 3), np.uint8), labels=demo.labels[:2])
+    with pytest.raises(UserError, match=r"policy expects \(16, 16, 3\)"):
+        fit_bc(policy, wrong, FAST)
+    with pytest.raises(UserError, match="only applies to head-only"):
+        fit_bc(policy, demo, FAST, cache=FeatureCache(policy))
+    with pytest.raises(UserError, match="another policy"):
+        fit_bc(policy, demo, BCConfig(head_only=True), cache=FeatureCache(policy.copy()))
+
+
+def test_fit_rejects_labels_of_the_other_kind(policy, demo):
+    other = (
+        np.zeros((len(demo), 3), np.float32) if policy.discrete else np.zeros(len(demo), np.int64)
+    )
+    with pytest.raises(UserError, match="dataset labels"):
+        fit_bc(policy, Dataset(obs=demo.obs, labels=other), FAST)
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"lr": 0.0}, "lr must be > 0"),
+        ({"batch_size": 0}, "batch_size must be an integer >= 1"),
+        ({"epochs": 1.5}, "epochs must be an integer >= 1"),
+        ({"weight_decay": -1.0}, "weight_decay must be >= 0"),
+    ],
+)
+def test_config_validation(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        BCConfig(**kwargs)

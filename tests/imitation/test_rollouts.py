@@ -1,0 +1,94 @@
+"""Rollouts and collect on the toy corridor task."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from toy_task import TOY_ARCH, CorridorTask
+
+from metadagger.imitation.rollouts import collect, rollout
+from metadagger.policies import make_policy
+
+
+@pytest.mark.filterwarnings("ignore:.*different from the unwrapped")
+def test_toy_task_env_passes_gymnasium_checks(task):
+    from gymnasium.utils.env_checker import check_env
+
+    check_env(task.make_env(), skip_render_check=True)
+
+
+def test_expert_demo_succeeds_and_counts_queries(task):
+    (demo,) = collect(task, [3], policy=None)
+    assert demo.success and demo.steps == task.max_episode_steps
+    assert demo.expert_queries == demo.steps == len(demo.obs) == len(demo.expert_labels)
+    assert demo.obs.dtype == np.uint8 and demo.obs.shape[1:] == (16, 16, 3)
+    np.testing.assert_array_equal(demo.learner_actions, demo.expert_labels)
+    assert demo.reward == task.max_episode_steps and demo.seed == 3
+    expected = np.int64 if task.is_discrete else np.float32
+    assert demo.expert_labels.dtype == expected and demo.to_dataset().labels.dtype == expected
+
+
+def test_rollouts_are_deterministic_per_seed(task, policy):
+    first, second = collect(task, [5, 5], policy=policy)
+    np.testing.assert_array_equal(first.obs, second.obs)
+    np.testing.assert_array_equal(first.learner_actions, second.learner_actions)
+
+
+def test_learner_rollout_records_expert_labels_of_visited_states(discrete_task):
+    policy = make_policy(discrete_task, seed=1, **TOY_ARCH)
+    env = discrete_task.make_env()
+    traj = rollout(env, seed=0, policy=policy)
+    np.testing.assert_array_equal(traj.learner_actions, policy.act_batch(traj.obs))
+    # replay the visited states: the recorded label is the expert's label for each observation
+    obs, info = env.reset(seed=0)
+    for t in range(traj.steps):
+        np.testing.assert_array_equal(obs, traj.obs[t])
+        assert info["expert_label"] == traj.expert_labels[t]
+        obs, _, _, _, info = env.step(int(traj.learner_actions[t]))
+    assert traj.expert_queries == traj.steps
+
+
+class StopAfter:
+    """Early stop that fires on the n-th disagreement with the expert."""
+
+    def __init__(self, n: int):
+        self.n, self.count, self.resets = n, 0, 0
+
+    def reset(self) -> None:
+        self.count, self.resets = 0, self.resets + 1
+
+    def update(self, learner_action, expert_label) -> bool:
+        self.count += int(np.any(learner_action != expert_label))
+        return self.count >= self.n
+
+
+def test_early_stop_fires_and_counts_as_failure(discrete_task):
+    always_left = make_policy(discrete_task, seed=0, **TOY_ARCH)
+    always_left.act_batch = lambda obs: np.zeros(len(obs), np.int64)  # a learner that disagrees often
+    stop = StopAfter(2)
+    traj = rollout(discrete_task.make_env(), seed=0, policy=always_left, early_stop=stop)
+    assert traj.early_stopped and not traj.success
+    assert stop.resets == 1 and stop.count == 2
+    assert traj.steps == traj.expert_queries == len(traj.obs) < discrete_task.max_episode_steps
+    assert int(np.sum(traj.learner_actions != traj.expert_labels)) == 2
+
+    trajs = collect(discrete_task, [0, 1], policy=always_left, early_stop_factory=lambda: StopAfter(100))
+    assert not any(t.early_stopped for t in trajs)
+
+
+def test_max_steps_caps_an_episode_without_success():
+    task = CorridorTask(discrete=True)
+    traj = rollout(task.make_env(), seed=0, policy=None, max_steps=5)
+    assert traj.steps == 5 and not traj.success
+    with pytest.raises(ValueError, match="max_steps"):
+        rollout(task.make_env(), seed=0, policy=None, max_steps=0)
+
+
+def test_make_policy_reads_the_task(task):
+    policy = make_policy(task, seed=0, **TOY_ARCH)
+    assert policy.arch["obs_shape"] == [16, 16, 3]
+    assert policy.arch["n_outputs"] == task.label_dim() and policy.discrete == task.is_discrete
+    assert policy.task == task.name
+    assert make_policy(task, seed=0, **TOY_ARCH).head_vector().equal(policy.head_vector())
+    with pytest.raises(ValueError, match="unknown architecture option"):
+        make_policy(task, seed=0, width=3)
