@@ -77,6 +77,52 @@ def expert(
         typer.echo(f"wrote {out}")
 
 
+OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
+
+
+@app.command()
+@user_errors
+def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT) -> None:
+    """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
+    from metadagger.metal.groundtruth import groundtruth_path, train_groundtruth
+    from metadagger.run import init_run
+
+    config = init_run(out, task, preset)
+    metrics = train_groundtruth(_task(config), config.groundtruth, out)
+    for name in ("own_seeds", "unseen_seeds"):
+        m = metrics[name]
+        typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} laps ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
+    typer.echo(f"wrote {groundtruth_path(out)}")
+
+
+EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
+WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
+ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: start a local Ray instance).")
+
+
+@app.command()
+@user_errors
+def pairs(out: Path = OUT, executor: str = EXECUTOR, workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
+    """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
+    import json
+
+    from metadagger.metal.groundtruth import groundtruth_path
+    from metadagger.metal.pairs import collect_pairs
+    from metadagger.run import load_run
+
+    config = load_run(out)
+    summary = collect_pairs(_task(config), groundtruth_path(out), config.pairs, out,
+                            executor=executor, workers=workers, address=address)
+    typer.echo(json.dumps(summary, indent=2))
+    typer.echo(f"wrote {out / 'pairs'}")
+
+
+def _task(config):
+    from metadagger.tasks import make_task
+
+    return make_task(config.task, **config.task_kwargs)
+
+
 @bench_app.command("env")
 @user_errors
 def bench_env_cmd(

@@ -77,7 +77,7 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
     """Run the demo and write its artifacts under ``<out>/demo/``."""
     out = Path(out)
     folder = out / "demo"
-    write_text(out / "config.yaml", dump_yaml({"demo": config}))
+    write_text(folder / "config.yaml", dump_yaml(config))
     task = make_task(config.task, max_episode_steps=config.max_episode_steps)
 
     demos = collect(task, config.train_seeds, policy=None, progress=progress)

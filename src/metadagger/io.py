@@ -56,10 +56,16 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+# safetensors keeps header metadata in a hash map whose order varies between processes; one key
+# holding sorted JSON makes identical inputs give byte-identical files.
+_METADATA_KEY = "metadagger"
+
+
 def save_tensors(path: str | Path, tensors: dict[str, torch.Tensor], metadata: dict[str, str] | None = None) -> Path:
-    """Save tensors as safetensors atomically (contiguous CPU copies)."""
+    """Save tensors as safetensors atomically (contiguous CPU copies); same inputs, same bytes."""
     clean = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
-    return atomic_write(path, lambda p: save_file(clean, str(p), metadata=metadata))
+    header = {_METADATA_KEY: json.dumps(metadata or {}, sort_keys=True)}
+    return atomic_write(path, lambda p: save_file(clean, str(p), metadata=header))
 
 
 def load_tensors(path: str | Path, what: str = "checkpoint") -> dict[str, torch.Tensor]:
@@ -84,7 +90,8 @@ def read_metadata(path: str | Path, what: str = "checkpoint") -> dict[str, str]:
         raise CheckpointError(f"{what} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes it)")
     try:
         with safe_open(str(path), framework="pt") as f:
-            return dict(f.metadata() or {})
+            header = dict(f.metadata() or {})
+        return json.loads(header[_METADATA_KEY]) if _METADATA_KEY in header else header
     except Exception as exc:
         raise CheckpointError(
             f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes it"

@@ -267,9 +267,10 @@ def make_policy(task: Task, *, seed: int, **arch_overrides: Any) -> Policy:
     """A freshly initialised policy for ``task`` (Xavier weights, zero biases from ``seed``).
 
     The observation shape comes from the task's learner env, the outputs from
-    ``task.label_dim()`` and the loss type from ``task.is_discrete``; ``arch_overrides`` set
-    ``conv_channels``, ``kernel_sizes`` or ``hidden``.
+    ``task.label_dim()`` and the loss type from ``task.is_discrete``; the task's ``policy_arch``
+    and then ``arch_overrides`` set ``conv_channels``, ``kernel_sizes`` or ``hidden``.
     """
+    arch_overrides = {**task.policy_arch, **arch_overrides}
     allowed = {"conv_channels", "kernel_sizes", "hidden"}
     unknown = sorted(set(arch_overrides) - allowed)
     if unknown:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
 from metadagger.imitation.data import Dataset
-from metadagger.policies import Policy
+from metadagger.policies import Policy, load_policy
 
 
 @dataclass(frozen=True)
@@ -173,3 +174,27 @@ def fit_bc(
         losses.append(total / n)
         bar.set_postfix(loss=f"{losses[-1]:.4f}")
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
+
+
+def fit_or_resume(
+    policy: Policy,
+    data: Dataset,
+    config: BCConfig,
+    checkpoint: str | Path | None,
+    *,
+    cache: FeatureCache | None = None,
+    progress: bool = False,
+) -> float | None:
+    """:func:`fit_bc`, then save the policy at ``checkpoint``; if that checkpoint already exists
+    (a killed run being resumed) load its weights instead of fitting.
+
+    Returns:
+        The last epoch's loss, or None when the weights were loaded.
+    """
+    if checkpoint is not None and Path(checkpoint).is_file():
+        policy.net.load_state_dict(load_policy(checkpoint).net.state_dict())
+        return None
+    loss = fit_bc(policy, data, config, progress=progress, cache=cache)["loss"][-1]
+    if checkpoint is not None:
+        policy.save(checkpoint)
+    return loss

@@ -9,10 +9,10 @@ from typing import Any, Callable, Iterable
 import numpy as np
 from tqdm.auto import tqdm
 
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import EarlyStop, collect
-from metadagger.policies import Policy, load_policy
+from metadagger.policies import Policy
 from metadagger.tasks.base import Task
 
 
@@ -103,18 +103,11 @@ def run_dagger(
         trajectories = collect(task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory)
         dataset = dataset.concat(*(t.to_dataset() for t in trajectories))
         queries += sum(t.expert_queries for t in trajectories)
-        checkpoint = Path(checkpoints) / f"round_{round_idx}.safetensors" if checkpoints is not None else None
-        if checkpoint is not None and checkpoint.is_file():
-            policy.net.load_state_dict(load_policy(checkpoint).net.state_dict())
-            final_loss = None
-        else:
-            if config.reset_each_round:
-                # a frozen trunk (e.g. pi*'s layers 1..n-1) is never re-initialised
-                trunk_frozen = not any(p.requires_grad for p in policy.net.trunk.parameters())
-                policy.net.init_weights(config.bc.seed, head_only=config.bc.head_only or trunk_frozen)
-            final_loss = fit_bc(policy, dataset, config.bc, cache=cache)["loss"][-1]
-            if checkpoint is not None:
-                policy.save(checkpoint)
+        if config.reset_each_round and not _has_checkpoint(checkpoints, round_idx):
+            # a frozen trunk (e.g. pi*'s layers 1..n-1) is never re-initialised
+            trunk_frozen = not any(p.requires_grad for p in policy.net.trunk.parameters())
+            policy.net.init_weights(config.bc.seed, head_only=config.bc.head_only or trunk_frozen)
+        final_loss = fit_or_resume(policy, dataset, config.bc, _checkpoint(checkpoints, round_idx), cache=cache)
         metrics = {
             "dagger/round": round_idx,
             "dagger/success_rate": float(np.mean([t.success for t in trajectories])),
@@ -128,3 +121,12 @@ def run_dagger(
         if on_round is not None:
             on_round(round_idx, policy, metrics)
     return DAggerResult(rounds=history, dataset=dataset)
+
+
+def _checkpoint(folder: str | Path | None, round_idx: int) -> Path | None:
+    return None if folder is None else Path(folder) / f"round_{round_idx}.safetensors"
+
+
+def _has_checkpoint(folder: str | Path | None, round_idx: int) -> bool:
+    path = _checkpoint(folder, round_idx)
+    return path is not None and path.is_file()

@@ -27,6 +27,8 @@ class Task(abc.ABC):
     learner_env_id: str
     #: Step limit of one episode.
     max_episode_steps: int
+    #: Policy architecture overrides for this task (``conv_channels``, ``kernel_sizes``, ``hidden``).
+    policy_arch: dict = {}
 
     @property
     @abc.abstractmethod

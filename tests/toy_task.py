@@ -96,6 +96,7 @@ class CorridorTask(Task):
     """The corridor as a task: success = still on the road after ``horizon`` steps."""
 
     max_episode_steps = 30
+    policy_arch = {"conv_channels": (8, 16), "kernel_sizes": (3, 3), "hidden": (32,)}
 
     def __init__(self, *, discrete: bool = True):
         self.discrete = discrete
@@ -128,5 +129,5 @@ class CorridorTask(Task):
         return not env.unwrapped.crashed()
 
 
-#: A small network for 16x16 images (fast on one core).
-TOY_ARCH = {"conv_channels": (8, 16), "kernel_sizes": (3, 3), "hidden": (32,)}
+#: A small network for 16x16 images (fast on one core); also the task's default.
+TOY_ARCH = CorridorTask.policy_arch

@@ -1,0 +1,171 @@
+"""Per-seed (w_BC, w_DA) pairs (paper 3.4.2).
+
+For each seed: freeze layers 1..n-1 to pi*, re-initialise the head (Xavier, zero bias), fit it by
+BC on that seed's expert demonstration -> w_BC; run DAgger rounds on that seed from there -> w_DA;
+roll both out. The seeds run in parallel through :mod:`metadagger.parallel`; the driver alone
+writes each pair to the :class:`~metadagger.metal.store.PairStore` as soon as it arrives, so a
+killed run resumes with the seeds that are not stored yet.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from metadagger.errors import UserError
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.dagger import DAggerConfig, run_dagger
+from metadagger.imitation.rollouts import rollout
+from metadagger.io import write_json
+from metadagger.metal.store import PairStore
+from metadagger.parallel import make_executor
+from metadagger.policies import Policy, load_policy
+from metadagger.tasks.base import Task
+
+KEEP_RULES = ("bc_fail_da_success", "da_success", "all")
+
+
+@dataclass(frozen=True)
+class PairConfig:
+    """How each seed's pair is made and which pairs are kept."""
+
+    seeds: tuple[int, ...] = tuple(range(1000, 1100))
+    """Seeds to collect pairs on (disjoint from pi*'s and the evaluation seeds)."""
+    dagger_rounds: int = 3
+    """DAgger rounds on the seed after the BC fit (the paper uses 3)."""
+    bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
+    """The head-only BC fit on the seed's demonstration (its ``seed`` is replaced by the env seed)."""
+    dagger_bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
+    """The head-only refit of every DAgger round."""
+    keep: str = "bc_fail_da_success"
+    """Which pairs train the mappers: ``bc_fail_da_success`` (the paper's filter), ``da_success`` or ``all``."""
+    val_fraction: float = 0.2
+    """Share of the kept pairs held out for validation (75 of 375 in the paper)."""
+
+    def __post_init__(self) -> None:
+        if not self.seeds:
+            raise UserError("pairs.seeds must not be empty")
+        if self.dagger_rounds < 1:
+            raise UserError(f"pairs.dagger_rounds must be >= 1, got {self.dagger_rounds}")
+        if not (self.bc.head_only and self.dagger_bc.head_only):
+            raise UserError("pairs.bc.head_only and pairs.dagger_bc.head_only must be true: only layer n is mapped")
+        if self.keep not in KEEP_RULES:
+            raise UserError(f"pairs.keep must be one of {', '.join(KEEP_RULES)}, got {self.keep!r}")
+        if not 0.0 < self.val_fraction < 1.0:
+            raise UserError(f"pairs.val_fraction must be in (0, 1), got {self.val_fraction}")
+
+
+@dataclass(frozen=True)
+class PairJob:
+    """Everything a worker needs for one seed (picklable; workers share nothing else)."""
+
+    task: Task
+    groundtruth: str
+    seed: int
+    config: PairConfig
+
+
+def is_kept(rule: str, bc_success: bool, da_success: bool) -> bool:
+    """Whether a pair with these outcomes is kept under ``rule``."""
+    if rule == "bc_fail_da_success":
+        return (not bc_success) and da_success
+    if rule == "da_success":
+        return da_success
+    return True
+
+
+@functools.lru_cache(maxsize=2)
+def _cached_policy(path: str) -> Policy:
+    return load_policy(path)
+
+
+def head_from_groundtruth(groundtruth: Policy, seed: int) -> Policy:
+    """A copy of pi* with its trunk frozen and its head re-initialised from ``seed``."""
+    policy = groundtruth.copy()
+    policy.freeze_trunk()
+    policy.reset_head(seed)
+    return policy
+
+
+def collect_pair(job: PairJob) -> dict[str, Any]:
+    """Make one seed's pair; returns ``seed``, ``w_bc``, ``w_da`` (float32 arrays) and ``record``."""
+    task, config = job.task, job.config
+    policy = head_from_groundtruth(_cached_policy(job.groundtruth), job.seed)
+    env = task.make_env()
+    try:
+        demo = rollout(env, seed=job.seed, policy=None)
+        data = demo.to_dataset()
+        cache = FeatureCache(policy)
+        fit_bc(policy, data, dataclasses.replace(config.bc, seed=job.seed), cache=cache)
+        w_bc = policy.head_vector().numpy().copy()
+        dagger = run_dagger(
+            policy, task, [job.seed], initial=data, cache=cache,
+            config=DAggerConfig(rounds=config.dagger_rounds, bc=dataclasses.replace(config.dagger_bc, seed=job.seed)),
+        )
+        # round 1 rolled out the BC policy: its outcome is BC's (rollouts are deterministic)
+        first = dagger.rounds[0]
+        da_traj = rollout(env, seed=job.seed, policy=policy)
+    finally:
+        env.close()
+    bc = {"success": first["dagger/success_rate"] == 1.0, "reward": first["dagger/mean_reward"],
+          "steps": int(first["dagger/mean_steps"]), "expert_queries": len(data)}
+    da = {"success": bool(da_traj.success), "reward": float(da_traj.reward), "steps": int(da_traj.steps),
+          "expert_queries": int(dagger.rounds[-1]["dagger/expert_queries"])}
+    record = {"bc": bc, "da": da, "kept": is_kept(config.keep, bc["success"], da["success"]),
+              "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
+    return {"seed": job.seed, "w_bc": w_bc, "w_da": policy.head_vector().numpy().copy(), "record": record}
+
+
+def collect_pairs(
+    task: Task,
+    groundtruth: str | Path,
+    config: PairConfig,
+    run: str | Path,
+    *,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Collect the pairs of every seed not stored yet, then write and return the outcome summary."""
+    if not Path(groundtruth).is_file():
+        raise UserError(f"pi* not found at {groundtruth}; run `metadagger groundtruth --out {run}` first")
+    store = PairStore(Path(run) / "pairs")
+    done = store.done_seeds()
+    todo = [s for s in config.seeds if s not in done]
+    jobs = [PairJob(task=task, groundtruth=str(groundtruth), seed=s, config=config) for s in todo]
+    if jobs:
+        with make_executor(executor, workers=workers, address=address) as pool:
+            bar = tqdm(total=len(config.seeds), initial=len(config.seeds) - len(jobs), desc="pairs", disable=not progress)
+            for result in pool.imap_unordered(collect_pair, jobs):
+                store.write(result["seed"], torch.from_numpy(result["w_bc"]), torch.from_numpy(result["w_da"]), result["record"])
+                bar.update(1)
+            bar.close()
+    summary = summarize_pairs([r for r in store.records() if r["seed"] in set(config.seeds)])
+    write_json(Path(run) / "pairs" / "summary.json", summary)
+    return summary
+
+
+def summarize_pairs(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Counts and shares of the four outcomes (BC ok/fail x DAgger ok/fail) and of kept pairs."""
+    n = len(records)
+    outcomes = Counter(r["outcome"] for r in records)
+    names = ("bc_ok/da_ok", "bc_ok/da_fail", "bc_fail/da_ok", "bc_fail/da_fail")
+    return {
+        "seeds": n,
+        "kept": sum(bool(r["kept"]) for r in records),
+        "outcomes": {k: outcomes.get(k, 0) for k in names},
+        "shares": {k: (outcomes.get(k, 0) / n if n else 0.0) for k in names},
+        "mean_reward": {
+            "bc": float(np.mean([r["bc"]["reward"] for r in records])) if n else 0.0,
+            "da": float(np.mean([r["da"]["reward"] for r in records])) if n else 0.0,
+        },
+    }

@@ -1,0 +1,81 @@
+"""A run folder's configuration: written first (``<run>/config.yaml``), read by every later stage.
+
+``metadagger groundtruth --task T --preset P --out RUN`` creates it from a preset; ``metadagger
+pairs --out RUN`` and the later stages read it back, so a run is described by its folder alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from metadagger.config import build, dump_yaml, load_preset
+from metadagger.errors import UserError
+from metadagger.io import write_text
+from metadagger.metal.groundtruth import GroundTruthConfig
+from metadagger.metal.pairs import PairConfig
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Every stage of one MetaL DAgger run."""
+
+    task: str = "carracing"
+    """Task name (``metadagger.make_task``)."""
+    preset: str = "quick"
+    """The preset this config came from (informational)."""
+    max_episode_steps: int = 1000
+    """Step limit of every episode of every stage."""
+    groundtruth: GroundTruthConfig = field(default_factory=GroundTruthConfig)
+    """pi*: multi-seed BC + DAgger."""
+    pairs: PairConfig = field(default_factory=PairConfig)
+    """Per-seed (w_BC, w_DA) pairs."""
+
+    def __post_init__(self) -> None:
+        if self.max_episode_steps < 1:
+            raise UserError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
+        gt = set(self.groundtruth.seeds) | set(self.groundtruth.eval_seeds)
+        shared = sorted(gt & set(self.pairs.seeds))
+        if shared:
+            raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
+
+    @property
+    def task_kwargs(self) -> dict:
+        """Keyword arguments of ``make_task`` for this run."""
+        return {"max_episode_steps": self.max_episode_steps}
+
+
+def config_path(run: str | Path) -> Path:
+    """Where a run's config lives."""
+    return Path(run) / "config.yaml"
+
+
+def init_run(run: str | Path, task: str, preset: str) -> RunConfig:
+    """Create ``<run>/config.yaml`` from a preset, or read the existing one (which must match)."""
+    path = config_path(run)
+    if path.is_file():
+        config = load_run(run)
+        if (config.task, config.preset) != (task, preset):
+            raise UserError(
+                f"run folder {run} holds task {config.task!r} preset {config.preset!r}, not {task!r} {preset!r}; "
+                "use another --out or the same task and preset"
+            )
+        return config
+    sections = {k: v for k, v in load_preset(task, preset).items() if k in ("max_episode_steps", "groundtruth", "pairs")}
+    config = build(RunConfig, {"task": task, "preset": preset, **sections}, where=f"{task}.{preset}")
+    write_text(path, dump_yaml(config))
+    return config
+
+
+def load_run(run: str | Path) -> RunConfig:
+    """Read a run's config; a missing or broken file is a :class:`UserError`."""
+    path = config_path(run)
+    if not path.is_file():
+        raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise UserError(f"{path} is not valid YAML ({exc}); fix or delete it") from None
+    return build(RunConfig, data, where=str(path))

@@ -1,0 +1,121 @@
+"""pi* and per-seed pairs on the toy corridor task: artifacts, resume, determinism, executors."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from toy_task import CorridorTask
+
+from metadagger.imitation.bc import BCConfig
+from metadagger.metal.groundtruth import GroundTruthConfig, groundtruth_path, train_groundtruth
+from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
+from metadagger.metal.store import PairStore
+from metadagger.policies import load_policy
+
+TESTS = Path(__file__).resolve().parents[1]
+GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100, 101), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+PAIRS = PairConfig(
+    seeds=tuple(range(200, 206)), dagger_rounds=1, keep="all",
+    bc=BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True),
+    dagger_bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
+)
+
+
+@pytest.fixture(scope="module")
+def gt_run(tmp_path_factory) -> Path:
+    run = tmp_path_factory.mktemp("run")
+    train_groundtruth(CorridorTask(), GT, run, progress=False)
+    return run
+
+
+def test_groundtruth_writes_policy_metrics_and_round_checkpoints(gt_run):
+    assert groundtruth_path(gt_run).is_file()
+    assert (gt_run / "groundtruth" / "metrics.json").is_file()
+    assert sorted(p.name for p in (gt_run / "groundtruth" / "rounds").iterdir()) == ["round_0.safetensors", "round_1.safetensors"]
+    assert load_policy(groundtruth_path(gt_run)).head_size == 32 * 3 + 3
+
+
+def test_groundtruth_resumes_from_round_checkpoints(gt_run, tmp_path):
+    # a run killed after its last fit: the checkpoints are there, the final policy is not
+    (tmp_path / "groundtruth").mkdir()
+    for src in (gt_run / "groundtruth" / "rounds").iterdir():
+        (tmp_path / "groundtruth" / "rounds").mkdir(exist_ok=True)
+        (tmp_path / "groundtruth" / "rounds" / src.name).write_bytes(src.read_bytes())
+    metrics = train_groundtruth(CorridorTask(), GT, tmp_path, progress=False)
+    assert all(r["dagger/final_loss"] is None for r in metrics["rounds"])  # nothing refitted
+    assert groundtruth_path(tmp_path).read_bytes() == groundtruth_path(gt_run).read_bytes()
+
+
+def test_keep_rules():
+    assert is_kept("bc_fail_da_success", False, True)
+    assert not is_kept("bc_fail_da_success", True, True)
+    assert is_kept("da_success", True, True) and not is_kept("da_success", True, False)
+    assert is_kept("all", False, False)
+
+
+def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for run in (a, b):
+        summary = collect_pairs(CorridorTask(), groundtruth_path(gt_run), PAIRS, run, workers=2, progress=False)
+    assert summary["seeds"] == len(PAIRS.seeds) and summary["kept"] == len(PAIRS.seeds)
+    assert sum(summary["outcomes"].values()) == len(PAIRS.seeds)
+    for seed in PAIRS.seeds:
+        assert (a / "pairs" / f"{seed}.safetensors").read_bytes() == (b / "pairs" / f"{seed}.safetensors").read_bytes()
+    records = PairStore(a / "pairs").records()
+    assert {r["seed"] for r in records} == set(PAIRS.seeds)
+    assert all(r["bc"]["expert_queries"] > 0 and r["da"]["expert_queries"] > r["bc"]["expert_queries"] for r in records)
+
+
+def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
+    first = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:2]})
+    collect_pairs(CorridorTask(), groundtruth_path(gt_run), first, tmp_path, workers=1, progress=False)
+    stamps = {s: (tmp_path / "pairs" / f"{s}.safetensors").stat().st_mtime_ns for s in first.seeds}
+    collect_pairs(CorridorTask(), groundtruth_path(gt_run), PAIRS, tmp_path, workers=1, progress=False)
+    assert {s: (tmp_path / "pairs" / f"{s}.safetensors").stat().st_mtime_ns for s in first.seeds} == stamps
+    assert PairStore(tmp_path / "pairs").done_seeds() == set(PAIRS.seeds)
+
+
+_KILLABLE = """
+import sys
+from slow_task import SlowCorridorTask
+from metadagger.metal.pairs import collect_pairs
+from test_groundtruth_pairs import PAIRS
+collect_pairs(SlowCorridorTask(), sys.argv[1], PAIRS, sys.argv[2], workers=1, progress=False)
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+def test_killed_pairs_run_resumes_without_redoing_or_losing_seeds(gt_run, tmp_path, sig):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), str(TESTS / "metal")])}
+    cmd = [sys.executable, "-c", _KILLABLE, str(groundtruth_path(gt_run)), str(tmp_path)]
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True)
+    store = PairStore(tmp_path / "pairs")
+    deadline = time.monotonic() + 60
+    while len(store.done_seeds()) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.killpg(proc.pid, sig)
+    proc.wait(timeout=30)
+    finished = store.done_seeds()
+    assert 2 <= len(finished) < len(PAIRS.seeds)
+    stamps = {s: store.pair_path(s).stat().st_mtime_ns for s in finished}
+    subprocess.run(cmd, env=env, check=True, timeout=120)
+    assert store.done_seeds() == set(PAIRS.seeds)
+    assert {s: store.pair_path(s).stat().st_mtime_ns for s in finished} == stamps
+    assert len(store.records()) == len(PAIRS.seeds)
+
+
+def test_ray_executor_pairs_equal_local(gt_run, tmp_path, monkeypatch):
+    pytest.importorskip("ray")
+    # the local Ray instance's workers inherit this, so they can import the toy task
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), str(TESTS / "metal")]))
+    seeds = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:3]})
+    collect_pairs(CorridorTask(), groundtruth_path(gt_run), seeds, tmp_path / "local", workers=2, progress=False)
+    collect_pairs(CorridorTask(), groundtruth_path(gt_run), seeds, tmp_path / "ray", executor="ray", workers=2, progress=False)
+    for seed in seeds.seeds:
+        assert (tmp_path / "local" / "pairs" / f"{seed}.safetensors").read_bytes() == (tmp_path / "ray" / "pairs" / f"{seed}.safetensors").read_bytes()
