@@ -1,0 +1,261 @@
+"""The per-seed pair store ``runs/<name>/pairs/``, safe to kill and resume.
+
+Layout:
+    ``<seed>.safetensors``  tensors ``w_bc`` and ``w_da``: the head after BC and after DAgger
+                            (flat float32 vectors of one length), written atomically;
+    ``pairs.jsonl``         one JSON line per seed: ``seed``, ``bc`` and ``da`` outcomes
+                            (success, reward, steps, expert_queries), ``kept`` and free-form fields.
+
+A seed's tensors are written before its JSON line, and the line is flushed and fsynced, so a line
+never points at a missing file. A seed counts as done only when its line is complete and its file
+loads; a SIGKILL can leave a torn last line (ignored, and cut off by the next append) or a
+``.tmp`` file (ignored, and removed when that seed is written again).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from metadagger.errors import CheckpointError, UserError
+from metadagger.io import load_tensors, save_tensors
+from metadagger.jsonl import append_line, read_lines
+
+__all__ = ["OUTCOME_KEYS", "PairSplit", "PairStore"]
+
+OUTCOME_KEYS = ("success", "reward", "steps", "expert_queries")
+"""Keys every ``bc`` and ``da`` outcome in a record must have."""
+
+_JSONL = "pairs.jsonl"
+
+
+@dataclass(frozen=True, eq=False)  # eq=False: == on tensors is elementwise, not a bool
+class PairSplit:
+    """Train and validation pairs, rows in the order of the seeds.
+
+    Attributes:
+        w_bc_train: ``[n_train, d]`` float32, heads after BC (the mapper's input).
+        w_da_train: ``[n_train, d]`` float32, heads after DAgger (the mapper's target).
+        w_bc_val: ``[n_val, d]`` float32.
+        w_da_val: ``[n_val, d]`` float32.
+        train_seeds: the seeds of the training rows, ascending.
+        val_seeds: the seeds of the validation rows, ascending.
+    """
+
+    w_bc_train: torch.Tensor
+    w_da_train: torch.Tensor
+    w_bc_val: torch.Tensor
+    w_da_val: torch.Tensor
+    train_seeds: tuple[int, ...]
+    val_seeds: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        dim = self.w_bc_train.shape[-1]
+        for name, seeds in (("train", self.train_seeds), ("val", self.val_seeds)):
+            for kind in ("w_bc", "w_da"):
+                field = f"{kind}_{name}"
+                shape = tuple(getattr(self, field).shape)
+                if shape != (len(seeds), dim):
+                    raise ValueError(f"PairSplit.{field} has shape {shape}, expected {(len(seeds), dim)} ({len(seeds)} {name}_seeds)")
+        if set(self.train_seeds) & set(self.val_seeds):
+            raise ValueError(f"PairSplit train_seeds and val_seeds overlap: {sorted(set(self.train_seeds) & set(self.val_seeds))}")
+
+
+class PairStore:
+    """Reads and writes the pairs of one run; only the driver process writes.
+
+    Args:
+        root: the ``pairs/`` folder; created by the first :meth:`write`.
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        self.jsonl_path = self.root / _JSONL
+
+    def pair_path(self, seed: int) -> Path:
+        """Return the path of ``seed``'s tensor file."""
+        return self.root / f"{_check_seed(seed)}.safetensors"
+
+    def done_seeds(self) -> set[int]:
+        """Return the seeds with a complete JSON line and a loadable tensor file (empty if no store)."""
+        if not self.root.is_dir():
+            return set()
+        done = set()
+        for seed in self._latest_records():
+            try:
+                self._read_pair(seed)
+            except CheckpointError:
+                continue  # e.g. the file was deleted or damaged: that seed is simply redone
+            done.add(seed)
+        return done
+
+    def write(self, seed: int, w_bc: torch.Tensor, w_da: torch.Tensor, record: Mapping[str, Any]) -> None:
+        """Store one seed's pair and record; a later write for the same seed supersedes it.
+
+        Args:
+            seed: the task instance, a non-negative int.
+            w_bc: the head after BC, a 1-D float32 tensor.
+            w_da: the head after DAgger, a 1-D float32 tensor of the same length.
+            record: ``bc`` and ``da`` outcomes (each with :data:`OUTCOME_KEYS`), ``kept`` (bool) and
+                any JSON-serialisable extra fields; ``seed`` is added (or must match).
+
+        Raises:
+            ValueError: bad seed, tensors or record (nothing is written then).
+        """
+        seed = _check_seed(seed)
+        _check_vectors(w_bc, w_da)
+        line = _record_line(seed, record)
+        self.root.mkdir(parents=True, exist_ok=True)
+        for stale in self.root.glob(f".{seed}.safetensors.*.tmp"):
+            stale.unlink()  # left by a kill inside an atomic write; only this process writes here
+        save_tensors(self.pair_path(seed), {"w_bc": w_bc, "w_da": w_da}, metadata={"seed": str(seed)})
+        append_line(self.jsonl_path, line)
+
+    def records(self) -> list[dict[str, Any]]:
+        """Return the last record of every seed, sorted by seed.
+
+        Raises:
+            UserError: the store folder does not exist.
+            CheckpointError: a complete line of ``pairs.jsonl`` is not a JSON record.
+        """
+        self._require_root()
+        latest = self._latest_records()
+        return [latest[seed] for seed in sorted(latest)]
+
+    def load(self, seeds: Iterable[int]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return ``(W_bc, W_da)``, each ``[len(seeds), d]`` float32, rows in the order given.
+
+        Raises:
+            UserError: no store folder, or no seeds given.
+            CheckpointError: a seed has no record, or its file is missing, corrupt or of another shape.
+        """
+        self._require_root()
+        seeds = [_check_seed(s) for s in seeds]
+        if not seeds:
+            raise UserError(f"no seeds given to load from {self.root}; pass at least one seed that records() lists")
+        recorded = self._latest_records()
+        pairs = []
+        for seed in seeds:
+            if seed not in recorded:
+                raise CheckpointError(
+                    f"seed {seed} has no record in {self.jsonl_path}; collect it first (metadagger pairs resumes missing seeds)"
+                )
+            pairs.append(self._read_pair(seed))
+        dim = pairs[0][0].shape[0]
+        for seed, (w_bc, _) in zip(seeds, pairs):
+            if w_bc.shape[0] != dim:
+                raise CheckpointError(
+                    f"pair file {self.pair_path(seed)} holds vectors of length {w_bc.shape[0]}, but seed {seeds[0]} has "
+                    f"length {dim}; pairs from different policies are mixed: delete the odd files and re-run metadagger pairs"
+                )
+        return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
+
+    def load_split(self, *, val_fraction: float, seed: int, kept_only: bool = True) -> PairSplit:
+        """Split the stored pairs into train and validation sets by a seeded permutation.
+
+        Args:
+            val_fraction: share of the pairs for validation, in ``[0, 1)``; when positive, at
+                least one pair (rounded to the nearest count otherwise).
+            seed: seeds the permutation; the same store and seed give the same split.
+            kept_only: use only records with ``kept`` true (BC failed and DAgger succeeded).
+
+        Raises:
+            UserError: bad ``val_fraction``, or too few pairs for a training set.
+        """
+        if not isinstance(val_fraction, (int, float)) or not 0.0 <= val_fraction < 1.0:
+            raise UserError(f"val_fraction must be in [0, 1), got {val_fraction!r}; e.g. 0.2 holds out a fifth of the pairs")
+        seeds = [r["seed"] for r in self.records() if r.get("kept") is True or not kept_only]
+        n_val = max(1, math.floor(val_fraction * len(seeds) + 0.5)) if val_fraction > 0 else 0
+        if len(seeds) - n_val < 1:
+            which = "kept pairs" if kept_only else "pairs"
+            raise UserError(
+                f"{self.root} has {len(seeds)} {which}, too few for a training set with val_fraction={val_fraction}; "
+                "collect more seeds (metadagger pairs) or lower val_fraction"
+            )
+        order = np.random.default_rng(seed).permutation(len(seeds))
+        val_seeds = tuple(sorted(seeds[i] for i in order[:n_val]))
+        train_seeds = tuple(sorted(seeds[i] for i in order[n_val:]))
+        w_bc, w_da = self.load(train_seeds + val_seeds)
+        n_train = len(train_seeds)
+        return PairSplit(
+            w_bc_train=w_bc[:n_train],
+            w_da_train=w_da[:n_train],
+            w_bc_val=w_bc[n_train:],
+            w_da_val=w_da[n_train:],
+            train_seeds=train_seeds,
+            val_seeds=val_seeds,
+        )
+
+    def _require_root(self) -> None:
+        if not self.root.is_dir():
+            raise UserError(f"pair store not found: {self.root} (expected the pairs/ folder of a run); check --out or run metadagger pairs first")
+
+    def _latest_records(self) -> dict[int, dict[str, Any]]:
+        latest: dict[int, dict[str, Any]] = {}
+        for record in read_lines(self.jsonl_path, what="pair record"):
+            try:
+                latest[_check_seed(record.get("seed"))] = record
+            except ValueError:
+                raise CheckpointError(
+                    f"{self.jsonl_path} has a pair record without a valid seed: {str(record)[:80]}; delete that line and re-run metadagger pairs"
+                ) from None
+        return latest
+
+    def _read_pair(self, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+        path = self.pair_path(seed)
+        tensors = load_tensors(path, what=f"pair file of seed {seed}")
+        try:
+            _check_vectors(tensors.get("w_bc"), tensors.get("w_da"))
+        except ValueError as exc:
+            raise CheckpointError(f"pair file {path} is not a valid pair ({exc}); delete it and re-run metadagger pairs") from None
+        return tensors["w_bc"], tensors["w_da"]
+
+
+def _check_seed(seed: Any) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative int, got {seed!r}")
+    return int(seed)
+
+
+def _check_vectors(w_bc: Any, w_da: Any) -> None:
+    for name, w in (("w_bc", w_bc), ("w_da", w_da)):
+        if not isinstance(w, torch.Tensor):
+            raise ValueError(f"{name} must be a torch.Tensor, got {type(w).__name__}")
+        if w.dtype != torch.float32 or w.ndim != 1 or w.numel() == 0:
+            raise ValueError(f"{name} must be a non-empty 1-D float32 tensor, got {w.dtype} of shape {tuple(w.shape)}")
+    if w_bc.shape != w_da.shape:
+        raise ValueError(f"w_bc and w_da must have the same length, got {w_bc.shape[0]} and {w_da.shape[0]}")
+
+
+def _record_line(seed: int, record: Mapping[str, Any]) -> bytes:
+    if not isinstance(record, Mapping):
+        raise ValueError(f"record must be a mapping, got {type(record).__name__}")
+    if "seed" in record and record["seed"] != seed:
+        raise ValueError(f"record seed {record['seed']!r} does not match the seed written, {seed}")
+    if not isinstance(record.get("kept"), (bool, np.bool_)):
+        raise ValueError(f"record 'kept' must be a bool, got {record.get('kept')!r}")
+    for phase in ("bc", "da"):
+        outcome = record.get(phase)
+        missing = [k for k in OUTCOME_KEYS if not isinstance(outcome, Mapping) or k not in outcome]
+        if missing:
+            raise ValueError(f"record {phase!r} must be a mapping with keys {OUTCOME_KEYS}, missing {missing}")
+    try:
+        # Sorted keys and no timestamps: identical inputs give byte-identical files.
+        text = json.dumps({**record, "seed": seed}, sort_keys=True, separators=(",", ":"), default=_json_scalar)
+    except TypeError as exc:
+        raise ValueError(f"record for seed {seed} is not JSON-serialisable: {exc}") from None
+    return (text + "\n").encode()
+
+
+def _json_scalar(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+

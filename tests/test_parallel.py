@@ -1,0 +1,177 @@
+"""The executor: local process pool and Ray give the same results; errors name the item."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from metadagger.errors import UserError
+from metadagger.parallel import Executor, LocalExecutor, WorkerError, make_executor
+
+ITEMS = list(range(12))
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def _fail_on_seven(x: int) -> int:
+    if x == 7:
+        raise ValueError(f"cannot handle {x}")
+    return x
+
+
+def _slow_on_zero(x: int) -> int:
+    time.sleep(1.0 if x == 0 else 0.0)
+    return x
+
+
+def _torch_threads(_: int) -> int:
+    import torch
+
+    return torch.get_num_threads()
+
+
+@pytest.fixture(scope="module")
+def local() -> Iterator[LocalExecutor]:
+    # One pool for the module: the first pool of a process starts in seconds (workers import torch).
+    with make_executor("local", workers=2) as ex:
+        yield ex
+
+
+def test_local_maps_every_item(local: LocalExecutor) -> None:
+    assert sorted(local.imap_unordered(_square, ITEMS)) == [x * x for x in ITEMS]
+
+
+def test_local_consumes_a_lazy_iterable_longer_than_the_window(local: LocalExecutor) -> None:
+    n = 3 * local.workers * 2 + 1
+    assert sorted(local.imap_unordered(_square, (x for x in range(n)))) == [x * x for x in range(n)]
+
+
+def test_local_yields_results_as_they_finish(local: LocalExecutor) -> None:
+    assert list(local.imap_unordered(_slow_on_zero, [0, 1])) == [1, 0]
+
+
+def test_local_workers_use_one_torch_thread(local: LocalExecutor) -> None:
+    assert set(local.imap_unordered(_torch_threads, range(4))) == {1}
+
+
+def test_worker_exception_names_the_item_and_closes() -> None:
+    with make_executor("local", workers=2) as ex:
+        with pytest.raises(WorkerError, match=r"item 7: ValueError: cannot handle 7") as info:
+            list(ex.imap_unordered(_fail_on_seven, ITEMS))
+        assert info.value.item == 7
+        assert isinstance(info.value.__cause__, ValueError)
+        with pytest.raises(UserError, match="closed"):
+            ex.imap_unordered(_square, ITEMS)
+
+
+def test_unpicklable_function_is_a_user_error(local: LocalExecutor) -> None:
+    with pytest.raises(UserError, match="top level of a module"):
+        local.imap_unordered(lambda x: x, ITEMS)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"kind": "dask"}, "unknown executor 'dask'; expected 'local' or 'ray'"),
+        ({"kind": "local", "workers": 0}, "workers must be a positive integer, got 0"),
+        ({"kind": "local", "address": "auto"}, "only applies to executor 'ray'"),
+    ],
+)
+def test_bad_arguments_are_user_errors(kwargs: dict, match: str) -> None:
+    with pytest.raises(UserError, match=match):
+        make_executor(**kwargs)
+
+
+def test_ray_not_installed_says_how_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # makes `import ray` raise ImportError
+    with pytest.raises(UserError, match=r"pip install 'metadagger\[ray\]'"):
+        make_executor("ray")
+
+
+_DRIVER = textwrap.dedent(
+    """
+    import os, sys, time
+    from metadagger.parallel import make_executor
+
+    def work(item):
+        # The worker's pid, for the test to check it is gone; one write() so lines never interleave.
+        os.write(1, f"{os.getpid()}\\n".encode())
+        time.sleep(60)
+
+    if __name__ == "__main__":
+        with make_executor("local", workers=2) as ex:
+            for _ in ex.imap_unordered(work, range(4)):
+                pass
+    """
+)
+
+
+def _read_line(proc: subprocess.Popen) -> str:
+    line = proc.stdout.readline()
+    assert line, f"driver exited early: {proc.stderr.read()}"
+    return line
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` is a live process (a zombie awaiting its reaper counts as gone)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc (Linux)")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["ctrl-c", "sigkill"])
+def test_stopping_the_driver_stops_its_workers_promptly(tmp_path: Path, sig: signal.Signals) -> None:
+    script = tmp_path / "driver.py"
+    script.write_text(_DRIVER)
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        worker_pids = [int(_read_line(proc)) for _ in range(2)]  # both workers are busy
+        start = time.monotonic()
+        proc.send_signal(sig)
+        _, stderr = proc.communicate(timeout=15)
+        while any(map(_running, worker_pids)) and time.monotonic() - start < 10:
+            time.sleep(0.05)
+        elapsed = time.monotonic() - start
+    finally:
+        proc.kill()
+    assert proc.returncode != 0
+    if sig == signal.SIGINT:
+        assert "KeyboardInterrupt" in stderr
+    assert not any(map(_running, worker_pids)), f"workers still running {elapsed:.1f} s after the driver got {sig.name}"
+
+
+@pytest.fixture(scope="module")
+def ray_executor() -> Iterator[Executor]:
+    ray = pytest.importorskip("ray", reason="Ray is optional: pip install 'metadagger[ray]'")
+    # Ray workers import a function's module by name, and this test module is not installed:
+    # ship its functions by value instead.
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    # One local instance for the module (start-up takes seconds); the executor owns it.
+    with make_executor("ray", workers=2) as ex:
+        yield ex
+    ray.cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    assert not ray.is_initialized(), "the executor should shut down the Ray instance it started"
+
+
+def test_ray_gives_the_same_results_as_local(ray_executor: Executor, local: LocalExecutor) -> None:
+    assert sorted(ray_executor.imap_unordered(_square, ITEMS)) == sorted(local.imap_unordered(_square, ITEMS))
+    assert set(ray_executor.imap_unordered(_torch_threads, range(4))) == {1}
+
+
+# Last Ray test: a failure closes the executor (and the Ray instance it started).
+def test_ray_worker_exception_names_the_item(ray_executor: Executor) -> None:
+    with pytest.raises(WorkerError, match=r"item 7: ValueError: cannot handle 7") as info:
+        list(ray_executor.imap_unordered(_fail_on_seven, ITEMS))
+    assert isinstance(info.value.__cause__, ValueError)
