@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 import metadagger
-from metadagger.evaluation.expert import evaluate_expert, expert_table, run_expert_episode
+from metadagger.evaluation.expert import evaluate_expert, expert_table
 
 
 def test_expert_completes_laps_with_snapped_steering():
@@ -18,14 +18,14 @@ def test_expert_completes_laps_with_snapped_steering():
 
 
 def test_short_step_limit_truncates_without_success():
-    row = run_expert_episode(metadagger.make_task("carracing", max_episode_steps=10), 3)
+    [row] = evaluate_expert(metadagger.make_task("carracing", max_episode_steps=10), [3], progress=False)
     assert (row["seed"], row["success"], row["steps"]) == (3, False, 10)
     assert row["reward"] < 100  # a few tiles at most
 
 
 def test_episodes_are_deterministic():
     task = metadagger.make_task("carracing", max_episode_steps=60)
-    assert run_expert_episode(task, 5) == run_expert_episode(task, 5)
+    assert evaluate_expert(task, [5], progress=False) == evaluate_expert(task, [5], progress=False)
 
 
 def test_expert_table():
