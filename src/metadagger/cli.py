@@ -6,6 +6,7 @@ A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stder
 from __future__ import annotations
 
 import functools
+import json
 from pathlib import Path
 from typing import Callable, Optional, TypeVar
 
@@ -78,23 +79,6 @@ def expert(
 
 
 OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
-
-
-@app.command()
-@user_errors
-def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT) -> None:
-    """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
-    from metadagger.metal.groundtruth import groundtruth_path, train_groundtruth
-    from metadagger.run import init_run
-
-    config = init_run(out, task, preset)
-    metrics = train_groundtruth(_task(config), config.groundtruth, out)
-    for name in ("own_seeds", "unseen_seeds"):
-        m = metrics[name]
-        typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} laps ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
-    typer.echo(f"wrote {groundtruth_path(out)}")
-
-
 EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
 WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
 ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: start a local Ray instance).")
@@ -102,25 +86,89 @@ ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: st
 
 @app.command()
 @user_errors
+def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT) -> None:
+    """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
+    from metadagger.metal.groundtruth import groundtruth_path
+    from metadagger.pipeline import init_run, stage_groundtruth
+
+    metrics = stage_groundtruth(out, init_run(out, task, preset))
+    for name in ("own_seeds", "unseen_seeds"):
+        m = metrics[name]
+        typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} laps ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
+    typer.echo(f"wrote {groundtruth_path(out)}")
+
+
+@app.command()
+@user_errors
 def pairs(out: Path = OUT, executor: str = EXECUTOR, workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
     """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
-    import json
+    from metadagger.pipeline import load_run, stage_pairs
 
-    from metadagger.metal.groundtruth import groundtruth_path
-    from metadagger.metal.pairs import collect_pairs
-    from metadagger.run import load_run
-
-    config = load_run(out)
-    summary = collect_pairs(_task(config), groundtruth_path(out), config.pairs, out,
-                            executor=executor, workers=workers, address=address)
+    summary = stage_pairs(out, load_run(out), executor=executor, workers=workers, address=address)
     typer.echo(json.dumps(summary, indent=2))
     typer.echo(f"wrote {out / 'pairs'}")
 
 
-def _task(config):
-    from metadagger.tasks import make_task
+@app.command("train-mapper")
+@user_errors
+def train_mapper_cmd(
+    out: Path = OUT,
+    kind: str = typer.Option("all", "--kind", help="dm, sam, tam, mean-da, pistar-head or all."),
+) -> None:
+    """Train mappers on the run's kept pairs (curves.csv and curves.png beside each)."""
+    from metadagger.evaluation.mdm import MAPPER_METHODS
+    from metadagger.pipeline import load_run, stage_mappers
 
-    return make_task(config.task, **config.task_kwargs)
+    kinds = MAPPER_METHODS if kind == "all" else (kind,)
+    for path in stage_mappers(out, load_run(out), kinds):
+        typer.echo(f"wrote {path}")
+
+
+@app.command()
+@user_errors
+def evaluate(
+    out: Path = OUT,
+    seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's evaluate.seeds)."),
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
+) -> None:
+    """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds."""
+    from metadagger.config import parse_seeds
+    from metadagger.pipeline import load_run, stage_evaluate
+
+    rows = stage_evaluate(out, load_run(out), seeds=parse_seeds(seeds) if seeds else None,
+                          executor=executor, workers=workers, address=address)
+    typer.echo(f"evaluated {len({r['seed'] for r in rows})} seeds; wrote {out / 'eval' / 'mdm.csv'} and {out / 'eval' / 'oneshot.csv'}")
+
+
+@app.command()
+@user_errors
+def report(out: Path = OUT) -> None:
+    """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
+    from metadagger.evaluation.report import build_report
+
+    if not out.is_dir():
+        raise UserError(f"no run folder at {out}; pass the --out of a run")
+    typer.echo(f"wrote {build_report(out)}")
+
+
+@app.command()
+@user_errors
+def reproduce(
+    task: str = TASK,
+    preset: str = PRESET,
+    out: Path = typer.Option(Path("runs/quick"), "--out", help="Run folder; an unfinished run resumes."),
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
+) -> None:
+    """groundtruth -> pairs -> mappers -> evaluate -> report, resuming finished stages."""
+    from metadagger.pipeline import reproduce as run_all
+
+    path = run_all(task, preset, out, executor=executor, workers=workers, address=address)
+    typer.echo(path.read_text())
+    typer.echo(f"wrote {path}")
 
 
 @bench_app.command("env")

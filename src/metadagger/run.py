@@ -6,6 +6,7 @@ pairs --out RUN`` and the later stages read it back, so a run is described by it
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,6 +15,8 @@ import yaml
 from metadagger.config import build, dump_yaml, load_preset
 from metadagger.errors import UserError
 from metadagger.io import write_text
+from metadagger.evaluation.mdm import EvalConfig
+from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig
 from metadagger.metal.pairs import PairConfig
 
@@ -32,6 +35,12 @@ class RunConfig:
     """pi*: multi-seed BC + DAgger."""
     pairs: PairConfig = field(default_factory=PairConfig)
     """Per-seed (w_BC, w_DA) pairs."""
+    split_seed: int = 0
+    """Seed of the train/validation split of the kept pairs."""
+    mappers: dict = field(default_factory=dict)
+    """Per-kind overrides of the paper's mapper settings, e.g. ``{sam: {epochs: 300}}`` (keys dm, sam, tam)."""
+    evaluate: EvalConfig = field(default_factory=EvalConfig)
+    """MDM and one-shot evaluation on unseen seeds."""
 
     def __post_init__(self) -> None:
         if self.max_episode_steps < 1:
@@ -40,6 +49,19 @@ class RunConfig:
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
+        seen = sorted((gt | set(self.pairs.seeds)) & set(self.evaluate.seeds))
+        if seen:
+            raise UserError(f"evaluate.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' seeds; pick disjoint ranges")
+        unknown = sorted(set(self.mappers) - {"dm", "sam", "tam"})
+        if unknown:
+            raise UserError(f"mappers has unknown kind(s) {unknown}; expected dm, sam or tam")
+        for kind in self.mappers:
+            self.mapper_config(kind)  # validates the overrides now, not hours later
+
+    def mapper_config(self, kind: str) -> MapperConfig:
+        """The paper's settings for mapper ``kind`` with this run's overrides applied."""
+        paper = dataclasses.asdict(paper_config(kind))
+        return build(MapperConfig, {**paper, **(self.mappers.get(kind) or {})}, where=f"mappers.{kind}")
 
     @property
     def task_kwargs(self) -> dict:
@@ -63,7 +85,7 @@ def init_run(run: str | Path, task: str, preset: str) -> RunConfig:
                 "use another --out or the same task and preset"
             )
         return config
-    sections = {k: v for k, v in load_preset(task, preset).items() if k in ("max_episode_steps", "groundtruth", "pairs")}
+    sections = {k: v for k, v in load_preset(task, preset).items() if k != "demo"}
     config = build(RunConfig, {"task": task, "preset": preset, **sections}, where=f"{task}.{preset}")
     write_text(path, dump_yaml(config))
     return config

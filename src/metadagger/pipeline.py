@@ -1,0 +1,86 @@
+"""The MetaL DAgger pipeline as stages over one run folder:
+groundtruth -> pairs -> mappers -> evaluate -> report. Each stage reads the run's config and the
+previous stages' artifacts and skips the work whose artifacts exist, so ``reproduce`` resumes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+from metadagger.errors import UserError
+from metadagger.evaluation.mdm import MAPPER_METHODS, EvalConfig, evaluate_run, mapper_path
+from metadagger.evaluation.report import build_report
+from metadagger.mapping.train import train_mapper
+from metadagger.metal.groundtruth import groundtruth_path, train_groundtruth
+from metadagger.metal.pairs import collect_pairs
+from metadagger.metal.store import PairStore
+from metadagger.policies import load_policy
+from metadagger.run import RunConfig, init_run, load_run
+from metadagger.tasks import make_task
+from metadagger.tasks.base import Task
+
+
+def run_task(config: RunConfig) -> Task:
+    """The task a run was configured with."""
+    return make_task(config.task, **config.task_kwargs)
+
+
+def stage_groundtruth(run: Path, config: RunConfig, *, progress: bool = True) -> dict:
+    """Train pi* (skipped when done)."""
+    return train_groundtruth(run_task(config), config.groundtruth, run, progress=progress)
+
+
+def stage_pairs(run: Path, config: RunConfig, *, executor: str = "local", workers: int | None = None,
+                address: str | None = None, progress: bool = True) -> dict:
+    """Collect the pairs of every seed not stored yet."""
+    return collect_pairs(run_task(config), groundtruth_path(run), config.pairs, run,
+                         executor=executor, workers=workers, address=address, progress=progress)
+
+
+def stage_mappers(run: Path, config: RunConfig, kinds: Sequence[str] = MAPPER_METHODS, *, progress: bool = True) -> list[Path]:
+    """Train the mappers of ``kinds`` (dm, sam, tam and the controls mean-da, pistar-head)."""
+    unknown = sorted(set(kinds) - set(MAPPER_METHODS))
+    if unknown:
+        raise UserError(f"unknown mapper kind(s) {unknown}; expected {', '.join(MAPPER_METHODS)} or all")
+    split = PairStore(run / "pairs").load_split(val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True)
+    if len(split.train_seeds) < 2:
+        raise UserError(
+            f"only {len(split.train_seeds) + len(split.val_seeds)} kept pairs in {run / 'pairs'}; "
+            "collect more seeds (pairs.seeds) or relax pairs.keep"
+        )
+    head = load_policy(groundtruth_path(run)).head_vector()
+    paths = []
+    for kind in kinds:
+        train_mapper(split, config.mapper_config(kind), mapper_path(run, kind).parent, pistar_head=head, progress=progress)
+        paths.append(mapper_path(run, kind))
+    return paths
+
+
+def stage_evaluate(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = None, executor: str = "local",
+                   workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
+    """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``)."""
+    eval_config = config.evaluate
+    if seeds is not None:
+        used = set(config.groundtruth.seeds) | set(config.groundtruth.eval_seeds) | set(config.pairs.seeds)
+        seen = sorted(set(seeds) & used)
+        if seen:
+            raise UserError(f"evaluation seeds must be unseen, but {seen[:5]} were used for pi* or pairs; pick other seeds")
+        eval_config = EvalConfig(seeds=tuple(seeds), methods=eval_config.methods, oneshot=eval_config.oneshot)
+    return evaluate_run(run_task(config), run, eval_config, groundtruth=groundtruth_path(run), bc=config.pairs.bc,
+                        executor=executor, workers=workers, address=address, progress=progress)
+
+
+def reproduce(task: str, preset: str, run: str | Path, *, executor: str = "local", workers: int | None = None,
+              address: str | None = None, progress: bool = True) -> Path:
+    """Every stage in order, each resuming where a previous run stopped; returns the report path."""
+    run = Path(run)
+    config = init_run(run, task, preset)
+    stage_groundtruth(run, config, progress=progress)
+    stage_pairs(run, config, executor=executor, workers=workers, address=address, progress=progress)
+    stage_mappers(run, config, progress=progress)
+    stage_evaluate(run, config, executor=executor, workers=workers, address=address, progress=progress)
+    return build_report(run)
+
+
+__all__ = ["load_run", "reproduce", "run_task", "stage_evaluate", "stage_groundtruth", "stage_mappers", "stage_pairs"]
