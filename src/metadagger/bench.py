@@ -179,3 +179,52 @@ def _machine() -> dict[str, Any]:
         "gymnasium": gym.__version__,
         "load_avg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
     }
+
+
+def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1, 2), target_kept: int = 375) -> dict:
+    """Time pair collection with 1 and 2 workers on the first ``seeds`` pair seeds of a run.
+
+    Each measurement collects into a fresh temporary store (process-pool start-up included), so
+    the run's own pairs are untouched. The kept share comes from the run's ``pairs/summary.json``
+    when the run has one, else from the bench's own seeds; with it the bench extrapolates the
+    minutes needed for ``target_kept`` kept pairs (the paper's 300 train + 75 validation).
+    """
+    import dataclasses
+    import json
+    import tempfile
+
+    from metadagger.metal.groundtruth import groundtruth_path
+    from metadagger.metal.pairs import collect_pairs
+    from metadagger.pipeline import load_run, run_task
+
+    run = Path(run)
+    config = load_run(run)
+    if seeds < 1 or len(config.pairs.seeds) < seeds:
+        raise UserError(f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}")
+    pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]))
+    task = run_task(config)
+    timings: dict[str, float] = {}
+    summary: dict = {}
+    for n in workers:
+        with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
+            start = time.perf_counter()
+            summary = collect_pairs(task, groundtruth_path(run), pairs_config, tmp, workers=n, progress=False)
+            timings[str(n)] = time.perf_counter() - start
+    run_summary = run / "pairs" / "summary.json"
+    kept_source = json.loads(run_summary.read_text()) if run_summary.is_file() else summary
+    kept_share = kept_source["kept"] / kept_source["seeds"] if kept_source["seeds"] else 0.0
+    best = str(max(workers))
+    pairs_per_hour = 3600.0 * seeds / timings[best]
+    return {
+        "run": str(run),
+        "seeds": seeds,
+        "seconds": timings,
+        "seconds_per_pair": {k: v / seeds for k, v in timings.items()},
+        "pairs_per_hour": {k: 3600.0 * seeds / v for k, v in timings.items()},
+        "speedup": {k: timings[str(min(workers))] / v for k, v in timings.items()},
+        "kept_share": kept_share,
+        "kept_share_from": "run" if run_summary.is_file() else "bench",
+        "target_kept": target_kept,
+        "minutes_for_target_kept": (60.0 * target_kept / (kept_share * pairs_per_hour)) if kept_share > 0 else None,
+        "machine": _machine(),
+    }

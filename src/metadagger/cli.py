@@ -189,6 +189,22 @@ def bench_env_cmd(
     typer.echo(f"wrote {out}")
 
 
+@bench_app.command("pairs")
+@user_errors
+def bench_pairs_cmd(
+    out: Path = OUT,
+    seeds: int = typer.Option(4, "--seeds", help="How many of the run's pair seeds to time."),
+    json_out: Path = typer.Option(Path("runs/bench/pairs.json"), "--json", help="JSON file to write."),
+) -> None:
+    """Seconds per pair with 1 and 2 workers, pairs per hour, and minutes for 375 kept pairs."""
+    from metadagger.bench import bench_pairs, write_bench
+
+    result = bench_pairs(out, seeds=seeds)
+    write_bench(result, json_out)
+    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+    typer.echo(f"wrote {json_out}")
+
+
 def main() -> None:
     """Console-script entry point."""
     app()

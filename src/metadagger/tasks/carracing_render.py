@@ -87,7 +87,7 @@ def miters(polys: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarr
     m = np.where(parallel[..., None], normal * w[..., None], m)
     # edge i turns around once d * (m[i+1] - m[i]) . e_i reaches -|e_i|^2
     shrink = np.sum((np.roll(m, -1, axis=1) - m) * e, axis=-1)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # the masked-out branch may be 0/0
         limit = np.where(shrink < 0, np.sum(e * e, axis=-1) / -shrink, np.inf).min(axis=1)
     return m, limit
 

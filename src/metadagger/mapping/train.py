@@ -1,0 +1,361 @@
+"""Training the mappers (paper section 3.3, Table 8), with curves on disk and resume.
+
+:func:`train_mapper` fits the autoencoder(s) first, then the latent regression h on the frozen
+encoders' codes (SAM, TAM), or the single MLP (DM): Adam, MSE in standardised space, manual
+batching from one seeded generator. It writes ``curves.csv`` and ``curves.png`` (paper Fig. 8)
+and, last, ``mapper.safetensors``; an existing mapper file means the work is done and is loaded.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import functools
+import io
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+from tqdm.auto import tqdm
+
+from metadagger.errors import UserError
+from metadagger.io import write_text
+from metadagger.mapping.mappers import ARCH_FIELDS, KINDS, LEARNED_KINDS, ROUTES, Mapper, Route, Standardizer, build_networks, load_mapper
+from metadagger.metal.store import PairSplit
+
+__all__ = ["CURVE_COLUMNS", "PAPER_EPOCHS", "MapperConfig", "evaluate_mapping", "paper_config", "plot_curves", "train_mapper"]
+
+PAPER_EPOCHS = {"dm": 500, "sam": 1000, "tam": 1000}
+"""Mapper training epochs of the paper's Table 8 (CarRacing); Table 9 (Fetch) uses 2000."""
+
+CURVE_COLUMNS = ("model", "epoch", "train_loss", "val_loss", "train_mse_weights", "val_mse_weights")
+"""``curves.csv`` columns. ``*_loss``: the model's own MSE (standardised weights, or latent codes
+for h), train averaged over the epoch's batches. ``*_mse_weights``: MSE of the whole mapping f in
+original weight units after the epoch, for the last stage only, so kinds compare directly."""
+
+
+@dataclass(frozen=True)
+class MapperConfig:
+    """How one mapper is built and trained (defaults: the paper's SAM/TAM; see :func:`paper_config`).
+
+    Fig. 6 draws the blocks but the paper does not print the widths: ``hidden``, ``latent`` and
+    ``ae_hidden`` are our choices, sized for heads of ~200 to ~1300 weights.
+    """
+
+    kind: str = "sam"
+    """One of ``dm``, ``sam``, ``tam``, ``mean-da``, ``pistar-head``."""
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden widths of the mapping MLP (DM's network, or h for SAM/TAM)."""
+    latent: int = 64
+    """Latent width of the autoencoder(s) (SAM/TAM)."""
+    ae_hidden: tuple[int, ...] = (256,)
+    """Encoder hidden widths of the autoencoder(s); the decoder mirrors them."""
+    batchnorm: bool = True
+    """BatchNorm in every hidden block of every network."""
+    dropout: float = 0.1
+    """Dropout in the hidden blocks of the mapping MLP (DM, or h), in [0, 1)."""
+    ae_dropout: float = 0.0
+    """Dropout in the hidden blocks of the autoencoder(s), in [0, 1)."""
+    lr: float = 1e-4
+    """Adam learning rate, every network."""
+    weight_decay: float = 1e-4
+    """Adam weight decay of the mapping MLP (DM, or h)."""
+    ae_weight_decay: float = 1e-5
+    """Adam weight decay of the autoencoder(s)."""
+    batch_size: int = 10
+    """Rows per gradient step."""
+    epochs: int = 1000
+    """Epochs of the mapping MLP; the paper uses 500 for DM, 1000 for SAM/TAM, 2000 on Fetch."""
+    ae_epochs: int = 1000
+    """Epochs of each autoencoder (SAM/TAM)."""
+    seed: int = 0
+    """Seeds the initial weights, the batch order and Dropout."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"MapperConfig.kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        for name in ("hidden", "ae_hidden"):
+            widths = getattr(self, name)
+            if not isinstance(widths, tuple) or not all(_is_int(w) and w >= 1 for w in widths):
+                raise ValueError(f"MapperConfig.{name} must be a tuple of integers >= 1, got {widths!r}")
+        for name in ("latent", "batch_size", "epochs", "ae_epochs"):
+            value = getattr(self, name)
+            if not _is_int(value) or value < 1:
+                raise ValueError(f"MapperConfig.{name} must be an integer >= 1, got {value!r}")
+        if not isinstance(self.batchnorm, bool):
+            raise ValueError(f"MapperConfig.batchnorm must be a bool, got {self.batchnorm!r}")
+        for name in ("dropout", "ae_dropout"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(f"MapperConfig.{name} must be in [0, 1), got {getattr(self, name)!r}")
+        if not self.lr > 0:
+            raise ValueError(f"MapperConfig.lr must be > 0, got {self.lr!r}")
+        for name in ("weight_decay", "ae_weight_decay"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"MapperConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not _is_int(self.seed):
+            raise ValueError(f"MapperConfig.seed must be an integer, got {self.seed!r}")
+
+
+def paper_config(kind: str, **overrides: Any) -> MapperConfig:
+    """The paper's Table 8 settings for ``kind`` (DM: 500 epochs; SAM/TAM: 1000), then ``overrides``.
+
+    For Fetch (Table 9) pass ``epochs=2000``.
+    """
+    return MapperConfig(**{"kind": kind, "epochs": PAPER_EPOCHS.get(kind, MapperConfig.epochs), **overrides})
+
+
+def train_mapper(
+    split: PairSplit,
+    config: MapperConfig,
+    out_dir: str | Path,
+    *,
+    pistar_head: np.ndarray | torch.Tensor | None = None,
+    progress: bool = True,
+) -> Mapper:
+    """Train (or, if ``out_dir/mapper.safetensors`` exists, load) a mapper of ``config.kind``.
+
+    Args:
+        split: training and validation pairs; only the training rows fit weights and standardisers.
+        config: architecture and optimiser settings.
+        out_dir: receives ``mapper.safetensors``, ``curves.csv`` and ``curves.png``.
+        pistar_head: pi*'s head vector, required by the ``pistar-head`` control.
+        progress: show a progress bar per training stage.
+
+    Returns:
+        The mapper, in eval mode (the same one ``load_mapper(out_dir / "mapper.safetensors")`` gives).
+
+    Raises:
+        UserError: too few training pairs, a missing or mis-sized ``pistar_head``, or an existing
+            mapper in ``out_dir`` trained with another config.
+    """
+    out_dir = Path(out_dir)
+    path = out_dir / "mapper.safetensors"
+    dim = split.w_bc_train.shape[1]
+    config_data = json.loads(json.dumps(dataclasses.asdict(config)))
+    if path.exists():
+        return _resume(path, dim, config_data)
+    if config.kind in LEARNED_KINDS and len(split.train_seeds) < 2:
+        raise UserError(f"a {config.kind} mapper needs at least 2 training pairs, got {len(split.train_seeds)}; collect more seeds or lower val_fraction")
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)  # Dropout draws from torch's global generator
+        mapper, rows = _train(split, config, config_data, pistar_head, progress)
+    _write_curves(out_dir / "curves.csv", rows)
+    plot_curves(out_dir / "curves.csv", out_dir / "curves.png")
+    mapper.save(path)  # last: its presence means every artifact of this stage is complete
+    return mapper
+
+
+def _resume(path: Path, dim: int, config_data: dict[str, Any]) -> Mapper:
+    mapper = load_mapper(path)
+    differing = sorted(k for k in set(config_data) | set(mapper.config) if config_data.get(k) != mapper.config.get(k))
+    if mapper.dim != dim or differing:
+        what = f"length {mapper.dim} (pairs have {dim})" if mapper.dim != dim else f"another config ({', '.join(differing)} differ)"
+        raise UserError(f"{path} holds a mapper with {what}; delete it to retrain, or write to another output folder")
+    return mapper
+
+
+def _train(
+    split: PairSplit, config: MapperConfig, config_data: dict[str, Any], pistar_head: Any, progress: bool
+) -> tuple[Mapper, list[dict[str, Any]]]:
+    bc_tr, da_tr, bc_va, da_va = (t.to(torch.float32) for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val))
+    dim = bc_tr.shape[1]
+
+    def weight_mse(mapper: Mapper) -> tuple[float, float]:
+        return _mse(mapper.map_tensor(bc_tr), da_tr), _mse(mapper.map_tensor(bc_va), da_va)
+
+    if config.kind not in LEARNED_KINDS:
+        if config.kind == "mean-da":
+            mapper = Mapper.mean_da(da_tr, config=config_data)
+        elif pistar_head is None:
+            raise UserError("the pistar-head control needs pistar_head=pi*'s head vector (policy.head_vector())")
+        else:
+            mapper = Mapper.pistar_head(pistar_head, config=config_data)
+        if mapper.dim != dim:
+            raise UserError(f"pistar_head has length {mapper.dim}, expected {dim}: the head of the policy the pairs came from")
+        train_w, val_w = weight_mse(mapper)
+        return mapper, [_row(config.kind, 0, math.nan, math.nan, train_w, val_w)]
+
+    generator = torch.Generator().manual_seed(config.seed)
+    networks = build_networks(config.kind, dim, **{f: getattr(config, f) for f in ARCH_FIELDS}, generator=generator)
+    route = ROUTES[config.kind]
+    scalers = (
+        {"all": Standardizer.fit(torch.cat([bc_tr, da_tr]))}
+        if route.in_scaler == "all"
+        else {"bc": Standardizer.fit(bc_tr), "da": Standardizer.fit(da_tr)}
+    )
+    mapper = Mapper(kind=config.kind, dim=dim, networks=networks, scalers=scalers, config=config_data)
+    x_tr, x_va = scalers[route.in_scaler].transform(bc_tr), scalers[route.in_scaler].transform(bc_va)
+    y_tr, y_va = scalers[route.out_scaler].transform(da_tr), scalers[route.out_scaler].transform(da_va)
+    fit = dict(lr=config.lr, batch_size=config.batch_size, generator=generator, progress=progress)
+    rows: list[dict[str, Any]] = []
+    data = (x_tr, y_tr, x_va, y_va)
+    if route.encoder is not None:
+        data = _fit_autoencoders(networks, route, data, rows, epochs=config.ae_epochs, weight_decay=config.ae_weight_decay, **fit)
+    after_epoch = functools.partial(weight_mse, mapper)
+    rows += _fit(networks[route.core], route.core, *data, epochs=config.epochs, weight_decay=config.weight_decay, after_epoch=after_epoch, **fit)
+    return mapper, rows
+
+
+def _fit_autoencoders(
+    networks: dict[str, nn.Module], route: Route, data: tuple[torch.Tensor, ...], rows: list[dict[str, Any]], **fit: Any
+) -> tuple[torch.Tensor, ...]:
+    """Fit the route's autoencoder(s), append their curves to ``rows``, return h's latent data."""
+    x_tr, y_tr, x_va, y_va = data
+    # Each autoencoder learns every standardised vector it will encode or decode: sigma_ALL both sets.
+    if route.encoder == route.decoder:
+        ae_data = {route.encoder: (torch.cat([x_tr, y_tr]), torch.cat([x_va, y_va]))}
+    else:
+        ae_data = {route.encoder: (x_tr, x_va), route.decoder: (y_tr, y_va)}
+    for name, (d_tr, d_va) in ae_data.items():
+        rows += _fit(networks[name], name, d_tr, d_tr, d_va, d_va, **fit)
+    # h learns on the codes of the frozen (eval-mode) encoders, computed once.
+    encoder, target_encoder = networks[route.encoder], networks[route.decoder]
+    encoder.eval()
+    target_encoder.eval()
+    with torch.no_grad():
+        return encoder.encode(x_tr), target_encoder.encode(y_tr), encoder.encode(x_va), target_encoder.encode(y_va)
+
+
+def _fit(
+    net: nn.Module,
+    name: str,
+    x_tr: torch.Tensor,
+    y_tr: torch.Tensor,
+    x_va: torch.Tensor,
+    y_va: torch.Tensor,
+    *,
+    epochs: int,
+    lr: float,
+    weight_decay: float,
+    batch_size: int,
+    generator: torch.Generator,
+    progress: bool,
+    after_epoch: Callable[[], tuple[float, float]] | None = None,
+) -> list[dict[str, Any]]:
+    """Adam on the MSE of ``net(x)`` against ``y``; one curve row per epoch."""
+    # fused: one kernel for all parameters; the per-tensor loop made the Adam step ~3x the step cost.
+    optimizer = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay, fused=True)
+    rows = []
+    bar = tqdm(range(1, epochs + 1), desc=f"mapping/{name}", disable=not progress, leave=False)
+    for epoch in bar:
+        net.train()
+        total = torch.zeros(())
+        for idx in _batches(torch.randperm(len(x_tr), generator=generator), batch_size):
+            loss = F.mse_loss(net(x_tr[idx]), y_tr[idx])
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            total += loss.detach() * len(idx)
+        net.eval()
+        with torch.no_grad():
+            val_loss = _mse(net(x_va), y_va) if len(x_va) else math.nan
+        weights = after_epoch() if after_epoch else (math.nan, math.nan)
+        rows.append(_row(name, epoch, float(total) / len(x_tr), val_loss, *weights))
+        bar.set_postfix(train=f"{rows[-1]['train_loss']:.4g}", val=f"{val_loss:.4g}", refresh=False)  # tqdm throttles redraws
+    return rows
+
+
+def _batches(order: torch.Tensor, batch_size: int) -> list[torch.Tensor]:
+    chunks = list(order.split(batch_size))
+    # BatchNorm cannot normalise a batch of one in training mode: fold a lone last row into the batch before.
+    if len(chunks) > 1 and len(chunks[-1]) == 1:
+        chunks[-2:] = [torch.cat(chunks[-2:])]
+    return chunks
+
+
+def _mse(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float(F.mse_loss(a, b)) if len(a) else math.nan
+
+
+def _row(model: str, epoch: int, train_loss: float, val_loss: float, train_w: float, val_w: float) -> dict[str, Any]:
+    return dict(zip(CURVE_COLUMNS, (model, epoch, train_loss, val_loss, train_w, val_w)))
+
+
+def _write_curves(path: Path, rows: list[dict[str, Any]]) -> None:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CURVE_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else format(v, ".9g") if isinstance(v, float) else v) for k, v in row.items()})
+    write_text(path, buffer.getvalue())
+
+
+def plot_curves(csv_path: str | Path, png_path: str | Path) -> Path:
+    """Draw ``curves.csv`` as paper Fig. 8: train/val loss per epoch, one panel per model.
+
+    A last panel shows the whole mapping's MSE in weight units (the only panel of a control).
+    """
+    from metadagger.plotting import plt, save_figure
+
+    with open(csv_path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    models = list(dict.fromkeys(r["model"] for r in rows if r["train_loss"]))
+    mapped = [r for r in rows if r["val_mse_weights"] or r["train_mse_weights"]]
+    panels = [
+        (m, [r for r in rows if r["model"] == m], "train_loss", "val_loss", "MSE (latent codes)" if m == "h" else "MSE (standardised)")
+        for m in models
+    ]
+    if mapped:
+        panels.append(("whole mapping f", mapped, "train_mse_weights", "val_mse_weights", "MSE (weight units)"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.4), squeeze=False, layout="constrained")
+    for ax, (title, data, train_key, val_key, ylabel) in zip(axes[0], panels):
+        epochs = [int(r["epoch"]) for r in data]
+        for key, label in ((train_key, "train"), (val_key, "validation")):
+            values = [float(r[key]) if r[key] else math.nan for r in data]
+            ax.plot(epochs, values, marker="o" if len(data) == 1 else None, label=label)
+        ax.set_yscale("log")
+        ax.set_title(title)
+        ax.set_xlabel("epoch")
+        ax.set_ylabel(ylabel)
+        ax.legend()
+    return save_figure(fig, png_path)
+
+
+def evaluate_mapping(
+    mapper: Mapper,
+    w_bc: np.ndarray | torch.Tensor,
+    w_da: np.ndarray | torch.Tensor,
+    *,
+    mean_da: np.ndarray | torch.Tensor | None = None,
+) -> dict[str, float]:
+    """How close ``mapper(w_bc)`` comes to ``w_da`` on rows ``[N, d]``, in original weight units.
+
+    Args:
+        mapper: the mapper to evaluate.
+        w_bc: heads after BC (inputs).
+        w_da: heads after DAgger (targets), same shape.
+        mean_da: the mean-DA baseline's vector (the training mean); None uses the mean of ``w_da``,
+            which makes ``relative_mse`` one minus the coefficient of determination.
+
+    Returns:
+        ``mse``; ``baseline_mse`` of always predicting ``mean_da``; ``relative_mse`` = their ratio
+        (below 1: better than the baseline); ``cosine``: mean cosine similarity of prediction and
+        target rows; ``cosine_update``: the same for the updates ``pred - w_bc`` and ``w_da - w_bc``;
+        ``n``: rows.
+    """
+    bc = torch.as_tensor(np.asarray(w_bc, dtype=np.float32))
+    da = torch.as_tensor(np.asarray(w_da, dtype=np.float32))
+    if bc.ndim != 2 or bc.shape != da.shape or len(bc) == 0:
+        raise UserError(f"w_bc and w_da must be non-empty [N, d] of one shape, got {tuple(bc.shape)} and {tuple(da.shape)}")
+    pred = torch.from_numpy(mapper.map_batch(bc))
+    ref = da.mean(dim=0) if mean_da is None else torch.as_tensor(np.asarray(mean_da, dtype=np.float32))
+    mse, baseline = _mse(pred, da), _mse(ref.expand_as(da), da)
+    return {
+        "mse": mse,
+        "baseline_mse": baseline,
+        "relative_mse": mse / baseline if baseline > 0 else math.nan,
+        "cosine": float(F.cosine_similarity(pred, da, dim=1).mean()),
+        "cosine_update": float(F.cosine_similarity(pred - bc, da - bc, dim=1).mean()),
+        "n": len(bc),
+    }
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
