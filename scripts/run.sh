@@ -3,4 +3,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-exec .venv/bin/metadagger demo --task carracing --preset quick --out runs/quick "$@"
+exec .venv/bin/metadagger reproduce --task carracing --preset quick --out runs/quick "$@"

@@ -14,6 +14,7 @@ from typing import Any
 from metadagger.evaluation.metrics import summarize
 from metadagger.evaluation.rows import read_csv
 from metadagger.io import write_text
+from metadagger.mapping.train import plot_curves
 from metadagger.plotting import plt, save_figure
 
 METHOD_ORDER = ("bc", "dm", "sam", "tam", "mean-da", "pistar-head")
@@ -70,25 +71,13 @@ def _pairs_section(run: Path) -> list[str]:
 
 
 def _curves_section(run: Path, figures: Path) -> list[str]:
-    curves = sorted((run / "mappers").glob("*/curves.csv"))
-    if not curves:
-        return []
-    fig, axes = plt.subplots(1, len(curves), figsize=(4 * len(curves), 3.2), squeeze=False)
-    for ax, path in zip(axes[0], curves):
-        by_model: dict[str, list[dict[str, Any]]] = defaultdict(list)
-        for row in read_csv(path):
-            by_model[row["model"]].append(row)
-        for model, rows in by_model.items():
-            epochs = [r["epoch"] for r in rows]
-            ax.plot(epochs, [r["train_loss"] for r in rows], label=f"{model} train")
-            ax.plot(epochs, [r["val_loss"] for r in rows], "--", label=f"{model} val")
-        ax.set_title(path.parent.name.upper())
-        ax.set_xlabel("epoch")
-        ax.set_ylabel("MSE (standardised)")
-        ax.set_yscale("log")
-        ax.legend(fontsize=6)
-    save_figure(fig, figures / "learning_curves.png")
-    return ["## Mapper learning curves (Fig. 8)", "", "![learning curves](figures/learning_curves.png)", ""]
+    lines = []
+    for kind in ("dm", "sam", "tam"):
+        csv_path = run / "mappers" / kind / "curves.csv"
+        if csv_path.is_file():
+            plot_curves(csv_path, figures / f"curves_{kind}.png")
+            lines += [f"![{kind.upper()} learning curves](figures/curves_{kind}.png)", ""]
+    return ["## Mapper learning curves (Fig. 8)", "", *lines] if lines else []
 
 
 def _by_method(rows: list[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:

@@ -20,7 +20,7 @@ import numpy as np
 DEFAULT_THRESHOLD = 20.0
 #: Default dead zone on the expert's label. The scripted expert is a proportional controller:
 #: once the cube is at the goal its labels shrink towards zero and their direction is noise, so
-#: without a dead zone a successful noisy expert accumulates 15-30 over an episode, as much
+#: without a dead zone a successful noisy expert accumulates 14-31 over an episode, as much
 #: as a failing policy.
 MIN_LABEL_NORM = 0.1
 #: Vectors shorter than this have no direction.

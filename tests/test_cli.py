@@ -1,0 +1,86 @@
+"""The CLI: user errors give one clear line and a non-zero exit, never a traceback."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from toy_task import CorridorTask
+from typer.testing import CliRunner
+
+from metadagger.cli import app
+from metadagger.errors import UserError
+from metadagger.policies import load_policy, make_policy
+
+runner = CliRunner()
+
+
+def _fails_cleanly(args: list[str], *needles: str) -> str:
+    result = runner.invoke(app, args)
+    assert result.exit_code != 0
+    out = result.output
+    assert "Traceback" not in out
+    for needle in needles:
+        assert needle in out
+    return out
+
+
+def test_unknown_task_is_one_clear_line():
+    out = _fails_cleanly(["expert", "--task", "nope", "--seeds", "0"], "unknown task 'nope'", "carracing")
+    assert len([line for line in out.splitlines() if line.strip()]) == 1
+
+
+def test_bad_seed_list_names_the_value():
+    _fails_cleanly(["expert", "--task", "carracing", "--seeds", "9-3"], "bad seed list '9-3'")
+
+
+def test_unknown_preset_names_the_allowed_ones(tmp_path):
+    _fails_cleanly(["groundtruth", "--preset", "huge", "--out", str(tmp_path / "r")], "unknown preset 'huge'", "quick")
+
+
+def test_bad_config_value_in_a_run_config(tmp_path):
+    (tmp_path / "config.yaml").write_text("task: carracing\npairs: {dagger_rounds: 0}\n")
+    _fails_cleanly(["pairs", "--out", str(tmp_path)], "pairs.dagger_rounds must be >= 1, got 0")
+
+
+def test_unknown_config_field(tmp_path):
+    (tmp_path / "config.yaml").write_text("task: carracing\npairs: {epochz: 3}\n")
+    _fails_cleanly(["pairs", "--out", str(tmp_path)], "unknown field(s) epochz")
+
+
+def test_missing_run_and_missing_groundtruth(tmp_path):
+    _fails_cleanly(["pairs", "--out", str(tmp_path / "none")], "no run at")
+    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    _fails_cleanly(["pairs", "--out", str(tmp_path)], "pi* not found")
+
+
+def test_corrupt_checkpoint_is_a_clear_error(tmp_path):
+    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    gt = tmp_path / "groundtruth" / "policy.safetensors"
+    gt.parent.mkdir()
+    gt.write_bytes(b"not a safetensors file")
+    _fails_cleanly(["train-mapper", "--out", str(tmp_path), "--kind", "dm"], "pair store not found")
+    with pytest.raises(UserError, match="corrupt or not a safetensors file"):
+        load_policy(gt)
+
+
+def test_wrong_head_vector_length_is_a_user_error():
+    policy = make_policy(CorridorTask(), seed=0)
+    with pytest.raises(UserError, match=f"length {policy.head_size} = 3\\*32 \\+ 3, got .* shape \\({policy.head_size + 1},\\)"):
+        policy.load_head_vector(torch.zeros(policy.head_size + 1))
+    with pytest.raises(UserError):
+        policy.load_head_vector(np.zeros((2, policy.head_size), np.float32))
+
+
+def test_unknown_mapper_kind(tmp_path):
+    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    _fails_cleanly(["train-mapper", "--out", str(tmp_path), "--kind", "xyz"], "unknown mapper kind")
+
+
+def test_unknown_executor(tmp_path: Path):
+    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    gt = tmp_path / "groundtruth" / "policy.safetensors"
+    make_policy(CorridorTask(), seed=0).save(gt)
+    _fails_cleanly(["pairs", "--out", str(tmp_path), "--executor", "slurm"], "unknown executor 'slurm'")
