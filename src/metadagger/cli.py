@@ -22,6 +22,16 @@ app.add_typer(bench_app, name="bench")
 F = TypeVar("F", bound=Callable[..., object])
 
 
+@app.callback()
+def _setup() -> None:
+    """Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights."""
+    import torch
+
+    # one thread everywhere (driver and workers): the same config and seeds give the same
+    # weights on any machine, whatever its core count
+    torch.set_num_threads(1)
+
+
 def user_errors(fn: F) -> F:
     """Turn a UserError raised by ``fn`` into one clear line and exit code 2."""
 

@@ -6,9 +6,7 @@ Read it top to bottom: collect demos -> fit BC -> evaluate -> DAgger (evaluate a
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io as _io
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +14,7 @@ from metadagger.config import build, dump_yaml, load_preset
 from metadagger.errors import UserError
 from metadagger.evaluation.episodes import evaluate_policy
 from metadagger.evaluation.metrics import summarize
+from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
@@ -107,7 +106,7 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
     table = _table(summarize(bc_rows), demo_queries, summarize(dagger_rows), curve[-1]["expert_queries"], len(config.eval_seeds))
     write_text(folder / "table.md", table + "\n")
     write_json(folder / "metrics.json", {"bc": bc_rows, "dagger": dagger_rows, "curve": curve})
-    write_text(folder / "rounds.csv", _csv(curve))
+    write_csv(folder / "rounds.csv", curve, fields=tuple(curve[0]))
     _plot(curve, folder / "success_vs_round.png", task=config.task)
     return DemoResult(folder=folder, table=table, rounds=curve)
 
@@ -123,14 +122,6 @@ def _table(bc: dict, bc_queries: int, da: dict, da_queries: int, n_eval: int) ->
             f"{s['success_ci_low']:.0%}-{s['success_ci_high']:.0%} | {s['mean_reward']:.1f} | {s['mean_steps']:.0f} | {q} |"
         )
     return "\n".join(lines)
-
-
-def _csv(rows: list[dict]) -> str:
-    buf = _io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    return buf.getvalue()
 
 
 def _plot(curve: list[dict], path: Path, *, task: str) -> None:

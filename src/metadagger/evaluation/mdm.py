@@ -25,7 +25,7 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import save_tensors
 from metadagger.mapping.mappers import Mapper, load_mapper
-from metadagger.metal.pairs import _cached_policy, head_from_groundtruth
+from metadagger.metal.pairs import cached_groundtruth, head_from_groundtruth
 from metadagger.parallel import make_executor
 from metadagger.tasks.base import Task
 
@@ -70,7 +70,7 @@ def _cached_mapper(path: str) -> Mapper:
 
 def evaluate_seed(job: EvalJob) -> dict[str, Any]:
     """Evaluate BC, every mapper and their one-shot refits on one seed."""
-    policy = head_from_groundtruth(_cached_policy(job.groundtruth), job.seed)
+    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.seed)
     bc_config = dataclasses.replace(job.bc, seed=job.seed)
     env = job.task.make_env()
     rows: list[dict[str, Any]] = []

@@ -83,7 +83,8 @@ def is_kept(rule: str, bc_success: bool, da_success: bool) -> bool:
 
 
 @functools.lru_cache(maxsize=2)
-def _cached_policy(path: str) -> Policy:
+def cached_groundtruth(path: str) -> Policy:
+    """pi* loaded once per worker process (callers copy it before changing it)."""
     return load_policy(path)
 
 
@@ -98,7 +99,7 @@ def head_from_groundtruth(groundtruth: Policy, seed: int) -> Policy:
 def collect_pair(job: PairJob) -> dict[str, Any]:
     """Make one seed's pair; returns ``seed``, ``w_bc``, ``w_da`` (float32 arrays) and ``record``."""
     task, config = job.task, job.config
-    policy = head_from_groundtruth(_cached_policy(job.groundtruth), job.seed)
+    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.seed)
     env = task.make_env()
     try:
         demo = rollout(env, seed=job.seed, policy=None)

@@ -1,0 +1,255 @@
+"""MetaL DAgger as an initialiser (MDI) on unseen seeds: DAgger-MDI vs DAgger-BC vs DAgger
+(paper 4.2, Table 6 steps 1-9, Table 7, Fig. 5).
+
+Per seed, every method keeps pi*'s frozen trunk:
+
+1. the expert's demonstration; 2. a head re-initialised from the seed and fitted on it by BC
+(w_BC, exactly as for the pairs);
+3-5. DAgger-MDI: the mapper's output f(w_BC) initialises the head, refitted on the demonstration;
+DAgger-BC: w_BC initialises it, refitted likewise; DAgger: a Xavier head fitted on the
+demonstration, which is step 2's fit itself (same seed, same data, same settings), so w_BC is
+reused rather than fitted twice;
+6. roll out (one-shot test); 7. stop if it succeeded;
+8. else one DAgger round from the step-5 weights: the expert labels the states of that rollout,
+they join the demonstration and the head is refitted; 9. roll out again (two-shot test).
+
+With ``early_stop`` set, every learner rollout runs under a
+:class:`~metadagger.imitation.early_stop.CosineEarlyStop` (paper 3.4.2): an episode whose
+accumulated cosine distance to the expert passes the threshold is cut off and fails. One row per
+(method, seed) goes to ``eval/mdi.csv``; each evaluated head is saved as
+``eval/heads/mdi-<method>-<shot>/<seed>.safetensors`` (tensor ``head``) so a row can be replayed
+with pi* on its seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from metadagger.errors import UserError
+from metadagger.evaluation.rows import RowLog, write_csv
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.data import Dataset
+from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.rollouts import Trajectory, rollout
+from metadagger.io import save_tensors
+from metadagger.mapping.mappers import Mapper, load_mapper
+from metadagger.metal.pairs import cached_groundtruth, head_from_groundtruth
+from metadagger.parallel import make_executor
+from metadagger.policies import Policy
+from metadagger.tasks.base import Task
+
+#: The three methods of Table 6, in table order.
+METHODS = ("dagger-mdi", "dagger-bc", "dagger")
+#: The two tests of Table 6 (steps 6 and 9).
+SHOTS = ("oneshot", "twoshot")
+#: Columns of ``eval/mdi.csv``. ``two_shot_success`` counts a seed solved at either test (the
+#: paper's "two-shot" column); the ``two_shot_*`` outcomes are empty when one-shot succeeded.
+#: ``expert_queries`` = ``demo_steps`` + the DAgger round's labelled states (= ``one_shot_steps``
+#: when the round ran). ``cosine_total`` / ``cosine_per_action``: accumulated and mean cosine
+#: distance between the learner's and the expert's actions in the final test (empty for tasks
+#: with discrete actions).
+MDI_FIELDS = (
+    "method", "seed",
+    "one_shot_success", "one_shot_reward", "one_shot_steps", "one_shot_early_stopped",
+    "two_shot_run", "two_shot_success", "two_shot_reward", "two_shot_steps", "two_shot_early_stopped",
+    "demo_steps", "expert_queries", "cosine_total", "cosine_per_action",
+)
+
+
+@dataclass(frozen=True)
+class MDIConfig:
+    """The MDI protocol on unseen seeds (paper Table 6)."""
+
+    seeds: tuple[int, ...] = tuple(range(5000, 5020))
+    """Unseen seeds (never used for pi* or the pairs)."""
+    bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
+    """The head-only fit on the demonstration (steps 2 and 5); keep it equal to ``pairs.bc``, the
+    fit whose w_BC the mapper learned from. Its ``seed`` is replaced by the env seed."""
+    dagger_bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
+    """The head-only refit of the DAgger round (step 8)."""
+    early_stop: float | None = None
+    """Threshold of the cosine early stop on every learner rollout (Fetch: 20); None: no early stop."""
+
+    def __post_init__(self) -> None:
+        if not self.seeds:
+            raise UserError("mdi.seeds must not be empty; give e.g. seeds: 5000-5019")
+        if not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in self.seeds):
+            raise UserError(f"mdi.seeds must be non-negative integers, got {self.seeds!r}")
+        if not (self.bc.head_only and self.dagger_bc.head_only):
+            raise UserError("mdi.bc.head_only and mdi.dagger_bc.head_only must be true: only layer n is initialised and fitted")
+        if self.early_stop is not None and not (math.isfinite(self.early_stop) and self.early_stop > 0):
+            raise UserError(f"mdi.early_stop must be a finite number > 0 or null (no early stop), got {self.early_stop!r}")
+
+
+@dataclass(frozen=True)
+class MDIJob:
+    """One seed's MDI evaluation (picklable; workers share nothing else)."""
+
+    task: Task
+    groundtruth: str
+    mapper: str
+    seed: int
+    config: MDIConfig
+
+
+@functools.lru_cache(maxsize=2)
+def _cached_mapper(path: str) -> Mapper:
+    return load_mapper(path)
+
+
+def head_dir(run: str | Path, method: str, shot: str) -> Path:
+    """Folder of the heads a method was tested with at one shot (``oneshot`` or ``twoshot``)."""
+    return Path(run) / "eval" / "heads" / f"mdi-{method}-{shot}"
+
+
+def _head(policy: Policy) -> np.ndarray:
+    return policy.head_vector().numpy().copy()
+
+
+def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
+    """Accumulated and per-action cosine distance of a rollout, measured as the early stop does
+    (with its dead zone on short expert labels); None for discrete actions."""
+    if task.is_discrete:
+        return None, None
+    # the meter's threshold is irrelevant here: only its totals are read
+    meter = CosineEarlyStop()
+    for action, label in zip(traj.learner_actions, traj.expert_labels):
+        meter.update(action, label)
+    return meter.total, meter.mean
+
+
+def _step5_heads(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache, mapper: Mapper) -> dict[str, np.ndarray]:
+    """Steps 2-5: each method's head after training on the demonstration."""
+    fit_bc(policy, demo, bc, cache=cache)
+    w_bc = _head(policy)
+    heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
+    for method, init in (("dagger-mdi", mapper(w_bc)), ("dagger-bc", w_bc)):
+        policy.load_head_vector(torch.from_numpy(init))
+        fit_bc(policy, demo, bc, cache=cache)
+        heads[method] = _head(policy)
+    return heads
+
+
+def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
+    """Run Table 6 for every method on one seed; returns ``seed``, ``rows`` and ``heads``
+    (``{"mdi-<method>-<shot>": head vector}``)."""
+    config, task, seed = job.config, job.task, job.seed
+    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), seed)
+    bc = dataclasses.replace(config.bc, seed=seed)
+    dagger_bc = dataclasses.replace(config.dagger_bc, seed=seed)
+    stop = CosineEarlyStop(threshold=config.early_stop) if config.early_stop is not None else None
+    env = task.make_env()
+    rows: list[dict[str, Any]] = []
+    heads: dict[str, np.ndarray] = {}
+
+    def test(head: np.ndarray) -> Trajectory:
+        policy.load_head_vector(torch.from_numpy(head))
+        return rollout(env, seed=seed, policy=policy, early_stop=stop)
+
+    try:
+        demo = rollout(env, seed=seed, policy=None).to_dataset()
+        cache = FeatureCache(policy)
+        one_shot_heads = _step5_heads(policy, demo, bc, cache, _cached_mapper(job.mapper))
+        for method in METHODS:
+            heads[f"mdi-{method}-oneshot"] = one_shot_heads[method]
+            first = test(one_shot_heads[method])
+            final, round_queries = first, 0
+            if not first.success:
+                # The DAgger round's rollout is the one-shot test itself (same head, seed and early
+                # stop on a deterministic env), so its labelled states are aggregated directly.
+                fit_bc(policy, demo.concat(first.to_dataset()), dagger_bc, cache=cache)
+                heads[f"mdi-{method}-twoshot"] = _head(policy)
+                final, round_queries = test(heads[f"mdi-{method}-twoshot"]), first.expert_queries
+            cosine_total, cosine_mean = _cosine(task, final)
+            ran = final is not first
+            rows.append({
+                "method": method, "seed": seed,
+                "one_shot_success": bool(first.success), "one_shot_reward": float(first.reward),
+                "one_shot_steps": int(first.steps), "one_shot_early_stopped": bool(first.early_stopped),
+                "two_shot_run": ran, "two_shot_success": bool(final.success),
+                "two_shot_reward": float(final.reward) if ran else None, "two_shot_steps": int(final.steps) if ran else None,
+                "two_shot_early_stopped": bool(final.early_stopped) if ran else None,
+                "demo_steps": len(demo), "expert_queries": len(demo) + round_queries,
+                "cosine_total": cosine_total, "cosine_per_action": cosine_mean,
+            })
+    finally:
+        env.close()
+    return {"seed": seed, "rows": rows, "heads": heads}
+
+
+def _check_inputs(task: Task, run: Path, config: MDIConfig, groundtruth: Path, mapper_path: Path) -> None:
+    if not groundtruth.is_file():
+        raise UserError(f"pi* not found at {groundtruth}; run `metadagger groundtruth --out {run}` first")
+    if not mapper_path.is_file():
+        raise UserError(f"MDI mapper not found at {mapper_path}; run `metadagger train-mapper --out {run} --kind dm` first")
+    if config.early_stop is not None and not isinstance(task.learner_action_space, gym.spaces.Box):
+        raise UserError(
+            f"mdi.early_stop={config.early_stop} needs displacement (Box) actions, but task {task.name!r} has "
+            f"{task.learner_action_space}; set mdi.early_stop to null"
+        )
+    head_size = cached_groundtruth(str(groundtruth)).head_size
+    mapper_dim = _cached_mapper(str(mapper_path)).dim
+    if mapper_dim != head_size:
+        raise UserError(
+            f"the mapper at {mapper_path} maps heads of length {mapper_dim}, but pi*'s head has {head_size}; "
+            "train the mapper on this run's pairs (metadagger train-mapper)"
+        )
+
+
+def evaluate_mdi(
+    task: Task,
+    run: str | Path,
+    config: MDIConfig,
+    *,
+    groundtruth: str | Path,
+    mapper_path: str | Path,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Run the MDI protocol on every seed of ``config`` not evaluated yet.
+
+    Args:
+        task: the task (its learner env is rolled out).
+        run: the run folder; results go to ``eval/mdi.csv``, ``eval/mdi_rows.jsonl`` (the resume
+            log, one line per finished seed) and ``eval/heads/mdi-<method>-<shot>/``.
+        config: seeds, fits and early stop.
+        groundtruth: pi*'s ``policy.safetensors``.
+        mapper_path: the mapper used as initialiser (a ``mapper.safetensors``).
+        executor: ``"local"`` or ``"ray"`` (see :func:`metadagger.parallel.make_executor`).
+        workers: parallel workers (default: all cores / the cluster's CPUs).
+        address: Ray cluster address.
+        progress: show a progress bar.
+
+    Returns:
+        The rows (:data:`MDI_FIELDS`) of every seed of ``config``, by seed then in
+        :data:`METHODS` order.
+    """
+    run, groundtruth, mapper_path = Path(run), Path(groundtruth), Path(mapper_path)
+    _check_inputs(task, run, config, groundtruth, mapper_path)
+    log = RowLog(run / "eval" / "mdi_rows.jsonl")
+    done = log.done_seeds()
+    jobs = [MDIJob(task=task, groundtruth=str(groundtruth), mapper=str(mapper_path), seed=s, config=config)
+            for s in config.seeds if s not in done]
+    if jobs:
+        with make_executor(executor, workers=workers, address=address) as pool:
+            for result in tqdm(pool.imap_unordered(evaluate_mdi_seed, jobs), total=len(jobs), desc="mdi", disable=not progress):
+                for name, head in result["heads"].items():
+                    save_tensors(run / "eval" / "heads" / name / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
+                # logged last: a seed counts as done only once its heads are on disk
+                log.append(result["seed"], result["rows"])
+    seeds = set(config.seeds)
+    rows = [r for r in log.rows() if r["seed"] in seeds]
+    write_csv(run / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
+    return rows
