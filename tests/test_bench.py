@@ -38,3 +38,12 @@ def test_bench_env_rejects_unknown_task_and_empty_runs():
         bench_env("fetch")
     with pytest.raises(UserError, match="steps > 0"):
         bench_env("carracing", steps=0)
+
+
+def test_bench_bc_times_full_and_head_only_fits():
+    from metadagger.bench import bench_bc
+
+    result = bench_bc(images=20, epochs=1)
+    assert result["parameters"] > 100_000 and result["head_size"] == 64 * 20 + 20
+    assert result["full_fit_s"] > 0 and result["head_only_fit_s"] > 0
+    assert result["speedup_incl_features"] == result["full_fit_s"] / (result["head_only_features_s"] + result["head_only_fit_s"])

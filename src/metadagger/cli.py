@@ -199,6 +199,22 @@ def bench_env_cmd(
     typer.echo(f"wrote {out}")
 
 
+@bench_app.command("bc")
+@user_errors
+def bench_bc_cmd(
+    images: int = typer.Option(2000, "--images", min=10, help="Random 96x96x3 images to fit on."),
+    epochs: int = typer.Option(3, "--epochs", min=1, help="Epochs of each fit."),
+    out: Path = typer.Option(Path("runs/bench/bc.json"), "--out", help="JSON file to write."),
+) -> None:
+    """Full BC fit vs head-only refit on cached trunk features, and inference latency."""
+    from metadagger.bench import bench_bc, write_bench
+
+    result = bench_bc(images=images, epochs=epochs)
+    write_bench(result, out)
+    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+    typer.echo(f"wrote {out}")
+
+
 @bench_app.command("pairs")
 @user_errors
 def bench_pairs_cmd(

@@ -24,7 +24,7 @@ def summarize(rows: Iterable[Mapping[str, float]]) -> dict[str, float]:
     n = len(rows)
     wins = sum(bool(r["success"]) for r in rows)
     lo, hi = wilson_interval(wins, n)
-    return {
+    summary = {
         "episodes": n,
         "successes": wins,
         "success_rate": wins / n if n else 0.0,
@@ -32,5 +32,7 @@ def summarize(rows: Iterable[Mapping[str, float]]) -> dict[str, float]:
         "success_ci_high": hi,
         "mean_reward": sum(float(r["reward"]) for r in rows) / n if n else 0.0,
         "mean_steps": sum(float(r["steps"]) for r in rows) / n if n else 0.0,
-        "expert_queries": int(sum(int(r.get("expert_queries", 0)) for r in rows)),
     }
+    if any("expert_queries" in r for r in rows):
+        summary["expert_queries"] = int(sum(int(r.get("expert_queries", 0)) for r in rows))
+    return summary
