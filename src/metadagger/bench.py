@@ -37,7 +37,7 @@ def smooth_actions(seed: int, steps: int) -> np.ndarray:
     return actions
 
 
-def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), steps: int = 300, warmup_steps: int = 100) -> dict:
+def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), steps: int = 1000, warmup_steps: int = 100) -> dict:
     """Step our base env and upstream's on the same seeds and actions; return both rates.
 
     Both envs are built with ``gym.make`` (same wrappers) and take turns, 50 steps at a time,

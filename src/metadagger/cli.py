@@ -186,7 +186,7 @@ def reproduce(
 def bench_env_cmd(
     task: str = TASK,
     seeds: str = typer.Option("0-2", "--seeds", help="Seeds to step."),
-    steps: int = typer.Option(300, "--steps", min=1, help="Steps per seed."),
+    steps: int = typer.Option(1000, "--steps", min=1, help="Steps per seed (1000: a full episode, as upstream registers it)."),
     out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
 ) -> None:
     """Steps per second of our env against upstream's, on the same seeds and actions."""
