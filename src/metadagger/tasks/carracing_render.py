@@ -56,7 +56,7 @@ _TEXT_PATCH = (round(_TEXT_BOX[0] * _SX), round(_TEXT_BOX[1] * _SY))
 _TEXT_CENTER = (60, cr.WINDOW_H - cr.WINDOW_H * 2.5 / 40.0)
 #: pygame's smoothscale loses two grey levels to fixed-point truncation (measured: a uniform
 #: surface of value v comes out as max(v - 2, 0)); applied after our exact area average.
-_SMOOTHSCALE_LUT = np.clip(np.arange(256) - 2, 0, 255).astype(np.uint8)
+_SMOOTHSCALE_DARKEN = (2.0, 2.0, 2.0, 0.0)  # cv2.subtract saturates at 0
 #: Edge weights of road polygons (tiles and kerbs): only the two sides along the track are
 #: shrunk; the ends meet the neighbouring tile, so they stay put.
 _ALONG_TRACK = np.array([0.0, 1.0, 0.0, 1.0])
@@ -254,7 +254,7 @@ class StateRenderer:
         state = state.copy() if state is canvas else state
         self._draw_indicators(state)
         state[STATE_SIZE - _TEXT_PATCH[1] :, : _TEXT_PATCH[0]] = text_patch(f"{reward:04.0f}")
-        return cv2.LUT(state, _SMOOTHSCALE_LUT)
+        return cv2.subtract(state, _SMOOTHSCALE_DARKEN)
 
     def _camera(self, zoom: float) -> tuple[np.ndarray, np.ndarray]:
         """Affine map world -> canvas: upstream's rotate/zoom/scroll, the vertical flip, the downscale."""
