@@ -42,7 +42,7 @@ from metadagger.imitation.data import Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
-from metadagger.mapping.mappers import Mapper, load_mapper
+from metadagger.mapping.mappers import KINDS, Mapper, load_mapper
 from metadagger.metal.pairs import cached_groundtruth, head_from_groundtruth
 from metadagger.parallel import make_executor
 from metadagger.policies import Policy
@@ -79,6 +79,9 @@ class MDIConfig:
     """The head-only refit of the DAgger round (step 8)."""
     early_stop: float | None = None
     """Threshold of the cosine early stop on every learner rollout (Fetch: 20); None: no early stop."""
+    mapper: str = "dm"
+    """Kind of the mapper that initialises DAgger-MDI (the run's ``mappers/<kind>/``; the paper's
+    Table 9 trains one mapping network)."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -89,6 +92,8 @@ class MDIConfig:
             raise UserError("mdi.bc.head_only and mdi.dagger_bc.head_only must be true: only layer n is initialised and fitted")
         if self.early_stop is not None and not (math.isfinite(self.early_stop) and self.early_stop > 0):
             raise UserError(f"mdi.early_stop must be a finite number > 0 or null (no early stop), got {self.early_stop!r}")
+        if self.mapper not in KINDS:
+            raise UserError(f"mdi.mapper must be one of {', '.join(KINDS)}, got {self.mapper!r}")
 
 
 @dataclass(frozen=True)
@@ -109,11 +114,19 @@ def _cached_mapper(path: str) -> Mapper:
 
 def head_dir(run: str | Path, method: str, shot: str) -> Path:
     """Folder of the heads a method was tested with at one shot (``oneshot`` or ``twoshot``)."""
+    if method not in METHODS or shot not in SHOTS:
+        raise UserError(f"no MDI heads for method {method!r} shot {shot!r}: expected a method of {METHODS} and a shot of {SHOTS}")
     return Path(run) / "eval" / "heads" / f"mdi-{method}-{shot}"
 
 
 def _head(policy: Policy) -> np.ndarray:
     return policy.head_vector().numpy().copy()
+
+
+def _load(policy: Policy, head: np.ndarray) -> None:
+    # a copy: load_head_vector makes the head's parameters views of the vector it is given, so a
+    # later fit would otherwise overwrite the caller's array (a head that is still to be saved)
+    policy.load_head_vector(torch.tensor(head))
 
 
 def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
@@ -134,7 +147,7 @@ def _step5_heads(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCach
     w_bc = _head(policy)
     heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
     for method, init in (("dagger-mdi", mapper(w_bc)), ("dagger-bc", w_bc)):
-        policy.load_head_vector(torch.from_numpy(init))
+        _load(policy, init)
         fit_bc(policy, demo, bc, cache=cache)
         heads[method] = _head(policy)
     return heads
@@ -142,7 +155,7 @@ def _step5_heads(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCach
 
 def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     """Run Table 6 for every method on one seed; returns ``seed``, ``rows`` and ``heads``
-    (``{"mdi-<method>-<shot>": head vector}``)."""
+    (``{(method, shot): head vector}``)."""
     config, task, seed = job.config, job.task, job.seed
     policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), seed)
     bc = dataclasses.replace(config.bc, seed=seed)
@@ -150,10 +163,10 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     stop = CosineEarlyStop(threshold=config.early_stop) if config.early_stop is not None else None
     env = task.make_env()
     rows: list[dict[str, Any]] = []
-    heads: dict[str, np.ndarray] = {}
+    heads: dict[tuple[str, str], np.ndarray] = {}
 
     def test(head: np.ndarray) -> Trajectory:
-        policy.load_head_vector(torch.from_numpy(head))
+        _load(policy, head)
         return rollout(env, seed=seed, policy=policy, early_stop=stop)
 
     try:
@@ -161,17 +174,16 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
         cache = FeatureCache(policy)
         one_shot_heads = _step5_heads(policy, demo, bc, cache, _cached_mapper(job.mapper))
         for method in METHODS:
-            heads[f"mdi-{method}-oneshot"] = one_shot_heads[method]
-            first = test(one_shot_heads[method])
-            final, round_queries = first, 0
-            if not first.success:
+            heads[method, "oneshot"] = one_shot_heads[method]
+            first = final = test(one_shot_heads[method])
+            ran = not first.success
+            if ran:
                 # The DAgger round's rollout is the one-shot test itself (same head, seed and early
                 # stop on a deterministic env), so its labelled states are aggregated directly.
                 fit_bc(policy, demo.concat(first.to_dataset()), dagger_bc, cache=cache)
-                heads[f"mdi-{method}-twoshot"] = _head(policy)
-                final, round_queries = test(heads[f"mdi-{method}-twoshot"]), first.expert_queries
+                heads[method, "twoshot"] = _head(policy)
+                final = test(heads[method, "twoshot"])
             cosine_total, cosine_mean = _cosine(task, final)
-            ran = final is not first
             rows.append({
                 "method": method, "seed": seed,
                 "one_shot_success": bool(first.success), "one_shot_reward": float(first.reward),
@@ -179,7 +191,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                 "two_shot_run": ran, "two_shot_success": bool(final.success),
                 "two_shot_reward": float(final.reward) if ran else None, "two_shot_steps": int(final.steps) if ran else None,
                 "two_shot_early_stopped": bool(final.early_stopped) if ran else None,
-                "demo_steps": len(demo), "expert_queries": len(demo) + round_queries,
+                "demo_steps": len(demo), "expert_queries": len(demo) + (first.expert_queries if ran else 0),
                 "cosine_total": cosine_total, "cosine_per_action": cosine_mean,
             })
     finally:
@@ -245,8 +257,8 @@ def evaluate_mdi(
     if jobs:
         with make_executor(executor, workers=workers, address=address) as pool:
             for result in tqdm(pool.imap_unordered(evaluate_mdi_seed, jobs), total=len(jobs), desc="mdi", disable=not progress):
-                for name, head in result["heads"].items():
-                    save_tensors(run / "eval" / "heads" / name / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
+                for (method, shot), head in result["heads"].items():
+                    save_tensors(head_dir(run, method, shot) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
                 # logged last: a seed counts as done only once its heads are on disk
                 log.append(result["seed"], result["rows"])
     seeds = set(config.seeds)

@@ -1,0 +1,92 @@
+"""The MDI section of a report (paper Table 7 and Fig. 5), built only from ``eval/mdi.csv``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from metadagger.evaluation.mdi import METHODS
+from metadagger.evaluation.metrics import summarize
+from metadagger.evaluation.rows import read_csv
+from metadagger.plotting import plt, save_figure
+
+LABELS = {"dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger"}
+FIGURE = "mdi_cosine.png"
+COSINE_KEYS = (("cosine_total", "accumulated"), ("cosine_per_action", "per action"))
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}%"
+
+
+def _rate(rows: list[dict[str, Any]], key: str) -> str:
+    s = summarize({"success": r[key], "reward": 0.0, "steps": 0} for r in rows)
+    return (f"{_pct(s['success_rate'])} ({s['successes']}/{s['episodes']}; "
+            f"{_pct(s['success_ci_low'])}-{_pct(s['success_ci_high'])})")
+
+
+def _by_method(rows: list[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:
+    table: dict[str, dict[int, dict[str, Any]]] = {m: {} for m in METHODS}
+    for r in rows:
+        table[r["method"]][r["seed"]] = r
+    return table
+
+
+def mdi_section(run: str | Path, figures: str | Path) -> list[str]:
+    """Markdown lines of the MDI section (Table 7, expert queries, Fig. 5); [] if there is no
+    ``eval/mdi.csv``. Fig. 5 is written to ``figures/mdi_cosine.png`` when the rows carry cosine
+    distances (continuous-action tasks), and linked relative to the report's folder."""
+    path = Path(run) / "eval" / "mdi.csv"
+    if not path.is_file():
+        return []
+    table = _by_method(read_csv(path))
+    methods = [m for m in METHODS if table[m]]
+    lines = ["## MDI: DAgger-MDI vs DAgger-BC vs DAgger on unseen seeds (Tables 6-7)", "",
+             f"{len(table[methods[0]]) if methods else 0} unseen seeds. One-shot: solved by the head trained on the "
+             "demonstration from the method's initialisation (Table 6 step 6). Two-shot: solved at step 6 or after "
+             "one DAgger round (step 9).", "",
+             "### Table 7: success rate (95% Wilson interval) and expert queries", "",
+             "| method | one-shot | two-shot | mean expert queries per seed |", "|---|---|---|---|"]
+    for m in methods:
+        rows = list(table[m].values())
+        queries = sum(int(r["expert_queries"]) for r in rows) / len(rows)
+        lines.append(f"| {LABELS[m]} | {_rate(rows, 'one_shot_success')} | {_rate(rows, 'two_shot_success')} | {queries:.1f} |")
+    lines.append("")
+    return lines + _fig5(table, Path(figures))
+
+
+def _measured(row: dict[str, Any]) -> bool:
+    # read_csv leaves an empty cell (no distance: discrete actions) as ""
+    return all(isinstance(row[k], (int, float)) and not isinstance(row[k], bool) for k, _ in COSINE_KEYS)
+
+
+def _fig5(table: dict[str, dict[int, dict[str, Any]]], figures: Path) -> list[str]:
+    """Fig. 5 (DAgger-MDI's cosine distances against each other method's, one point per seed) and
+    how often DAgger-MDI is the closer one; [] if no distances are recorded."""
+    mdi = table["dagger-mdi"]
+    seeds = {m: [s for s in sorted(set(mdi) & set(table[m])) if _measured(mdi[s]) and _measured(table[m][s])] for m in METHODS[1:]}
+    others = [m for m in METHODS[1:] if seeds[m]]
+    if not others:
+        return []
+    lines = ["### Fig. 5: cosine distance to the expert in the final test (one point per seed)", "",
+             "Below the diagonal: DAgger-MDI's actions are closer to the expert's than the other method's.", "",
+             "| DAgger-MDI vs | seeds | DAgger-MDI lower: accumulated | DAgger-MDI lower: per action |", "|---|---|---|---|"]
+    fig, axes = plt.subplots(len(COSINE_KEYS), len(others), figsize=(3.4 * len(others), 6.4), squeeze=False)
+    for col, m in enumerate(others):
+        lower = []
+        for row, (key, name) in enumerate(COSINE_KEYS):
+            x = [float(table[m][s][key]) for s in seeds[m]]
+            y = [float(mdi[s][key]) for s in seeds[m]]
+            lower.append(sum(b < a for a, b in zip(x, y)))
+            ax = axes[row][col]
+            ax.scatter(x, y, s=14)
+            hi = max(x + y) or 1.0  # distances are >= 0: the diagonal starts at 0
+            ax.plot([0.0, hi], [0.0, hi], "k--", lw=0.8)
+            ax.set_xlabel(f"{LABELS[m]}: {name}")
+            ax.set_ylabel(f"DAgger-MDI: {name}")
+            if row == 0:
+                ax.set_title(f"DAgger-MDI vs {LABELS[m]}")
+        n = len(seeds[m])
+        lines.append(f"| {LABELS[m]} | {n} | {lower[0]}/{n} | {lower[1]}/{n} |")
+    save_figure(fig, figures / FIGURE)
+    return lines + ["", f"![MDI cosine distances]({figures.name}/{FIGURE})", ""]

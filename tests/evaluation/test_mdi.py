@@ -1,0 +1,216 @@
+"""The MDI protocol (paper Table 6) on the toy corridor's Box variant, and its report section."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from toy_task import CorridorTask
+
+from metadagger.config import build, load_preset, parse_seeds
+from metadagger.errors import UserError
+from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_mdi, head_dir
+from metadagger.evaluation.mdm import EvalConfig
+from metadagger.evaluation.report_fetch import FIGURE, mdi_section
+from metadagger.evaluation.rows import read_csv, write_csv
+from metadagger.imitation.bc import BCConfig, fit_bc
+from metadagger.imitation.rollouts import collect
+from metadagger.io import load_tensors
+from metadagger.mapping.mappers import Mapper
+from metadagger.mapping.train import MapperConfig, paper_config
+from metadagger.metal.groundtruth import GroundTruthConfig, groundtruth_path, train_groundtruth
+from metadagger.metal.pairs import head_from_groundtruth
+from metadagger.policies import load_policy
+
+GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+# 1-D displacements: the cosine distance per step is 0 (same sign), 1 (one is zero) or 2 (opposite)
+CONFIG = MDIConfig(
+    seeds=(300, 301, 302), early_stop=6.0,
+    bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
+    dagger_bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
+)
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory) -> tuple[Path, Path]:
+    """A run folder with a tiny pi* (Box corridor) and a pi*-head control mapper as the MDI mapper."""
+    run = tmp_path_factory.mktemp("mdi")
+    train_groundtruth(CorridorTask(discrete=False), GT, run, progress=False)
+    mapper = run / "mappers" / "pistar-head" / "mapper.safetensors"
+    Mapper.pistar_head(load_policy(groundtruth_path(run)).head_vector()).save(mapper)
+    return run, mapper
+
+
+@pytest.fixture(scope="module")
+def evaluated(toy_run) -> tuple[Path, list[dict]]:
+    run, mapper = toy_run
+    rows = evaluate_mdi(CorridorTask(discrete=False), run, CONFIG, groundtruth=groundtruth_path(run), mapper_path=mapper,
+                        workers=1, progress=False)
+    return run, rows
+
+
+def test_rows_cover_every_method_and_seed_with_all_fields(evaluated):
+    run, rows = evaluated
+    assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in METHODS]
+    assert all(set(r) == set(MDI_FIELDS) for r in rows)
+    csv_rows = read_csv(run / "eval" / "mdi.csv")
+    assert [(r["method"], r["seed"], r["one_shot_success"]) for r in csv_rows] == [(r["method"], r["seed"], r["one_shot_success"]) for r in rows]
+
+
+def test_two_shot_runs_only_after_a_failed_one_shot(evaluated):
+    run, rows = evaluated
+    assert {r["two_shot_run"] for r in rows} == {True, False}, "the toy run should exercise both branches"
+    for r in rows:
+        assert r["two_shot_run"] == (not r["one_shot_success"])
+        assert r["two_shot_success"] >= r["one_shot_success"]  # two-shot counts seeds solved at either test
+        twoshot = head_dir(run, r["method"], "twoshot") / f"{r['seed']}.safetensors"
+        assert twoshot.is_file() == r["two_shot_run"]
+        assert (head_dir(run, r["method"], "oneshot") / f"{r['seed']}.safetensors").is_file()
+        if not r["two_shot_run"]:
+            assert r["two_shot_reward"] is None and r["two_shot_steps"] is None
+
+
+def test_expert_queries_add_up(evaluated):
+    _, rows = evaluated
+    demos = {t.seed: t.steps for t in collect(CorridorTask(discrete=False), CONFIG.seeds, policy=None)}
+    for r in rows:
+        assert r["demo_steps"] == demos[r["seed"]]
+        # the DAgger round labels every state of the failed one-shot rollout
+        assert r["expert_queries"] == r["demo_steps"] + (r["one_shot_steps"] if r["two_shot_run"] else 0)
+
+
+def test_cosine_distances_and_early_stop(evaluated):
+    _, rows = evaluated
+    for r in rows:
+        final_steps = r["two_shot_steps"] if r["two_shot_run"] else r["one_shot_steps"]
+        assert 0.0 <= r["cosine_total"] <= 2.0 * final_steps
+        assert r["cosine_per_action"] == pytest.approx(r["cosine_total"] / final_steps)
+        stopped = r["two_shot_early_stopped"] if r["two_shot_run"] else r["one_shot_early_stopped"]
+        # the early stop cuts an episode once the accumulated distance passes the threshold
+        assert stopped == (r["cosine_total"] > CONFIG.early_stop)
+        if stopped:
+            assert not r["two_shot_success"]
+
+
+def test_dagger_one_shot_head_is_a_fresh_bc_fit_on_the_demo(evaluated):
+    run, _ = evaluated
+    seed = CONFIG.seeds[0]
+    policy = head_from_groundtruth(load_policy(groundtruth_path(run)), seed)
+    demo = collect(CorridorTask(discrete=False), [seed], policy=None)[0].to_dataset()
+    fit_bc(policy, demo, dataclasses.replace(CONFIG.bc, seed=seed))
+    head = {m: load_tensors(head_dir(run, m, "oneshot") / f"{seed}.safetensors")["head"] for m in METHODS}
+    assert torch.equal(head["dagger"], policy.head_vector())
+    # DAgger-BC refits w_BC once more on the demonstration; DAgger-MDI starts from the mapper's output
+    assert not torch.equal(head["dagger-bc"], head["dagger"])
+    assert not torch.equal(head["dagger-mdi"], head["dagger-bc"])
+
+
+def test_resume_skips_finished_seeds_and_matches_a_full_run(toy_run, evaluated, tmp_path):
+    run, mapper = toy_run
+    task = CorridorTask(discrete=False)
+    shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
+    first = MDIConfig(**{**CONFIG.__dict__, "seeds": CONFIG.seeds[:1]})
+    evaluate_mdi(task, tmp_path, first, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    head = head_dir(tmp_path, "dagger", "oneshot") / f"{CONFIG.seeds[0]}.safetensors"
+    stamp = head.stat().st_mtime_ns
+    evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    assert head.stat().st_mtime_ns == stamp
+    assert (tmp_path / "eval" / "mdi.csv").read_bytes() == (evaluated[0] / "eval" / "mdi.csv").read_bytes()
+
+
+def test_report_section_renders_from_the_csv_alone(evaluated, tmp_path):
+    (tmp_path / "eval").mkdir()
+    shutil.copy(evaluated[0] / "eval" / "mdi.csv", tmp_path / "eval" / "mdi.csv")
+    lines = mdi_section(tmp_path, tmp_path / "report" / "figures")
+    text = "\n".join(lines)
+    assert "Table 7" in text and all(name in text for name in ("DAgger-MDI", "DAgger-BC", "| DAgger |"))
+    assert f"figures/{FIGURE}" in text and (tmp_path / "report" / "figures" / FIGURE).is_file()
+    assert mdi_section(tmp_path / "missing", tmp_path / "figures") == []
+
+
+def test_discrete_task_has_no_cosine_distances_and_no_figure(tmp_path):
+    task = CorridorTask(discrete=True)
+    train_groundtruth(task, GroundTruthConfig(**{**GT.__dict__, "seeds": (0, 1), "dagger_rounds": 0}), tmp_path, progress=False)
+    mapper = tmp_path / "mapper.safetensors"
+    Mapper.pistar_head(load_policy(groundtruth_path(tmp_path)).head_vector()).save(mapper)
+    config = MDIConfig(**{**CONFIG.__dict__, "seeds": (300,), "early_stop": None})
+    rows = evaluate_mdi(task, tmp_path, config, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    assert len(rows) == len(METHODS) and all(r["cosine_total"] is None and r["cosine_per_action"] is None for r in rows)
+    assert not any(r["one_shot_early_stopped"] for r in rows)
+    lines = mdi_section(tmp_path, tmp_path / "report" / "figures")
+    assert any("Table 7" in line for line in lines) and not (tmp_path / "report" / "figures" / FIGURE).exists()
+
+
+def test_table7_counts_and_wilson_intervals(tmp_path):
+    rows = []
+    for seed, (one, two) in enumerate([(True, True), (False, True), (False, False), (False, False)]):
+        for method in METHODS:
+            rows.append({"method": method, "seed": seed, "one_shot_success": one, "two_shot_success": two,
+                         "two_shot_run": not one, "expert_queries": 50 + (0 if one else 20), "cosine_total": None, "cosine_per_action": None})
+    write_csv(tmp_path / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
+    lines = mdi_section(tmp_path, tmp_path / "figures")
+    # 1/4 -> Wilson 4.6%-69.9%, 2/4 -> 15.0%-85.0%; queries (50 + 3 * 70) / 4 = 65
+    assert "| DAgger-MDI | 25.0% (1/4; 4.6%-69.9%) | 50.0% (2/4; 15.0%-85.0%) | 65.0 |" in lines
+    assert not any("Fig. 5" in line for line in lines)  # no distances recorded: no figure
+    assert not (tmp_path / "figures" / FIGURE).exists()
+
+
+def test_fig5_counts_the_seeds_where_dagger_mdi_is_closer(tmp_path):
+    totals = {"dagger-mdi": [1.0, 5.0, 2.0], "dagger-bc": [3.0, 4.0, 6.0], "dagger": [0.5, 9.0, 2.0]}
+    rows = [{"method": m, "seed": seed, "one_shot_success": False, "two_shot_success": False, "expert_queries": 60,
+             "cosine_total": totals[m][seed], "cosine_per_action": totals[m][seed] / 10}
+            for seed in range(3) for m in METHODS]
+    write_csv(tmp_path / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
+    lines = mdi_section(tmp_path, tmp_path / "figures")
+    assert "| DAgger-BC | 3 | 2/3 | 2/3 |" in lines
+    assert "| DAgger | 3 | 1/3 | 1/3 |" in lines  # a tie is not "lower"
+    assert (tmp_path / "figures" / FIGURE).is_file()
+
+
+def test_missing_inputs_are_user_errors(toy_run, tmp_path):
+    run, mapper = toy_run
+    task = CorridorTask(discrete=False)
+    with pytest.raises(UserError, match="pi\\* not found"):
+        evaluate_mdi(task, tmp_path, CONFIG, groundtruth=tmp_path / "nope.safetensors", mapper_path=mapper, progress=False)
+    with pytest.raises(UserError, match="train-mapper"):
+        evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(run), mapper_path=tmp_path / "nope.safetensors", progress=False)
+    with pytest.raises(UserError, match="early_stop"):
+        evaluate_mdi(CorridorTask(discrete=True), tmp_path, CONFIG, groundtruth=groundtruth_path(run), mapper_path=mapper, progress=False)
+    wrong = tmp_path / "wrong.safetensors"
+    Mapper.pistar_head(torch.zeros(7)).save(wrong)
+    with pytest.raises(UserError, match="length 7"):
+        evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(run), mapper_path=wrong, progress=False)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"seeds": ()}, "mdi.seeds must not be empty"),
+        ({"seeds": (-1,)}, "non-negative"),
+        ({"bc": BCConfig(head_only=False)}, "head_only"),
+        ({"early_stop": 0.0}, "mdi.early_stop"),
+        ({"early_stop": float("inf")}, "mdi.early_stop"),
+        ({"mapper": "xyz"}, "mdi.mapper"),
+    ],
+)
+def test_config_rejects_bad_values(kwargs, match):
+    with pytest.raises(UserError, match=match):
+        MDIConfig(**kwargs)
+
+
+@pytest.mark.parametrize("preset", ["quick", "paper", "ci"])
+def test_fetch_presets_build(preset):
+    sections = load_preset("fetch", preset)
+    assert sections["max_episode_steps"] >= 1
+    mdi = build(MDIConfig, sections["mdi"], where="mdi")
+    assert mdi.early_stop is not None and mdi.mapper in sections["mappers"]
+    gt = build(GroundTruthConfig, sections["groundtruth"], where="groundtruth")
+    mdm = build(EvalConfig, sections["evaluate"], where="evaluate")
+    used = set(gt.seeds) | set(gt.eval_seeds) | set(parse_seeds(sections["pairs"]["seeds"]))
+    assert not (set(mdi.seeds) | set(mdm.seeds)) & used
+    assert mdi.bc == build(BCConfig, sections["pairs"]["bc"], where="pairs.bc")  # MDI's BC fit is the pairs' BC fit
+    overrides = sections["mappers"][mdi.mapper]
+    assert isinstance(build(MapperConfig, {**paper_config(mdi.mapper).__dict__, **overrides}, where="mappers"), MapperConfig)
