@@ -159,3 +159,16 @@ def test_make_policy_for_carracing():
     policy = make_policy(task, seed=0)
     assert policy.arch["obs_shape"] == [96, 96, 3] and policy.arch["n_outputs"] == 20
     assert policy.discrete and policy.task == "carracing"
+
+
+def test_load_head_vector_copies_so_training_never_writes_into_the_callers_array():
+    from toy_task import CorridorTask
+
+    from metadagger.policies import make_policy
+
+    policy = make_policy(CorridorTask(), seed=0)
+    source = np.zeros(policy.head_size, dtype=np.float32)
+    policy.load_head_vector(source)
+    with torch.no_grad():
+        policy.net.head.weight.add_(1.0)
+    assert not source.any()

@@ -12,7 +12,6 @@ import re
 import types
 import typing
 from importlib import resources
-from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml

@@ -200,7 +200,9 @@ class Policy:
                 "pass a vector from head_vector() of a policy with the same architecture"
             )
         with torch.no_grad():
-            vector_to_parameters(vector.to(self.net.head.weight.device), self.net.head.parameters())
+            # vector_to_parameters makes each parameter a view of its input: copy, so training
+            # the head never writes into the caller's array
+            vector_to_parameters(vector.to(self.net.head.weight.device).clone(), self.net.head.parameters())
 
     def reset_head(self, seed: int) -> None:
         """Re-initialise layer n: Xavier-uniform weight, zero bias, deterministic from ``seed``."""

@@ -15,6 +15,7 @@ import yaml
 from metadagger.config import build, dump_yaml, load_preset
 from metadagger.errors import UserError
 from metadagger.io import write_text
+from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig
@@ -41,6 +42,8 @@ class RunConfig:
     """Per-kind overrides of the paper's mapper settings, e.g. ``{sam: {epochs: 300}}`` (keys dm, sam, tam)."""
     evaluate: EvalConfig = field(default_factory=EvalConfig)
     """MDM and one-shot evaluation on unseen seeds."""
+    mdi: MDIConfig | None = None
+    """The MDI protocol (paper Table 6) on unseen seeds; None: not run (CarRacing)."""
 
     def __post_init__(self) -> None:
         if self.max_episode_steps < 1:
@@ -49,9 +52,10 @@ class RunConfig:
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
-        seen = sorted((gt | set(self.pairs.seeds)) & set(self.evaluate.seeds))
+        unseen = set(self.evaluate.seeds) | (set(self.mdi.seeds) if self.mdi else set())
+        seen = sorted((gt | set(self.pairs.seeds)) & unseen)
         if seen:
-            raise UserError(f"evaluate.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' seeds; pick disjoint ranges")
+            raise UserError(f"evaluate.seeds and mdi.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' seeds; pick disjoint ranges")
         unknown = sorted(set(self.mappers) - {"dm", "sam", "tam"})
         if unknown:
             raise UserError(f"mappers has unknown kind(s) {unknown}; expected dm, sam or tam")

@@ -123,12 +123,6 @@ def _head(policy: Policy) -> np.ndarray:
     return policy.head_vector().numpy().copy()
 
 
-def _load(policy: Policy, head: np.ndarray) -> None:
-    # a copy: load_head_vector makes the head's parameters views of the vector it is given, so a
-    # later fit would otherwise overwrite the caller's array (a head that is still to be saved)
-    policy.load_head_vector(torch.tensor(head))
-
-
 def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
     """Accumulated and per-action cosine distance of a rollout, measured as the early stop does
     (with its dead zone on short expert labels); None for discrete actions."""
@@ -147,7 +141,7 @@ def _step5_heads(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCach
     w_bc = _head(policy)
     heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
     for method, init in (("dagger-mdi", mapper(w_bc)), ("dagger-bc", w_bc)):
-        _load(policy, init)
+        policy.load_head_vector(init)
         fit_bc(policy, demo, bc, cache=cache)
         heads[method] = _head(policy)
     return heads
@@ -166,7 +160,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     heads: dict[tuple[str, str], np.ndarray] = {}
 
     def test(head: np.ndarray) -> Trajectory:
-        _load(policy, head)
+        policy.load_head_vector(head)
         return rollout(env, seed=seed, policy=policy, early_stop=stop)
 
     try:

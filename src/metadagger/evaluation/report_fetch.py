@@ -71,7 +71,7 @@ def _fig5(table: dict[str, dict[int, dict[str, Any]]], figures: Path) -> list[st
     lines = ["### Fig. 5: cosine distance to the expert in the final test (one point per seed)", "",
              "Below the diagonal: DAgger-MDI's actions are closer to the expert's than the other method's.", "",
              "| DAgger-MDI vs | seeds | DAgger-MDI lower: accumulated | DAgger-MDI lower: per action |", "|---|---|---|---|"]
-    fig, axes = plt.subplots(len(COSINE_KEYS), len(others), figsize=(3.4 * len(others), 6.4), squeeze=False)
+    fig, axes = plt.subplots(len(COSINE_KEYS), len(others), figsize=(3.8 * len(others), 6.4), squeeze=False)
     for col, m in enumerate(others):
         lower = []
         for row, (key, name) in enumerate(COSINE_KEYS):
@@ -88,5 +88,6 @@ def _fig5(table: dict[str, dict[int, dict[str, Any]]], figures: Path) -> list[st
                 ax.set_title(f"DAgger-MDI vs {LABELS[m]}")
         n = len(seeds[m])
         lines.append(f"| {LABELS[m]} | {n} | {lower[0]}/{n} | {lower[1]}/{n} |")
+    fig.tight_layout()
     save_figure(fig, figures / FIGURE)
     return lines + ["", f"![MDI cosine distances]({figures.name}/{FIGURE})", ""]

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
+from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import write_json
 from metadagger.metal.store import PairStore
@@ -49,6 +50,8 @@ class PairConfig:
     """Which pairs train the mappers: ``bc_fail_da_success`` (the paper's filter), ``da_success`` or ``all``."""
     val_fraction: float = 0.2
     """Share of the kept pairs held out for validation (75 of 375 in the paper)."""
+    early_stop: float | None = None
+    """Cosine early-stop threshold of the learner's rollouts (paper 3.4.2, Fetch); None: off."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -61,6 +64,8 @@ class PairConfig:
             raise UserError(f"pairs.keep must be one of {', '.join(KEEP_RULES)}, got {self.keep!r}")
         if not 0.0 < self.val_fraction < 1.0:
             raise UserError(f"pairs.val_fraction must be in (0, 1), got {self.val_fraction}")
+        if self.early_stop is not None and not self.early_stop > 0:
+            raise UserError(f"pairs.early_stop must be > 0 or null, got {self.early_stop}")
 
 
 @dataclass(frozen=True)
@@ -107,13 +112,14 @@ def collect_pair(job: PairJob) -> dict[str, Any]:
         cache = FeatureCache(policy)
         fit_bc(policy, data, dataclasses.replace(config.bc, seed=job.seed), cache=cache)
         w_bc = policy.head_vector().numpy().copy()
+        early_stop = None if config.early_stop is None else functools.partial(CosineEarlyStop, threshold=config.early_stop)
         dagger = run_dagger(
-            policy, task, [job.seed], initial=data, cache=cache,
+            policy, task, [job.seed], initial=data, cache=cache, early_stop_factory=early_stop,
             config=DAggerConfig(rounds=config.dagger_rounds, bc=dataclasses.replace(config.dagger_bc, seed=job.seed)),
         )
         # round 1 rolled out the BC policy: its outcome is BC's (rollouts are deterministic)
         first = dagger.rounds[0]
-        da_traj = rollout(env, seed=job.seed, policy=policy)
+        da_traj = rollout(env, seed=job.seed, policy=policy, early_stop=None if early_stop is None else early_stop())
     finally:
         env.close()
     bc = {"success": first["dagger/success_rate"] == 1.0, "reward": first["dagger/mean_reward"],

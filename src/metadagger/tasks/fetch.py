@@ -12,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 
 from metadagger.experts.fetch import FetchExpert
+from metadagger.errors import UserError
 from metadagger.tasks.base import LearnerEnv, Task
 from metadagger.tasks.fetch_env import FetchPickAndPlacePixels, fetch_is_success
 
@@ -32,7 +33,10 @@ class FetchTask(Task):
     learner_env_id = "metadagger/FetchPickAndPlaceXYZ-v0"
     max_episode_steps = MAX_EPISODE_STEPS
 
-    def __init__(self, *, expert: Callable[[gym.Env], np.ndarray] | None = None):
+    def __init__(self, *, expert: Callable[[gym.Env], np.ndarray] | None = None, max_episode_steps: int = MAX_EPISODE_STEPS):
+        if max_episode_steps < 1:
+            raise UserError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
+        self.max_episode_steps = int(max_episode_steps)
         self._expert = FetchExpert() if expert is None else expert
 
     @property
