@@ -84,3 +84,9 @@ def test_unknown_executor(tmp_path: Path):
     gt = tmp_path / "groundtruth" / "policy.safetensors"
     make_policy(CorridorTask(), seed=0).save(gt)
     _fails_cleanly(["pairs", "--out", str(tmp_path), "--executor", "slurm"], "unknown executor 'slurm'")
+
+
+def test_evaluate_protocol_errors(tmp_path):
+    _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "xyz"], "unknown protocol 'xyz'", "mdm, mdi, all")
+    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "mdi"], "has no mdi section", "--protocol mdm")

@@ -1,13 +1,20 @@
-"""Smoke tests of the real commands on CarRacing with the tiny ``ci`` preset."""
+"""Smoke tests of the real commands on CarRacing and Fetch with the tiny ``ci`` preset."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from metadagger.cli import app
+from metadagger.errors import UserError
+from metadagger.evaluation.mdi import METHODS as MDI_METHODS
+from metadagger.evaluation.mdm import MAPPER_METHODS
+from metadagger.evaluation.report_fetch import FIGURE as MDI_FIGURE
 from metadagger.evaluation.rows import read_csv
+from metadagger.pipeline import init_run, reproduce, stage_mdi
 
 runner = CliRunner()
 
@@ -49,3 +56,41 @@ def test_demo_ci_preset(tmp_path):
     assert "| BC |" in result.output and "| DAgger |" in result.output
     for name in ("table.md", "metrics.json", "rounds.csv", "success_vs_round.png", "bc.safetensors", "dagger.safetensors"):
         assert (tmp_path / "demo" / name).is_file()
+
+
+def _stamps(run: Path) -> dict[Path, int]:
+    """Modification times of the files a stage writes only when it does work."""
+    return {p: p.stat().st_mtime_ns for pattern in ("*.safetensors", "*.jsonl") for p in run.rglob(pattern)}
+
+
+def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
+    pytest.importorskip("gymnasium_robotics")
+    run = tmp_path / "run"
+    report = reproduce("fetch", "ci", run, workers=2, progress=False).read_text()
+    # only the kinds the run uses: evaluate.methods [dm, mean-da, pistar-head] and mdi.mapper dm
+    assert sorted(p.name for p in (run / "mappers").iterdir()) == ["dm", "mean-da", "pistar-head"]
+    rows = read_csv(run / "eval" / "mdi.csv")
+    assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in (5000, 5001) for m in MDI_METHODS]
+    assert not (run / "eval" / "oneshot.csv").exists()  # evaluate.oneshot is false
+    assert "Table 1" in report and "## One-shot" not in report
+    assert "## MDI" in report and "Table 7" in report and "| DAgger-MDI |" in report
+    assert (run / "report" / "figures" / MDI_FIGURE).is_file()
+
+    # a finished run resumes without redoing any stage, from reproduce and from the CLI
+    before = _stamps(run)
+    assert reproduce("fetch", "ci", run, progress=False).read_text() == report
+    again = runner.invoke(app, ["evaluate", "--out", str(run)])
+    assert again.exit_code == 0, again.output
+    assert "MDM: evaluated 2 seeds" in again.output and f"MDI: evaluated 2 seeds; wrote {run / 'eval' / 'mdi.csv'}" in again.output
+    assert _stamps(run) == before
+
+
+def test_mapper_kinds_follow_the_run_config(tmp_path):
+    assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == MAPPER_METHODS
+    assert init_run(tmp_path / "fetch", "fetch", "ci").mapper_kinds == ("dm", "mean-da", "pistar-head")
+
+
+def test_stage_mdi_skips_runs_without_mdi_and_checks_seeds(tmp_path):
+    assert stage_mdi(tmp_path / "cr", init_run(tmp_path / "cr", "carracing", "ci")) == []
+    with pytest.raises(UserError, match="evaluation seeds must be unseen, but \\[1000\\]"):
+        stage_mdi(tmp_path / "fetch", init_run(tmp_path / "fetch", "fetch", "ci"), seeds=[1000, 5000])

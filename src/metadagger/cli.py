@@ -134,22 +134,37 @@ def train_mapper_cmd(
         typer.echo(f"wrote {path}")
 
 
+PROTOCOLS = ("mdm", "mdi", "all")
+
+
 @app.command()
 @user_errors
 def evaluate(
     out: Path = OUT,
-    seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's evaluate.seeds)."),
+    seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's evaluate.seeds and mdi.seeds)."),
+    protocol: str = typer.Option("all", "--protocol", help="mdm (MDM and one-shot), mdi (runs with an mdi section) or all."),
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds."""
+    """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds, and the
+    MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) for runs whose config has an mdi section."""
     from metadagger.config import parse_seeds
-    from metadagger.pipeline import load_run, stage_evaluate
+    from metadagger.pipeline import load_run, stage_evaluate, stage_mdi
 
-    rows = stage_evaluate(out, load_run(out), seeds=parse_seeds(seeds) if seeds else None,
-                          executor=executor, workers=workers, address=address)
-    typer.echo(f"evaluated {len({r['seed'] for r in rows})} seeds; wrote {out / 'eval' / 'mdm.csv'} and {out / 'eval' / 'oneshot.csv'}")
+    if protocol not in PROTOCOLS:
+        raise UserError(f"unknown protocol {protocol!r}; expected {', '.join(PROTOCOLS)}")
+    config = load_run(out)
+    if protocol == "mdi" and config.mdi is None:
+        raise UserError(f"run {out} (task {config.task}) has no mdi section; use --protocol mdm")
+    options = {"seeds": parse_seeds(seeds) if seeds else None, "executor": executor, "workers": workers, "address": address}
+    if protocol in ("mdm", "all"):
+        rows = stage_evaluate(out, config, **options)
+        files = ("mdm.csv", "oneshot.csv") if config.evaluate.oneshot else ("mdm.csv",)
+        typer.echo(f"MDM: evaluated {len({r['seed'] for r in rows})} seeds; wrote {', '.join(str(out / 'eval' / f) for f in files)}")
+    if protocol in ("mdi", "all") and config.mdi is not None:
+        rows = stage_mdi(out, config, **options)
+        typer.echo(f"MDI: evaluated {len({r['seed'] for r in rows})} seeds; wrote {out / 'eval' / 'mdi.csv'}")
 
 
 @app.command()
@@ -173,7 +188,7 @@ def reproduce(
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """groundtruth -> pairs -> mappers -> evaluate -> report, resuming finished stages."""
+    """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report, resuming finished stages."""
     from metadagger.pipeline import reproduce as run_all
 
     path = run_all(task, preset, out, executor=executor, workers=workers, address=address)

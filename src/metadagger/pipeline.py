@@ -1,15 +1,18 @@
 """The MetaL DAgger pipeline as stages over one run folder:
-groundtruth -> pairs -> mappers -> evaluate -> report. Each stage reads the run's config and the
-previous stages' artifacts and skips the work whose artifacts exist, so ``reproduce`` resumes.
+groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> report. Each stage reads the run's
+config and the previous stages' artifacts and skips the work whose artifacts exist, so
+``reproduce`` resumes. The mdi stage runs only for runs whose config has an ``mdi`` section (Fetch).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Sequence
 
 from metadagger.errors import UserError
-from metadagger.evaluation.mdm import MAPPER_METHODS, EvalConfig, evaluate_run, mapper_path
+from metadagger.evaluation.mdi import evaluate_mdi
+from metadagger.evaluation.mdm import MAPPER_METHODS, evaluate_run, mapper_path
 from metadagger.evaluation.report import build_report
 from metadagger.mapping.train import train_mapper
 from metadagger.metal.groundtruth import groundtruth_path, train_groundtruth
@@ -38,8 +41,10 @@ def stage_pairs(run: Path, config: RunConfig, *, executor: str = "local", worker
                          executor=executor, workers=workers, address=address, progress=progress)
 
 
-def stage_mappers(run: Path, config: RunConfig, kinds: Sequence[str] = MAPPER_METHODS, *, progress: bool = True) -> list[Path]:
-    """Train the mappers of ``kinds`` (dm, sam, tam and the controls mean-da, pistar-head)."""
+def stage_mappers(run: Path, config: RunConfig, kinds: Sequence[str] | None = None, *, progress: bool = True) -> list[Path]:
+    """Train the mappers of ``kinds`` (dm, sam, tam and the controls mean-da, pistar-head); by
+    default the kinds the run evaluates (``config.mapper_kinds``)."""
+    kinds = config.mapper_kinds if kinds is None else kinds
     unknown = sorted(set(kinds) - set(MAPPER_METHODS))
     if unknown:
         raise UserError(f"unknown mapper kind(s) {unknown}; expected {', '.join(MAPPER_METHODS)} or all")
@@ -57,17 +62,32 @@ def stage_mappers(run: Path, config: RunConfig, kinds: Sequence[str] = MAPPER_ME
     return paths
 
 
+def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
+    """``seeds`` as a tuple, checked to be none of pi*'s or the pairs' seeds."""
+    used = set(config.groundtruth.seeds) | set(config.groundtruth.eval_seeds) | set(config.pairs.seeds)
+    seen = sorted(set(seeds) & used)
+    if seen:
+        raise UserError(f"evaluation seeds must be unseen, but {seen[:5]} were used for pi* or pairs; pick other seeds")
+    return tuple(seeds)
+
+
 def stage_evaluate(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = None, executor: str = "local",
                    workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
     """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``)."""
-    eval_config = config.evaluate
-    if seeds is not None:
-        used = set(config.groundtruth.seeds) | set(config.groundtruth.eval_seeds) | set(config.pairs.seeds)
-        seen = sorted(set(seeds) & used)
-        if seen:
-            raise UserError(f"evaluation seeds must be unseen, but {seen[:5]} were used for pi* or pairs; pick other seeds")
-        eval_config = EvalConfig(seeds=tuple(seeds), methods=eval_config.methods, oneshot=eval_config.oneshot)
+    eval_config = config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
     return evaluate_run(run_task(config), run, eval_config, groundtruth=groundtruth_path(run), bc=config.pairs.bc,
+                        executor=executor, workers=workers, address=address, progress=progress)
+
+
+def stage_mdi(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = None, executor: str = "local",
+              workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
+    """The MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) on the config's unseen seeds (or on
+    ``seeds``); [] for a run without an ``mdi`` section."""
+    if config.mdi is None:
+        return []
+    mdi_config = config.mdi if seeds is None else dataclasses.replace(config.mdi, seeds=_unseen(config, seeds))
+    return evaluate_mdi(run_task(config), run, mdi_config, groundtruth=groundtruth_path(run),
+                        mapper_path=mapper_path(run, mdi_config.mapper),
                         executor=executor, workers=workers, address=address, progress=progress)
 
 
@@ -80,7 +100,8 @@ def reproduce(task: str, preset: str, run: str | Path, *, executor: str = "local
     stage_pairs(run, config, executor=executor, workers=workers, address=address, progress=progress)
     stage_mappers(run, config, progress=progress)
     stage_evaluate(run, config, executor=executor, workers=workers, address=address, progress=progress)
+    stage_mdi(run, config, executor=executor, workers=workers, address=address, progress=progress)
     return build_report(run)
 
 
-__all__ = ["load_run", "reproduce", "run_task", "stage_evaluate", "stage_groundtruth", "stage_mappers", "stage_pairs"]
+__all__ = ["load_run", "reproduce", "run_task", "stage_evaluate", "stage_groundtruth", "stage_mappers", "stage_mdi", "stage_pairs"]

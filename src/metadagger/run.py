@@ -16,7 +16,7 @@ from metadagger.config import build, dump_yaml, load_preset
 from metadagger.errors import UserError
 from metadagger.io import write_text
 from metadagger.evaluation.mdi import MDIConfig
-from metadagger.evaluation.mdm import EvalConfig
+from metadagger.evaluation.mdm import MAPPER_METHODS, EvalConfig
 from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig
 from metadagger.metal.pairs import PairConfig
@@ -66,6 +66,13 @@ class RunConfig:
         """The paper's settings for mapper ``kind`` with this run's overrides applied."""
         paper = dataclasses.asdict(paper_config(kind))
         return build(MapperConfig, {**paper, **(self.mappers.get(kind) or {})}, where=f"mappers.{kind}")
+
+    @property
+    def mapper_kinds(self) -> tuple[str, ...]:
+        """The mapper kinds this run uses (``evaluate.methods`` and ``mdi.mapper``), in
+        :data:`~metadagger.evaluation.mdm.MAPPER_METHODS` order."""
+        used = set(self.evaluate.methods) | ({self.mdi.mapper} if self.mdi else set())
+        return tuple(kind for kind in MAPPER_METHODS if kind in used)
 
     @property
     def task_kwargs(self) -> dict:

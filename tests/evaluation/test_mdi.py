@@ -10,20 +10,18 @@ import pytest
 import torch
 from toy_task import CorridorTask
 
-from metadagger.config import build, load_preset, parse_seeds
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_mdi, head_dir
-from metadagger.evaluation.mdm import EvalConfig
 from metadagger.evaluation.report_fetch import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.rollouts import collect
 from metadagger.io import load_tensors
 from metadagger.mapping.mappers import Mapper
-from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig, groundtruth_path, train_groundtruth
 from metadagger.metal.pairs import head_from_groundtruth
 from metadagger.policies import load_policy
+from metadagger.run import init_run, load_run
 
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 # 1-D displacements: the cosine distance per step is 0 (same sign), 1 (one is zero) or 2 (opposite)
@@ -202,15 +200,11 @@ def test_config_rejects_bad_values(kwargs, match):
 
 
 @pytest.mark.parametrize("preset", ["quick", "paper", "ci"])
-def test_fetch_presets_build(preset):
-    sections = load_preset("fetch", preset)
-    assert sections["max_episode_steps"] >= 1
-    mdi = build(MDIConfig, sections["mdi"], where="mdi")
-    assert mdi.early_stop is not None and mdi.mapper in sections["mappers"]
-    gt = build(GroundTruthConfig, sections["groundtruth"], where="groundtruth")
-    mdm = build(EvalConfig, sections["evaluate"], where="evaluate")
-    used = set(gt.seeds) | set(gt.eval_seeds) | set(parse_seeds(sections["pairs"]["seeds"]))
-    assert not (set(mdi.seeds) | set(mdm.seeds)) & used
-    assert mdi.bc == build(BCConfig, sections["pairs"]["bc"], where="pairs.bc")  # MDI's BC fit is the pairs' BC fit
-    overrides = sections["mappers"][mdi.mapper]
-    assert isinstance(build(MapperConfig, {**paper_config(mdi.mapper).__dict__, **overrides}, where="mappers"), MapperConfig)
+def test_fetch_presets_build(preset, tmp_path):
+    config = init_run(tmp_path, "fetch", preset)  # RunConfig rejects MDI seeds used for pi* or the pairs
+    assert load_run(tmp_path) == config  # the mdi section survives config.yaml
+    mdi = config.mdi
+    assert mdi is not None and mdi.early_stop is not None
+    assert mdi.mapper in config.mappers and mdi.mapper in config.mapper_kinds  # configured, and trained by reproduce
+    assert config.mapper_config(mdi.mapper).kind == mdi.mapper
+    assert mdi.bc == config.pairs.bc  # MDI's BC fit is the pairs' BC fit

@@ -197,7 +197,7 @@ def _check_inputs(task: Task, run: Path, config: MDIConfig, groundtruth: Path, m
     if not groundtruth.is_file():
         raise UserError(f"pi* not found at {groundtruth}; run `metadagger groundtruth --out {run}` first")
     if not mapper_path.is_file():
-        raise UserError(f"MDI mapper not found at {mapper_path}; run `metadagger train-mapper --out {run} --kind dm` first")
+        raise UserError(f"MDI mapper not found at {mapper_path}; run `metadagger train-mapper --out {run} --kind {config.mapper}` first")
     if config.early_stop is not None and not isinstance(task.learner_action_space, gym.spaces.Box):
         raise UserError(
             f"mdi.early_stop={config.early_stop} needs displacement (Box) actions, but task {task.name!r} has "

@@ -119,7 +119,7 @@ def evaluate_run(
     progress: bool = True,
 ) -> list[dict[str, Any]]:
     """Evaluate every seed of ``config`` not evaluated yet; return all rows of those seeds and
-    write ``eval/mdm.csv`` (BC + mappers) and ``eval/oneshot.csv``."""
+    write ``eval/mdm.csv`` (BC + mappers) and, when ``config.oneshot``, ``eval/oneshot.csv``."""
     run = Path(run)
     mappers = {m: str(mapper_path(run, m)) for m in config.methods}
     missing = [m for m, p in mappers.items() if not Path(p).is_file()]
@@ -136,5 +136,6 @@ def evaluate_run(
                 log.append(result["seed"], result["rows"])
     rows = [r for r in log.rows() if r["seed"] in set(config.seeds)]
     write_csv(run / "eval" / "mdm.csv", [r for r in rows if not r["method"].startswith("oneshot-")])
-    write_csv(run / "eval" / "oneshot.csv", [r for r in rows if r["method"].startswith("oneshot-")])
+    if config.oneshot:
+        write_csv(run / "eval" / "oneshot.csv", [r for r in rows if r["method"].startswith("oneshot-")])
     return rows

@@ -1,7 +1,8 @@
 """``report/report.md`` and its figures, built only from a run's CSV/JSON artifacts.
 
 Sections appear for the stages a run has finished: pi*, pairs, mapper learning curves (Fig. 8),
-MDM (Tables 1-2, Fig. 4, expert queries) and one-shot (Tables 3-5).
+MDM (Tables 1-2, Fig. 4, expert queries), one-shot (Tables 3-5) and, for runs with
+``eval/mdi.csv`` (Fetch), the MDI protocol (Table 7, Fig. 5; :mod:`~metadagger.evaluation.report_fetch`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from metadagger.evaluation.metrics import summarize
+from metadagger.evaluation.report_fetch import mdi_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.io import write_text
 from metadagger.mapping.train import plot_curves
@@ -37,6 +39,7 @@ def build_report(run: str | Path) -> Path:
         oneshot = run / "eval" / "oneshot.csv"
         if oneshot.is_file():
             parts += _oneshot_section(rows, read_csv(oneshot))
+    parts += mdi_section(run, figures)
     return write_text(out / "report.md", "\n".join(parts) + "\n")
 
 
