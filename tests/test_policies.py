@@ -139,6 +139,7 @@ def test_metadata_that_does_not_rebuild_raises_checkpoint_error(tmp_path):
     [
         ({"conv_channels": (4, 8), "kernel_sizes": (3,)}, "one kernel per convolution"),
         ({"hidden": (0,)}, "hidden must be"),
+        ({"conv_channels": (4, 8), "kernel_sizes": (3, 3), "strides": (2,)}, "one stride per convolution"),
         ({"obs_shape": (16, 16)}, r"obs_shape must be \(H, W, C\)"),
         ({"n_outputs": 0}, "n_outputs must be a positive integer"),
     ],
@@ -172,3 +173,18 @@ def test_load_head_vector_copies_so_training_never_writes_into_the_callers_array
     with torch.no_grad():
         policy.net.head.weight.add_(1.0)
     assert not source.any()
+
+
+def test_spatial_softmax_trunk_gives_keypoints_and_round_trips(tmp_path, rng):
+    net = PolicyNet(obs_shape=(16, 16, 3), n_outputs=3, discrete=False, conv_channels=(4, 6),
+                    kernel_sizes=(3, 3), strides=(2, 1), hidden=(8,), spatial_softmax=True)
+    maps = torch.zeros(1, 6, 8, 8)
+    maps[0, :, 0, 7] = 50.0  # every channel peaks in the top-right corner
+    keypoints = net.trunk[-3](maps)  # the SpatialSoftmax layer
+    np.testing.assert_allclose(keypoints[0, :6].numpy(), 1.0, atol=1e-4)  # x = +1
+    np.testing.assert_allclose(keypoints[0, 6:].numpy(), -1.0, atol=1e-4)  # y = -1
+    assert net.trunk[-2].in_features == 12  # 2 coordinates per channel feed the hidden layer
+    policy = Policy(net=net, task="toy")
+    loaded = load_policy(policy.save(tmp_path / "p.safetensors"))
+    obs = images(rng, 4)
+    np.testing.assert_array_equal(loaded.act_batch(obs), policy.act_batch(obs))

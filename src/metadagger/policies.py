@@ -32,9 +32,9 @@ DEFAULT_HIDDEN = (112, 64)
 _FORMAT = "metadagger.policy/1"
 
 
-def _conv_out(size: int, kernel: int) -> int:
-    # stride 2, "same" padding k // 2
-    return (size + 2 * (kernel // 2) - kernel) // 2 + 1
+def _conv_out(size: int, kernel: int, stride: int) -> int:
+    # "same" padding k // 2
+    return (size + 2 * (kernel // 2) - kernel) // stride + 1
 
 
 def _positive_ints(field: str, value: Any, *, min_len: int) -> tuple[int, ...]:
@@ -44,11 +44,29 @@ def _positive_ints(field: str, value: Any, *, min_len: int) -> tuple[int, ...]:
     return values
 
 
+class SpatialSoftmax(nn.Module):
+    """Each channel's softmax over the image, reduced to its expected (x, y) in [-1, 1].
+
+    (N, C, H, W) feature maps -> (N, 2C) keypoint coordinates (x of every channel, then y), as in
+    Levine et al., "End-to-end training of deep visuomotor policies" (2016). Positions become
+    features that a linear layer can compare, which generalises across object layouts far better
+    than flattened maps when only a few dozen layouts are seen.
+    """
+
+    def forward(self, maps: torch.Tensor) -> torch.Tensor:
+        n, c, h, w = maps.shape
+        probs = torch.softmax(maps.flatten(2), dim=-1).view(n, c, h, w)
+        xs = torch.linspace(-1.0, 1.0, w, device=maps.device)
+        ys = torch.linspace(-1.0, 1.0, h, device=maps.device)
+        return torch.cat([(probs.sum(2) * xs).sum(-1), (probs.sum(3) * ys).sum(-1)], dim=1)
+
+
 class PolicyNet(nn.Module):
     """CNN trunk + linear head mapping a batch of uint8 HWC images to logits or a vector.
 
-    Every convolution has stride 2 and padding ``kernel // 2`` and is followed by ReLU; the
-    fully-connected layers of ``hidden`` each have ReLU; the head is one linear layer.
+    Every convolution has padding ``kernel // 2`` and is followed by ReLU; the convolutions' maps
+    are flattened (or reduced to keypoints by :class:`SpatialSoftmax`); the fully-connected layers
+    of ``hidden`` each have ReLU; the head is one linear layer.
 
     Args:
         obs_shape: observation shape (H, W, C).
@@ -57,6 +75,8 @@ class PolicyNet(nn.Module):
         conv_channels: output channels of each convolution.
         kernel_sizes: kernel width of each convolution (same length as ``conv_channels``).
         hidden: widths of the fully-connected layers before the head.
+        strides: stride of each convolution (default 2 for all).
+        spatial_softmax: reduce the last maps to keypoint coordinates instead of flattening them.
     """
 
     def __init__(
@@ -68,6 +88,8 @@ class PolicyNet(nn.Module):
         conv_channels: tuple[int, ...] = DEFAULT_CONV_CHANNELS,
         kernel_sizes: tuple[int, ...] = DEFAULT_KERNEL_SIZES,
         hidden: tuple[int, ...] = DEFAULT_HIDDEN,
+        strides: tuple[int, ...] | None = None,
+        spatial_softmax: bool = False,
     ):
         super().__init__()
         if len(tuple(obs_shape)) != 3:
@@ -77,6 +99,9 @@ class PolicyNet(nn.Module):
         kernel_sizes = _positive_ints("kernel_sizes", kernel_sizes, min_len=1)
         # an empty ``hidden`` is allowed: the head then reads the flattened convolutions
         hidden = _positive_ints("hidden", hidden, min_len=0)
+        strides = (2,) * len(conv_channels) if strides is None else _positive_ints("strides", strides, min_len=1)
+        if len(strides) != len(conv_channels):
+            raise UserError(f"strides has {len(strides)} entries but conv_channels has {len(conv_channels)}; give one stride per convolution")
         if len(kernel_sizes) != len(conv_channels):
             raise UserError(
                 f"kernel_sizes has {len(kernel_sizes)} entries but conv_channels has {len(conv_channels)}; give one kernel per convolution"
@@ -90,14 +115,20 @@ class PolicyNet(nn.Module):
             "conv_channels": list(conv_channels),
             "kernel_sizes": list(kernel_sizes),
             "hidden": list(hidden),
+            "strides": list(strides),
+            "spatial_softmax": bool(spatial_softmax),
         }
         height, width, channels = obs_shape
         layers: list[nn.Module] = []
-        for out_channels, kernel in zip(conv_channels, kernel_sizes):
-            layers += [nn.Conv2d(channels, out_channels, kernel, stride=2, padding=kernel // 2), nn.ReLU()]
-            channels, height, width = out_channels, _conv_out(height, kernel), _conv_out(width, kernel)
-        layers.append(nn.Flatten())
-        width_in = channels * height * width
+        for out_channels, kernel, stride in zip(conv_channels, kernel_sizes, strides):
+            layers += [nn.Conv2d(channels, out_channels, kernel, stride=stride, padding=kernel // 2), nn.ReLU()]
+            channels, height, width = out_channels, _conv_out(height, kernel, stride), _conv_out(width, kernel, stride)
+        if spatial_softmax:
+            layers.append(SpatialSoftmax())
+            width_in = 2 * channels
+        else:
+            layers.append(nn.Flatten())
+            width_in = channels * height * width
         for width_out in hidden:
             layers += [nn.Linear(width_in, width_out), nn.ReLU()]
             width_in = width_out
@@ -270,10 +301,11 @@ def make_policy(task: Task, *, seed: int, **arch_overrides: Any) -> Policy:
 
     The observation shape comes from the task's learner env, the outputs from
     ``task.label_dim()`` and the loss type from ``task.is_discrete``; the task's ``policy_arch``
-    and then ``arch_overrides`` set ``conv_channels``, ``kernel_sizes`` or ``hidden``.
+    and then ``arch_overrides`` set any of ``conv_channels``, ``kernel_sizes``, ``hidden``,
+    ``strides`` and ``spatial_softmax``.
     """
     arch_overrides = {**task.policy_arch, **arch_overrides}
-    allowed = {"conv_channels", "kernel_sizes", "hidden"}
+    allowed = {"conv_channels", "kernel_sizes", "hidden", "strides", "spatial_softmax"}
     unknown = sorted(set(arch_overrides) - allowed)
     if unknown:
         raise UserError(f"unknown architecture option(s) {unknown}: expected some of {sorted(allowed)}")

@@ -52,7 +52,7 @@ def _groundtruth_section(run: Path) -> list[str]:
     if not path.is_file():
         return []
     m = json.loads(path.read_text())
-    lines = ["## Ground-truth policy pi*", "", "| seeds | laps | success | 95% CI | mean reward | mean steps |", "|---|---|---|---|---|---|"]
+    lines = ["## Ground-truth policy pi*", "", "| seeds | successes | success | 95% CI | mean reward | mean steps |", "|---|---|---|---|---|---|"]
     for key, name in (("own_seeds", "its own (training) seeds"), ("unseen_seeds", "unseen seeds")):
         s = m[key]
         lines.append(f"| {name} | {s['successes']}/{s['episodes']} | {_pct(s['success_rate'])} | "

@@ -27,7 +27,8 @@ class Task(abc.ABC):
     learner_env_id: str
     #: Step limit of one episode.
     max_episode_steps: int
-    #: Policy architecture overrides for this task (``conv_channels``, ``kernel_sizes``, ``hidden``).
+    #: Policy architecture overrides for this task (``conv_channels``, ``kernel_sizes``, ``hidden``,
+    #: ``strides``, ``spatial_softmax``).
     policy_arch: dict = {}
 
     @property

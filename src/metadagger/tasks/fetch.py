@@ -32,6 +32,10 @@ class FetchTask(Task):
     name = "fetch"
     learner_env_id = "metadagger/FetchPickAndPlaceXYZ-v0"
     max_episode_steps = MAX_EPISODE_STEPS
+    #: A keypoint trunk (docs/fetch.md, "The policy"): three 3x3 convolutions keeping 32x32 maps,
+    #: a spatial softmax, then 128 and 64 units; the head maps 64 features to x, y, z (195 weights).
+    policy_arch = {"conv_channels": (16, 16, 32), "kernel_sizes": (3, 3, 3), "strides": (2, 1, 1),
+                   "hidden": (128, 64), "spatial_softmax": True}
 
     def __init__(self, *, expert: Callable[[gym.Env], np.ndarray] | None = None, max_episode_steps: int = MAX_EPISODE_STEPS):
         if max_episode_steps < 1:
