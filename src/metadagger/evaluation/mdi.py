@@ -78,7 +78,7 @@ class MDIConfig:
     dagger_bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
     """The head-only refit of the DAgger round (step 8)."""
     early_stop: float | None = None
-    """Threshold of the cosine early stop on every learner rollout (Fetch: 20); None: no early stop."""
+    """Threshold of the cosine early stop on every learner rollout (the Fetch presets: 40, docs/fetch.md); None: no early stop."""
     mapper: str = "dm"
     """Kind of the mapper that initialises DAgger-MDI (the run's ``mappers/<kind>/``; the paper's
     Table 9 trains one mapping network)."""
