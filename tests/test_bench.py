@@ -1,4 +1,4 @@
-"""``bench_env`` times our CarRacing against upstream's and writes JSON."""
+"""``bench_env`` times our CarRacing against upstream's (and the Fetch pixel env) and writes JSON."""
 
 from __future__ import annotations
 
@@ -34,10 +34,17 @@ def test_bench_env_reports_both_rates(tmp_path):
 
 
 def test_bench_env_rejects_unknown_task_and_empty_runs():
-    with pytest.raises(UserError, match="unknown task 'fetch'"):
-        bench_env("fetch")
+    with pytest.raises(UserError, match="unknown task 'pong'"):
+        bench_env("pong")
     with pytest.raises(UserError, match="steps > 0"):
         bench_env("carracing", steps=0)
+
+
+def test_bench_env_fetch_reports_frames_per_second():
+    pytest.importorskip("gymnasium_robotics")
+    result = bench_env("fetch", seeds=(0,), steps=5)
+    assert result["task"] == "fetch" and result["steps"] == 5 and result["image_size"] == 64
+    assert result["steps_per_second"] > 0 and result["machine"]["cpu_count"] >= 1
 
 
 def test_bench_bc_times_full_and_head_only_fits():

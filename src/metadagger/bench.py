@@ -48,7 +48,8 @@ def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), step
     which any longer run keeps warm).
 
     Args:
-        task: the task whose base env to time; only ``"carracing"`` for now.
+        task: the task whose base env to time: ``"carracing"`` (ours against upstream's), or
+            ``"fetch"`` (frames per second of our pixel env alone, random actions).
         seeds: reset seeds, one episode each.
         steps: timed steps per seed.
         warmup_steps: untimed steps before timing.
@@ -61,10 +62,12 @@ def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), step
         absolute image difference per seed (0-255 scale, averaged over the frames); the seeds,
         steps and machine info.
     """
-    if task not in ENV_PAIRS:
-        raise UserError(f"bench env: unknown task {task!r}: expected one of {', '.join(ENV_PAIRS)}; pass --task carracing")
     if steps <= 0 or not seeds:
         raise UserError(f"bench env needs steps > 0 and at least one seed, got steps={steps}, seeds={list(seeds)}")
+    if task == "fetch":
+        return _bench_fetch(seeds, steps)
+    if task not in ENV_PAIRS:
+        raise UserError(f"bench env: unknown task {task!r}: expected one of {', '.join([*ENV_PAIRS, 'fetch'])}; pass --task carracing")
     ids = ENV_PAIRS[task]
     envs = [_TimedEnv(env_id) for env_id in ids]
     try:
@@ -97,6 +100,16 @@ def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), step
         "warmup_steps": int(warmup_steps),
         "machine": _machine(),
     }
+
+
+def _bench_fetch(seeds: Sequence[int], steps: int) -> dict:
+    """Frames per second of the Fetch pixel env (every step renders; there is no fast/slow pair
+    to compare: upstream renders the same scene with anti-aliasing, see docs/fetch.md)."""
+    try:
+        from metadagger.tasks.fetch_env import bench_fetch_env
+    except ImportError as exc:
+        raise UserError(f"bench env --task fetch needs the fetch extra ({exc}); pip install -c constraints.txt -e '.[fetch]'") from None
+    return {"task": "fetch", **bench_fetch_env(seeds=list(seeds), steps=steps), "machine": _machine()}
 
 
 def write_bench(result: dict, path: str | Path) -> Path:
