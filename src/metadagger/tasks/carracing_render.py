@@ -186,6 +186,8 @@ class StateRenderer:
         self._shrink_car = _CV2_GROWTH - _DRAW_GROWTH * gain
         self._world_per_canvas = 1.0 / gain  # ... times 1 / zoom
         self._canvas = np.zeros((self.size, self.size, 3), dtype=np.uint8)
+        # the canvas point the car sits on: upstream's (W/2, H/4 from the bottom), in canvas pixels
+        self._view_centre = (cr.WINDOW_W / 2 * _SX * supersample - 0.5, (cr.WINDOW_H - cr.WINDOW_H / 4) * _SY * supersample - 0.5)
         self._car: cd.Car | None = None
 
     def reset(
@@ -219,7 +221,8 @@ class StateRenderer:
         self._centres = static.mean(axis=1)
         self._radii = np.linalg.norm(static - self._centres[:, None], axis=-1).max(axis=1)
         self._n_ground = len(_GROUND)
-        self._ground_colors = np.array([bg_color] + [grass_color] * (len(_GROUND) - 1)).astype(np.int32)
+        self._bg_color = np.asarray(bg_color).astype(np.int32).tolist()
+        self._grass_color = np.asarray(grass_color).astype(np.int32).tolist()
         self._road_colors = road_colors
         self._car = car
         _warm_text_patches()
@@ -241,9 +244,14 @@ class StateRenderer:
         canvas.fill(0)
         zoom = 0.1 * cr.SCALE * max(1 - t, 0) + cr.ZOOM * cr.SCALE * min(t, 1)
         a, b = self._camera(zoom)
-        polys, colors = self._static_polygons(a, b, zoom)
+        polys, n_background, n_grass, road_colors = self._static_polygons(a, b, zoom)
         car_polys, car_colors = self._car_polygons(a, b, zoom)
-        for poly, col in zip(polys, colors):
+        if n_background:
+            cv2.fillConvexPoly(canvas, polys[0], self._bg_color, cv2.LINE_8, _SHIFT)
+        if n_grass:
+            # grass squares never overlap, so one call fills them all (its even-odd rule is moot)
+            cv2.fillPoly(canvas, list(polys[n_background : n_background + n_grass]), self._grass_color, cv2.LINE_8, _SHIFT)
+        for poly, col in zip(polys[n_background + n_grass :], road_colors):
             cv2.fillConvexPoly(canvas, poly, col, cv2.LINE_8, _SHIFT)
         for poly, col in zip(car_polys, car_colors):
             cv2.fillConvexPoly(canvas, poly, col, cv2.LINE_8, _SHIFT)
@@ -264,13 +272,15 @@ class StateRenderer:
         sx = _SX * self.supersample * zoom
         sy = _SY * self.supersample * zoom
         # screen u = zoom*R(angle)(p - pos) + (W/2, H/4); flipped v_y = H - u_y.
-        a = np.array([[sx * c, -sx * s], [-sy * s, -sy * c]])
+        a00, a01, a10, a11 = sx * c, -sx * s, -sy * s, -sy * c
         px, py = car.hull.position
-        centre = np.array([cr.WINDOW_W / 2 * _SX, (cr.WINDOW_H - cr.WINDOW_H / 4) * _SY]) * self.supersample - 0.5
-        return a, centre - a @ np.array([px, py])
+        cx, cy = self._view_centre
+        return np.array([[a00, a01], [a10, a11]]), np.array([cx - a00 * px - a01 * py, cy - a10 * px - a11 * py])
 
-    def _static_polygons(self, a: np.ndarray, b: np.ndarray, zoom: float) -> tuple[np.ndarray, list]:
-        """Fixed-point canvas polygons and colours of the ground and road parts on the canvas."""
+    def _static_polygons(self, a: np.ndarray, b: np.ndarray, zoom: float) -> tuple[np.ndarray, int, int, list]:
+        """The ground and road parts on the canvas: their fixed-point polygons in draw order, how
+        many of them are the background (0 or 1, first) and grass squares (next), and the colours
+        of the road parts after those."""
         half = self.size / 2
         # |a c + b - half| <= half + stretch * r, tested as |a c - (half - b)| to save an add
         stretch = max(abs(a[0, 0]) + abs(a[0, 1]), abs(a[1, 0]) + abs(a[1, 1]))
@@ -281,11 +291,11 @@ class StateRenderer:
         visible = np.flatnonzero(np.maximum(dist[:, 0], dist[:, 1]) <= reach)
         world = self._static[visible] + d * self._static_miters[visible]
         fixed = np.rint(world @ (a.T * _ONE) + b * _ONE).astype(np.int32)
-        n = np.searchsorted(visible, self._n_ground)
-        colors = self._ground_colors[visible[:n]].tolist()
+        n = int(np.searchsorted(visible, self._n_ground))
+        n_background = int(n > 0 and visible[0] == 0)  # _GROUND[0] is the background
         # int() truncation, as upstream's ``[int(c) for c in color]`` (OpenCV would round).
-        colors += self._road_colors[visible[n:] - self._n_ground].astype(np.int32).tolist()
-        return fixed, colors
+        road_colors = self._road_colors[visible[n:] - self._n_ground].astype(np.int32).tolist()
+        return fixed, n_background, n - n_background, road_colors
 
     def _car_polygons(self, a: np.ndarray, b: np.ndarray, zoom: float) -> tuple[list, list]:
         """Wheels with their rotating stripes, then the hull (upstream's draw order, no particles)."""
@@ -321,35 +331,27 @@ class StateRenderer:
         """Speed, ABS, steering and gyro bars on the (black) indicator strip of the state.
 
         pygame fills whole screen pixels from a bar's truncated low to its truncated high corner,
-        so the strip's look depends only on those integers: each distinct set of bars is drawn
-        once (:func:`_strip`) and cached. A bar is clipped to the strip; upstream's would run
-        into the picture only beyond |omega| = 400 rad/s (a car under full gas peaks near 200).
+        so a bar's look depends only on those integers: each distinct bar is area-averaged once
+        (:func:`_bar_patch`) and cached. Bars do not overlap (adjacent ABS bars share one screen
+        pixel column), so they are painted with ``max``. A bar is clipped to the strip; upstream's
+        would run into the picture only beyond |omega| = 400 rad/s (a car under full gas peaks
+        near 200). Whole strips are not cached: the speed and wheel bars change almost every
+        frame, so such a cache hit 3% of frames.
         """
         car = self._car
         vx, vy = car.hull.linearVelocity
         wheels = car.wheels
         speed = math.sqrt(vx * vx + vy * vy)
-        bars = []
+        strip = state[STATE_SIZE - _STRIP_ROWS :]
+        strip.fill(0)
         for value, (scale, x0, x1, color) in zip((speed, *(w.omega for w in wheels)), _V_BARS):
             if abs(value) > 1e-4:
                 y = int(_V_BOTTOM + scale * value)  # pygame truncates, then fills both ends
-                bars.append((x0, x1, min(y, _V_BOTTOM_PX), max(y, _V_BOTTOM_PX), color))
+                _paint(strip, _bar_patch(x0, x1, min(y, _V_BOTTOM_PX), max(y, _V_BOTTOM_PX), color))
         for value, (scale, start, color) in zip((wheels[0].joint.angle, car.hull.angularVelocity), _H_BARS):
             if abs(value) > 1e-4:
                 x = int(start + scale * value)
-                bars.append((min(x, int(start)), max(x, int(start)), _H_TOP, _H_BOTTOM, color))
-        state[STATE_SIZE - _STRIP_ROWS :] = _strip(tuple(bars))
-
-
-@functools.lru_cache(maxsize=16384)
-def _strip(bars: tuple[tuple[int, int, int, int, tuple[int, int, int]], ...]) -> np.ndarray:
-    """The indicator strip with these bars (screen-pixel extents and colours). Bars do not
-    overlap (adjacent ABS bars share one screen pixel column), so they combine with ``max``."""
-    strip = np.zeros((_STRIP_ROWS, STATE_SIZE, 3), dtype=np.uint8)
-    for bar in bars:
-        _paint(strip, _bar_patch(*bar))
-    strip.setflags(write=False)
-    return strip
+                _paint(strip, _bar_patch(min(x, int(start)), max(x, int(start)), _H_TOP, _H_BOTTOM, color))
 
 
 def _paint(strip: np.ndarray, patch: tuple[int, int, np.ndarray] | None) -> None:
