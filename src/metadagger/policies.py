@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import inspect
 import json
 import subprocess
 from pathlib import Path
@@ -305,7 +306,7 @@ def make_policy(task: Task, *, seed: int, **arch_overrides: Any) -> Policy:
     ``strides`` and ``spatial_softmax``.
     """
     arch_overrides = {**task.policy_arch, **arch_overrides}
-    allowed = {"conv_channels", "kernel_sizes", "hidden", "strides", "spatial_softmax"}
+    allowed = set(inspect.signature(PolicyNet).parameters) - {"obs_shape", "n_outputs", "discrete"}
     unknown = sorted(set(arch_overrides) - allowed)
     if unknown:
         raise UserError(f"unknown architecture option(s) {unknown}: expected some of {sorted(allowed)}")
