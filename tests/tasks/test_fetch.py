@@ -129,6 +129,20 @@ def test_reset_is_deterministic(env):
         other.close()
 
 
+def test_env_renders_its_own_frames_after_another_env_closed(env):
+    """Closing another env leaves no OpenGL context current; ours must still render its scene
+    (it used to come out black, which failed every rollout in an env reused across envs)."""
+    action = np.array([0.3, 0.2, -0.1, 1.0], np.float32)
+    before = [env.reset(seed=21)[0], env.step(action)[0]]
+    other = FetchPickAndPlacePixels()
+    other.reset(seed=22)
+    other.close()
+    after = [env.reset(seed=21)[0], env.step(action)[0]]
+    assert before[0].mean() > 50  # a real frame, not a black one
+    for a, b in zip(before, after):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_state_and_success_rule(env):
     env.reset(seed=4)
     state = env.state()

@@ -215,6 +215,12 @@ class FetchPickAndPlacePixels(gym.Env[np.ndarray, np.ndarray]):
             self._closed = True
 
     def _observe(self) -> np.ndarray:
+        # Upstream renders into whichever OpenGL context is current. Creating another env makes
+        # its context current, and closing that env leaves none, so without this the frames of
+        # an env used after another one was created (and closed) are someone else's or black.
+        viewer = self.fetch.mujoco_renderer.viewer
+        if viewer is not None:
+            viewer.make_context_current()
         self._frame = np.ascontiguousarray(self.fetch.render(), dtype=np.uint8)
         return self._frame.copy()
 
