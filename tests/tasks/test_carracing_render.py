@@ -75,3 +75,24 @@ def test_text_survives_pygame_quit():
     text_patch("0042")
     pygame.quit()  # what upstream's close() does after a human render
     assert text_patch("0043").max() > 100
+
+
+def test_touched_tiles_repaint_the_map_as_a_fresh_draw_would():
+    import gymnasium as gym
+
+    import metadagger
+
+    task = metadagger.make_task("carracing")
+    env = gym.make("metadagger/CarRacing-v0")
+    try:
+        env.reset(seed=3)
+        renderer = env.unwrapped._renderer
+        before = renderer._map.copy()
+        for _ in range(150):  # the expert drives over ~40 tiles, each recoloured on contact
+            env.step(task.expert(env))
+        assert not np.array_equal(before, renderer._map)
+        repainted = renderer._map.copy()
+        renderer._draw_map()
+        np.testing.assert_array_equal(repainted, renderer._map)
+    finally:
+        env.close()

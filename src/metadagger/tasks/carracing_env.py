@@ -18,9 +18,10 @@ class CarRacingFast(CarRacing):
     Gymnasium's ``CarRacing-v3`` (top-down racing on a random track, from pixels) with the same
     track generation, physics, rewards and termination: this class subclasses upstream's env
     and only replaces how the 96x96 state image is drawn. Upstream draws ~700 polygons with
-    pygame at 1000x800 and downscales; here the state is drawn directly at a small supersampled
-    size with OpenCV (see :mod:`metadagger.tasks.carracing_render`), many times faster and
-    within a few grey levels of upstream's image.
+    pygame at 1000x800 and downscales; here the state is drawn directly at 96x96 with OpenCV
+    (a map of the track drawn once per episode and sampled each frame, the car filled on top;
+    see :mod:`metadagger.tasks.carracing_render`), many times faster and within a grey level of
+    upstream's image on average.
 
     ## Action Space
     As upstream. If continuous, ``Box([-1, 0, 0], [1, 1, 1])``: steering (-1 full left,

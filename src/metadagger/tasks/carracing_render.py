@@ -1,18 +1,25 @@
 """Fast 96x96 state renderer for CarRacing, matching upstream's ``state_pixels`` look.
 
 Upstream draws ~700 polygons with pygame at 1000x800 every step and then area-downscales the
-surface to 96x96 with ``pygame.transform.smoothscale``. Area averaging is linear, so drawing the
-same scene straight into a canvas ``supersample`` times the state size and area-downscaling it
-gives nearly the same image. This module does that with one vectorised transform of every
-polygon, culling of those off the canvas, and OpenCV fills with sub-pixel (fixed-point) vertices.
+surface to 96x96 with ``pygame.transform.smoothscale``. This module draws the state directly:
+
+- **Ground and road** (background, grass squares, road tiles and kerbs) never move, so they are
+  drawn once per track into a world map (4 pixels per world unit, about 2.5 per state pixel at
+  full zoom). Each frame, one ``cv2.warpAffine`` with nearest-neighbour sampling gives every
+  canvas pixel the map's colour at its centre, which is what filling the polygons on the
+  canvas would give. A tile the car touches changes colour (upstream's contact listener); it is
+  redrawn on the map, with the parts drawn after it that overlap it.
+- **Car and indicators** move every frame: the car's polygons go through one vectorised
+  transform and OpenCV fills with sub-pixel (fixed-point) vertices; the indicator bars and the
+  reward text are cached, area-averaged patches.
+
+The canvas is ``supersample`` times the state size, area-downscaled at the end (area averaging is
+linear, so this approaches upstream's image). The default ``supersample=1`` keeps the image within
+a mean absolute error of about 0.45 of upstream's (0-255 scale).
 
 Coordinates: upstream's screen ("screen pixels", 1000x800) maps onto the 96x96 state
 anisotropically (x by 96/1000, y by 96/800). A canvas pixel ``i`` covers ``[i, i+1)``; OpenCV puts
-pixel centres on integers, hence the ``-0.5`` in the camera transform.
-
-The default ``supersample=1`` (draw at 96x96 with sub-pixel vertices) keeps the image within a
-mean absolute error of about 0.5 of upstream's (0-255 scale); ``supersample=2`` halves that
-error for about 20% more render time.
+pixel centres on integers, hence the ``-0.5`` in the camera transform (and the map's).
 
 Rasterisation rules differ: OpenCV fills every pixel whose centre lies within half a pixel of a
 polygon, pygame every screen pixel between truncated vertices (about half a screen pixel of
@@ -42,6 +49,10 @@ _SY = STATE_SIZE / cr.WINDOW_H  # ... and vertically
 _CV2_GROWTH = 0.48
 _GFXDRAW_GROWTH = 0.48
 _DRAW_GROWTH = 0.3
+#: The world map of the ground and road: pixels per world unit (about 2.5 per canvas pixel at
+#: full zoom) and its half-width in world units (the playfield; beyond it all is black).
+_MAP_PX = 4.0
+_MAP_HALF = cr.PLAYFIELD
 _HULL_COLOR = (204, 0, 0)  # upstream draws int(0.8 * 255) for the hull's (0.8, 0, 0)
 _WHEEL_COLOR = tuple(int(c * 255) for c in cd.WHEEL_COLOR)
 _WHEEL_WHITE = tuple(cd.WHEEL_WHITE)
@@ -182,10 +193,10 @@ class StateRenderer:
         self.size = STATE_SIZE * supersample
         # Screen pixels -> canvas pixels (geometric mean of the anisotropic x and y scales).
         gain = supersample * math.sqrt(_SX * _SY)
-        self._shrink_static = _CV2_GROWTH - _GFXDRAW_GROWTH * gain  # in canvas pixels
-        self._shrink_car = _CV2_GROWTH - _DRAW_GROWTH * gain
+        self._shrink_car = _CV2_GROWTH - _DRAW_GROWTH * gain  # in canvas pixels
         self._world_per_canvas = 1.0 / gain  # ... times 1 / zoom
         self._canvas = np.zeros((self.size, self.size, 3), dtype=np.uint8)
+        self._map: np.ndarray | None = None
         # the canvas point the car sits on: upstream's (W/2, H/4 from the bottom), in canvas pixels
         self._view_centre = (cr.WINDOW_W / 2 * _SX * supersample - 0.5, (cr.WINDOW_H - cr.WINDOW_H / 4) * _SY * supersample - 0.5)
         self._car: cd.Car | None = None
@@ -212,19 +223,24 @@ class StateRenderer:
         """
         if road_vertices.ndim != 3 or road_vertices.shape[1:] != (4, 2) or road_colors.shape != (len(road_vertices), 3):
             raise ValueError(f"road_vertices must be (P, 4, 2) and road_colors (P, 3), got {road_vertices.shape} and {road_colors.shape}")
-        # Ground then road, one (S, 4, 2) array: they never move, so their bounding circles (for
-        # culling) and shrink directions are computed once per track.
+        # Ground then road, one (S, 4, 2) array, in draw order: they never move, so they are
+        # drawn once per track into a world map (see _draw_map), sampled every frame.
         static = np.concatenate([_GROUND, np.asarray(road_vertices, dtype=np.float64)])
         weights = np.concatenate([np.ones((len(_GROUND), 4)), np.tile(_ALONG_TRACK, (len(road_vertices), 1))])
-        self._static = static
-        self._static_miters, self._static_limit = miters(static, weights)
-        self._centres = static.mean(axis=1)
-        self._radii = np.linalg.norm(static - self._centres[:, None], axis=-1).max(axis=1)
+        static_miters, static_limit = miters(static, weights)
+        shrink = _CV2_GROWTH / _MAP_PX - _GFXDRAW_GROWTH / (cr.ZOOM * cr.SCALE)  # world units
+        # a polygon thinner than twice the shrink is left out (upstream's is below a pixel too)
+        self._map_drawn = static_limit > shrink
+        self._map_polys = np.rint(((static + shrink * static_miters + _MAP_HALF) * _MAP_PX - 0.5) * _ONE).astype(np.int32)
+        # (S, 4): x0, y0, x1, y1 in map pixels, padded by one for the fills' growth
+        lo, hi = (self._map_polys.min(axis=1) >> _SHIFT) - 1, (self._map_polys.max(axis=1) >> _SHIFT) + 2
+        self._map_boxes = np.concatenate([lo, hi], axis=1)
         self._n_ground = len(_GROUND)
         self._bg_color = np.asarray(bg_color).astype(np.int32).tolist()
         self._grass_color = np.asarray(grass_color).astype(np.int32).tolist()
         self._road_colors = road_colors
         self._car = car
+        self._draw_map()
         _warm_text_patches()
         # Body-local car polygons never change during an episode; read them once from Box2D.
         hull = [np.array(f.shape.vertices, dtype=np.float64) for f in car.hull.fixtures]
@@ -241,18 +257,14 @@ class StateRenderer:
         if self._car is None:
             raise RuntimeError("StateRenderer.render() called before reset()")
         canvas = self._canvas
-        canvas.fill(0)
         zoom = 0.1 * cr.SCALE * max(1 - t, 0) + cr.ZOOM * cr.SCALE * min(t, 1)
         a, b = self._camera(zoom)
-        polys, n_background, n_grass, road_colors = self._static_polygons(a, b, zoom)
+        if not np.array_equal(self._road_colors, self._map_colors):  # the car touched a tile
+            self._repaint_map(self._n_ground + np.flatnonzero((self._road_colors != self._map_colors).any(axis=1)))
+        # each canvas pixel takes the map's colour at its centre, as a fill would
+        cv2.warpAffine(self._map, _canvas_to_map(a, b), (self.size, self.size), dst=canvas,
+                       flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         car_polys, car_colors = self._car_polygons(a, b, zoom)
-        if n_background:
-            cv2.fillConvexPoly(canvas, polys[0], self._bg_color, cv2.LINE_8, _SHIFT)
-        if n_grass:
-            # grass squares never overlap, so one call fills them all (its even-odd rule is moot)
-            cv2.fillPoly(canvas, list(polys[n_background : n_background + n_grass]), self._grass_color, cv2.LINE_8, _SHIFT)
-        for poly, col in zip(polys[n_background + n_grass :], road_colors):
-            cv2.fillConvexPoly(canvas, poly, col, cv2.LINE_8, _SHIFT)
         for poly, col in zip(car_polys, car_colors):
             cv2.fillConvexPoly(canvas, poly, col, cv2.LINE_8, _SHIFT)
         canvas[round(_BAR_TOP * _SY * self.supersample) :] = 0
@@ -277,25 +289,59 @@ class StateRenderer:
         cx, cy = self._view_centre
         return np.array([[a00, a01], [a10, a11]]), np.array([cx - a00 * px - a01 * py, cy - a10 * px - a11 * py])
 
-    def _static_polygons(self, a: np.ndarray, b: np.ndarray, zoom: float) -> tuple[np.ndarray, int, int, list]:
-        """The ground and road parts on the canvas: their fixed-point polygons in draw order, how
-        many of them are the background (0 or 1, first) and grass squares (next), and the colours
-        of the road parts after those."""
-        half = self.size / 2
-        # |a c + b - half| <= half + stretch * r, tested as |a c - (half - b)| to save an add
-        stretch = max(abs(a[0, 0]) + abs(a[0, 1]), abs(a[1, 0]) + abs(a[1, 1]))
-        dist = np.abs(self._centres @ a.T - (half - b))
-        d = self._shrink_static * self._world_per_canvas / zoom
-        # a polygon thinner than twice the shrink is left out (upstream's is below a pixel too)
-        reach = np.where(self._static_limit > d, self._radii * stretch + (half + 1.0), -1.0)
-        visible = np.flatnonzero(np.maximum(dist[:, 0], dist[:, 1]) <= reach)
-        world = self._static[visible] + d * self._static_miters[visible]
-        fixed = np.rint(world @ (a.T * _ONE) + b * _ONE).astype(np.int32)
-        n = int(np.searchsorted(visible, self._n_ground))
-        n_background = int(n > 0 and visible[0] == 0)  # _GROUND[0] is the background
+    def _draw_map(self) -> None:
+        """Draw the ground and road once into the world map, ``_MAP_PX`` pixels per world unit.
+
+        Its polygons are shrunk so that, sampled at canvas pixel centres, they cover what
+        upstream's (grown) polygons cover; the map extends to black beyond the playfield.
+        """
+        if self._map is None:  # one buffer for every track: a fresh one costs page faults
+            size = int(math.ceil(2 * _MAP_HALF * _MAP_PX))
+            self._map = np.zeros((size, size, 3), dtype=np.uint8)
+        else:
+            self._map.fill(0)
+        self._map_colors = self._road_colors.copy()
+        self._paint_map(np.flatnonzero(self._map_drawn))
+
+    def _repaint_map(self, changed: np.ndarray) -> None:
+        """Redraw recoloured road parts (ascending indices into the static polygons) on the map.
+
+        A part covers the same pixels as before. Drawing it again, then every later part that
+        reaches into its box, gives what drawing the whole map again would inside that box;
+        outside it, a later part may cover a third one, so the map outside the box is restored.
+        (Fills are drawn on the whole map: OpenCV rasterises a polygon clipped by an image's
+        edge slightly differently.)
+        """
+        self._map_colors = self._road_colors.copy()
+        boxes = self._map_boxes
+        for j in changed[self._map_drawn[changed]]:  # a part too thin to draw stays undrawn
+            x0, y0, x1, y1 = boxes[j]
+            later = boxes[j + 1 :]
+            near = self._map_drawn[j + 1 :] & (later[:, 0] <= x1) & (later[:, 2] >= x0) & (later[:, 1] <= y1) & (later[:, 3] >= y0)
+            indices = np.concatenate([[j], j + 1 + np.flatnonzero(near)])
+            (rx0, ry0), (rx1, ry1) = np.maximum(boxes[indices, :2].min(axis=0), 0), boxes[indices, 2:].max(axis=0)
+            region = self._map[ry0 : ry1 + 1, rx0 : rx1 + 1]
+            saved = region.copy()
+            self._paint_map(indices)
+            inner = (slice(max(y0, 0) - ry0, y1 + 1 - ry0), slice(max(x0, 0) - rx0, x1 + 1 - rx0))
+            saved[inner] = region[inner]
+            region[...] = saved
+
+    def _paint_map(self, indices: np.ndarray) -> None:
+        """Fill static polygons ``indices`` (ascending: draw order) into the map."""
+        image = self._map
+        polys = self._map_polys[indices]
+        n_ground = int(np.searchsorted(indices, self._n_ground))
+        n_background = int(n_ground > 0 and indices[0] == 0)  # _GROUND[0] is the background
+        if n_background:
+            cv2.fillConvexPoly(image, polys[0], self._bg_color, cv2.LINE_8, _SHIFT)
+        if n_ground > n_background:
+            # grass squares never overlap, so one call fills them all (its even-odd rule is moot)
+            cv2.fillPoly(image, list(polys[n_background:n_ground]), self._grass_color, cv2.LINE_8, _SHIFT)
         # int() truncation, as upstream's ``[int(c) for c in color]`` (OpenCV would round).
-        road_colors = self._road_colors[visible[n:] - self._n_ground].astype(np.int32).tolist()
-        return fixed, n_background, n - n_background, road_colors
+        colors = self._road_colors[indices[n_ground:] - self._n_ground].astype(np.int32).tolist()
+        for poly, color in zip(polys[n_ground:], colors):
+            cv2.fillConvexPoly(image, poly, color, cv2.LINE_8, _SHIFT)
 
     def _car_polygons(self, a: np.ndarray, b: np.ndarray, zoom: float) -> tuple[list, list]:
         """Wheels with their rotating stripes, then the hull (upstream's draw order, no particles)."""
@@ -352,6 +398,18 @@ class StateRenderer:
             if abs(value) > 1e-4:
                 x = int(start + scale * value)
                 _paint(strip, _bar_patch(min(x, int(start)), max(x, int(start)), _H_TOP, _H_BOTTOM, color))
+
+
+def _canvas_to_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The (2, 3) affine map from canvas pixels to map pixels, given world -> canvas ``a p + b``."""
+    (a00, a01), (a10, a11) = a.tolist()
+    b0, b1 = b.tolist()
+    k = _MAP_PX / (a00 * a11 - a01 * a10)  # map pixels per world unit over det(a)
+    i00, i01, i10, i11 = a11 * k, -a01 * k, -a10 * k, a00 * k  # _MAP_PX * inverse(a)
+    return np.array([
+        [i00, i01, _MAP_HALF * _MAP_PX - 0.5 - i00 * b0 - i01 * b1],
+        [i10, i11, _MAP_HALF * _MAP_PX - 0.5 - i10 * b0 - i11 * b1],
+    ])
 
 
 def _paint(strip: np.ndarray, patch: tuple[int, int, np.ndarray] | None) -> None:
