@@ -12,14 +12,20 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import contextlib  # noqa: E402
+import io  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from typing import Any, Sequence  # noqa: E402
 
 import gymnasium as gym  # noqa: E402
-import gymnasium_robotics  # noqa: E402
 import numpy as np  # noqa: E402
+
+# gymnasium-robotics prints a notice about its Adroit envs' rewards to stderr on import, in every
+# worker process; it does not concern Fetch, so it is kept off the console.
+with contextlib.redirect_stderr(io.StringIO()):
+    import gymnasium_robotics  # noqa: E402
 
 gym.register_envs(gymnasium_robotics)
 
