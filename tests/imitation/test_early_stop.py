@@ -66,3 +66,15 @@ def test_defaults_and_validation():
         CosineEarlyStop(threshold=float("nan"))
     with pytest.raises(ValueError, match="min_label_norm"):
         CosineEarlyStop(threshold=1.0, min_label_norm=-1.0)
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("inf"), float("nan"), "40"])
+def test_config_thresholds_name_the_field(value):
+    from metadagger.errors import UserError
+    from metadagger.imitation.early_stop import check_threshold
+    from metadagger.metal.pairs import PairConfig
+
+    check_threshold("pairs.early_stop", None)
+    check_threshold("pairs.early_stop", 40.0)
+    with pytest.raises(UserError, match=r"^pairs\.early_stop must be a finite number > 0 or null"):
+        PairConfig(early_stop=value)

@@ -24,8 +24,6 @@ with pi* on its seed.
 from __future__ import annotations
 
 import dataclasses
-import functools
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,10 +37,10 @@ from metadagger.errors import UserError
 from metadagger.evaluation.rows import RowLog, write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.data import Dataset
-from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
-from metadagger.mapping.mappers import KINDS, Mapper, load_mapper
+from metadagger.mapping.mappers import KINDS, Mapper, cached_mapper
 from metadagger.metal.pairs import cached_groundtruth, head_from_groundtruth
 from metadagger.parallel import make_executor
 from metadagger.policies import Policy
@@ -90,8 +88,7 @@ class MDIConfig:
             raise UserError(f"mdi.seeds must be non-negative integers, got {self.seeds!r}")
         if not (self.bc.head_only and self.dagger_bc.head_only):
             raise UserError("mdi.bc.head_only and mdi.dagger_bc.head_only must be true: only layer n is initialised and fitted")
-        if self.early_stop is not None and not (math.isfinite(self.early_stop) and self.early_stop > 0):
-            raise UserError(f"mdi.early_stop must be a finite number > 0 or null (no early stop), got {self.early_stop!r}")
+        check_threshold("mdi.early_stop", self.early_stop)
         if self.mapper not in KINDS:
             raise UserError(f"mdi.mapper must be one of {', '.join(KINDS)}, got {self.mapper!r}")
 
@@ -105,11 +102,6 @@ class MDIJob:
     mapper: str
     seed: int
     config: MDIConfig
-
-
-@functools.lru_cache(maxsize=2)
-def _cached_mapper(path: str) -> Mapper:
-    return load_mapper(path)
 
 
 def head_dir(run: str | Path, method: str, shot: str) -> Path:
@@ -166,7 +158,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     try:
         demo = rollout(env, seed=seed, policy=None).to_dataset()
         cache = FeatureCache(policy)
-        one_shot_heads = _step5_heads(policy, demo, bc, cache, _cached_mapper(job.mapper))
+        one_shot_heads = _step5_heads(policy, demo, bc, cache, cached_mapper(job.mapper))
         for method in METHODS:
             heads[method, "oneshot"] = one_shot_heads[method]
             first = final = test(one_shot_heads[method])
@@ -204,7 +196,7 @@ def _check_inputs(task: Task, run: Path, config: MDIConfig, groundtruth: Path, m
             f"{task.learner_action_space}; set mdi.early_stop to null"
         )
     head_size = cached_groundtruth(str(groundtruth)).head_size
-    mapper_dim = _cached_mapper(str(mapper_path)).dim
+    mapper_dim = cached_mapper(str(mapper_path)).dim
     if mapper_dim != head_size:
         raise UserError(
             f"the mapper at {mapper_path} maps heads of length {mapper_dim}, but pi*'s head has {head_size}; "

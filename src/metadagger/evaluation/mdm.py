@@ -10,7 +10,6 @@ saved (``eval/heads/<method>/<seed>.safetensors``, tensor ``head``) so any row c
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,7 @@ from metadagger.evaluation.rows import RowLog, write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import save_tensors
-from metadagger.mapping.mappers import Mapper, load_mapper
+from metadagger.mapping.mappers import cached_mapper
 from metadagger.metal.pairs import cached_groundtruth, head_from_groundtruth
 from metadagger.parallel import make_executor
 from metadagger.tasks.base import Task
@@ -63,11 +62,6 @@ class EvalJob:
     oneshot: bool
 
 
-@functools.lru_cache(maxsize=8)
-def _cached_mapper(path: str) -> Mapper:
-    return load_mapper(path)
-
-
 def evaluate_seed(job: EvalJob) -> dict[str, Any]:
     """Evaluate BC, every mapper and their one-shot refits on one seed."""
     policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.seed)
@@ -90,7 +84,7 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
         fit_bc(policy, demo, bc_config, cache=cache)
         w_bc = policy.head_vector().numpy().copy()
         run("bc", w_bc, len(demo))
-        failed = [m for m, path in job.mappers.items() if not run(m, _cached_mapper(path)(w_bc), len(demo))]
+        failed = [m for m, path in job.mappers.items() if not run(m, cached_mapper(path)(w_bc), len(demo))]
         for method in failed if job.oneshot else []:
             policy.load_head_vector(torch.from_numpy(heads[method]))
             fit_bc(policy, demo, bc_config, cache=cache)

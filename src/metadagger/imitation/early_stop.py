@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from metadagger.errors import UserError
+
 #: Default threshold on the accumulated cosine distance of one 50-step Fetch episode (with the
 #: default :data:`MIN_LABEL_NORM`). Measured on seeds 0-49 (docs/fetch.md): the expert plus
 #: Gaussian noise of s.d. 0.1 on every action reaches at most 12.1 (all 50 succeed); uniformly
@@ -44,6 +46,13 @@ def cosine_distance(learner_action: np.ndarray, expert_label: np.ndarray) -> flo
         return 1.0
     cos = float(np.dot(a, b)) / (norm_a * norm_b)
     return 1.0 - min(1.0, max(-1.0, cos))
+
+
+def check_threshold(name: str, value: float | None) -> None:
+    """Raise a :class:`~metadagger.errors.UserError` naming config field ``name`` unless
+    ``value`` is None (early stop off) or a finite number > 0."""
+    if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise UserError(f"{name} must be a finite number > 0 or null (no early stop), got {value!r}")
 
 
 class CosineEarlyStop:

@@ -14,6 +14,7 @@ metadata holds kind, length and architecture, so :func:`load_mapper` rebuilds it
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -294,6 +295,12 @@ def load_mapper(path: str | Path) -> Mapper:
         return Mapper(kind=kind, dim=dim, networks=networks, scalers=scalers, config=config)
     except (KeyError, ValueError, TypeError, RuntimeError) as exc:
         raise CheckpointError(f"mapper file {path} does not match its own metadata ({exc}); delete it and re-run train-mapper") from None
+
+
+@functools.lru_cache(maxsize=8)
+def cached_mapper(path: str) -> Mapper:
+    """:func:`load_mapper`, once per worker process and path (callers must not change it)."""
+    return load_mapper(path)
 
 
 def _as_float32(w: Any) -> torch.Tensor:

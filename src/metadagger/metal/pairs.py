@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
-from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import write_json
 from metadagger.metal.store import PairStore
@@ -64,8 +64,7 @@ class PairConfig:
             raise UserError(f"pairs.keep must be one of {', '.join(KEEP_RULES)}, got {self.keep!r}")
         if not 0.0 < self.val_fraction < 1.0:
             raise UserError(f"pairs.val_fraction must be in (0, 1), got {self.val_fraction}")
-        if self.early_stop is not None and not self.early_stop > 0:
-            raise UserError(f"pairs.early_stop must be > 0 or null, got {self.early_stop}")
+        check_threshold("pairs.early_stop", self.early_stop)
 
 
 @dataclass(frozen=True)
@@ -153,7 +152,8 @@ def collect_pairs(
         with make_executor(executor, workers=workers, address=address) as pool:
             bar = tqdm(total=len(config.seeds), initial=len(config.seeds) - len(jobs), desc="pairs", disable=not progress)
             for result in pool.imap_unordered(collect_pair, jobs):
-                store.write(result["seed"], torch.from_numpy(result["w_bc"]), torch.from_numpy(result["w_da"]), result["record"])
+                # np.array copies: arrays from Ray workers are read-only, which torch warns about
+                store.write(result["seed"], torch.from_numpy(np.array(result["w_bc"])), torch.from_numpy(np.array(result["w_da"])), result["record"])
                 bar.update(1)
             bar.close()
     summary = summarize_pairs([r for r in store.records() if r["seed"] in set(config.seeds)])
