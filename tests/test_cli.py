@@ -90,3 +90,8 @@ def test_evaluate_protocol_errors(tmp_path):
     _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "xyz"], "unknown protocol 'xyz'", "mdm, mdi, all")
     (tmp_path / "config.yaml").write_text("task: carracing\n")
     _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "mdi"], "has no mdi section", "--protocol mdm")
+
+
+def test_reproduce_with_unknown_task_names_the_known_ones(tmp_path):
+    out = _fails_cleanly(["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")], "unknown task 'cartpole'", "carracing, fetch")
+    assert not (tmp_path / "r" / "config.yaml").exists()

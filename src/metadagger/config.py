@@ -43,12 +43,16 @@ def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
 
 def load_preset(task: str, preset: str) -> dict[str, Any]:
     """The raw mapping of one preset of a task's YAML file."""
+    from metadagger.tasks import available_tasks  # tasks import this module's helpers
+
+    if task not in available_tasks():
+        raise UserError(f"unknown task {task!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these")
     if preset not in PRESETS:
         raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
     try:
         text = resources.files("metadagger.configs").joinpath(f"{task}.yaml").read_text()
     except FileNotFoundError:
-        raise UserError(f"no presets for task {task!r}: expected a file metadagger/configs/{task}.yaml") from None
+        raise UserError(f"task {task!r} has no presets: expected a file metadagger/configs/{task}.yaml (see docs/custom_task.md)") from None
     presets = yaml.safe_load(text)["presets"]
     if preset not in presets:
         raise UserError(f"task {task!r} has no preset {preset!r}: expected one of {', '.join(sorted(presets))}")
