@@ -70,10 +70,12 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
     # only the kinds the run uses: evaluate.methods [dm, mean-da, pistar-head] and mdi.mapper dm
     assert sorted(p.name for p in (run / "mappers").iterdir()) == ["dm", "mean-da", "pistar-head"]
     rows = read_csv(run / "eval" / "mdi.csv")
-    assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in (5000, 5001) for m in MDI_METHODS]
+    methods = MDI_METHODS + ("dagger-mdi-mean-da", "dagger-mdi-pistar-head")  # mdi.controls
+    assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in (5000, 5001) for m in methods]
     assert not (run / "eval" / "oneshot.csv").exists()  # evaluate.oneshot is false
     assert "Table 1" in report and "## One-shot" not in report
     assert "## MDI" in report and "Table 7" in report and "| DAgger-MDI |" in report
+    assert "| control: DAgger-MDI initialised by mean-da |" in report
     assert (run / "report" / "figures" / MDI_FIGURE).is_file()
 
     # a finished run resumes without redoing any stage, from reproduce and from the CLI
@@ -83,6 +85,20 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
     assert again.exit_code == 0, again.output
     assert "MDM: evaluated 2 seeds" in again.output and f"MDI: evaluated 2 seeds; wrote {run / 'eval' / 'mdi.csv'}" in again.output
     assert _stamps(run) == before
+
+
+def _artifacts(run: Path) -> dict[str, bytes]:
+    """Every artifact but the report (whose title names the run folder), by relative path."""
+    return {str(p.relative_to(run)): p.read_bytes() for p in sorted(run.rglob("*")) if p.is_file() and "report" not in p.parts}
+
+
+def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(tmp_path):
+    pytest.importorskip("gymnasium_robotics")
+    first = _artifacts(reproduce("fetch", "ci", tmp_path / "a", workers=2, progress=False).parent.parent)
+    second = _artifacts(reproduce("fetch", "ci", tmp_path / "b", workers=1, progress=False).parent.parent)
+    assert any(name.startswith("pairs/") and name.endswith(".safetensors") for name in first)
+    assert first.keys() == second.keys()
+    assert [name for name in first if first[name] != second[name]] == []
 
 
 def test_mapper_kinds_follow_the_run_config(tmp_path):

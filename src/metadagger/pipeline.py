@@ -88,6 +88,7 @@ def stage_mdi(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = Non
     mdi_config = config.mdi if seeds is None else dataclasses.replace(config.mdi, seeds=_unseen(config, seeds))
     return evaluate_mdi(run_task(config), run, mdi_config, groundtruth=groundtruth_path(run),
                         mapper_path=mapper_path(run, mdi_config.mapper),
+                        control_paths={kind: mapper_path(run, kind) for kind in mdi_config.controls},
                         executor=executor, workers=workers, address=address, progress=progress)
 
 

@@ -69,9 +69,9 @@ class RunConfig:
 
     @property
     def mapper_kinds(self) -> tuple[str, ...]:
-        """The mapper kinds this run uses (``evaluate.methods`` and ``mdi.mapper``), in
-        :data:`~metadagger.evaluation.mdm.MAPPER_METHODS` order."""
-        used = set(self.evaluate.methods) | ({self.mdi.mapper} if self.mdi else set())
+        """The mapper kinds this run uses (``evaluate.methods``, ``mdi.mapper`` and
+        ``mdi.controls``), in :data:`~metadagger.evaluation.mdm.MAPPER_METHODS` order."""
+        used = set(self.evaluate.methods) | (set(self.mdi.kinds.values()) if self.mdi else set())
         return tuple(kind for kind in MAPPER_METHODS if kind in used)
 
     @property

@@ -168,6 +168,31 @@ def test_fig5_counts_the_seeds_where_dagger_mdi_is_closer(tmp_path):
     assert (tmp_path / "figures" / FIGURE).is_file()
 
 
+def test_controls_add_rows_and_rerun_seeds_logged_without_them(toy_run, evaluated, tmp_path):
+    run, mapper = toy_run
+    task = CorridorTask(discrete=False)
+    shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
+    evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    head = load_policy(groundtruth_path(run)).head_vector()
+    control = tmp_path / "mean-da.safetensors"
+    Mapper.mean_da(torch.stack([head, head])).save(control)  # the mean is pi*'s head, the MDI mapper's output
+    config = dataclasses.replace(CONFIG, controls=("mean-da",))
+    assert config.methods == METHODS + ("dagger-mdi-mean-da",)
+    rows = evaluate_mdi(task, tmp_path, config, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper,
+                        control_paths={"mean-da": control}, workers=1, progress=False)
+    assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in config.methods]
+    # the three methods' rows do not change; a mean-DA head equal to pi*'s head gives DAgger-MDI's rows
+    main = {(r["method"], r["seed"]): r for r in evaluated[1]}
+    for r in rows:
+        expected = main[("dagger-mdi" if r["method"] == "dagger-mdi-mean-da" else r["method"], r["seed"])]
+        assert {k: v for k, v in r.items() if k != "method"} == {k: v for k, v in expected.items() if k != "method"}
+    assert (head_dir(tmp_path, "dagger-mdi-mean-da", "oneshot") / f"{CONFIG.seeds[0]}.safetensors").is_file()
+    text = "\n".join(mdi_section(tmp_path, tmp_path / "report" / "figures"))
+    assert "| control: DAgger-MDI initialised by mean-da |" in text
+    with pytest.raises(UserError, match="control_paths"):
+        evaluate_mdi(task, tmp_path, config, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, progress=False)
+
+
 def test_missing_inputs_are_user_errors(toy_run, tmp_path):
     run, mapper = toy_run
     task = CorridorTask(discrete=False)
@@ -187,6 +212,9 @@ def test_missing_inputs_are_user_errors(toy_run, tmp_path):
     ("kwargs", "match"),
     [
         ({"seeds": ()}, "mdi.seeds must not be empty"),
+        ({"controls": ("dm",)}, "mdi.controls must be distinct mapper kinds"),
+        ({"controls": ("mean-da", "mean-da")}, "mdi.controls must be distinct"),
+        ({"controls": ("nope",)}, "got \\['nope'\\]"),
         ({"seeds": (-1,)}, "non-negative"),
         ({"bc": BCConfig(head_only=False)}, "head_only"),
         ({"early_stop": 0.0}, "mdi.early_stop"),

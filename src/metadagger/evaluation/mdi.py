@@ -13,6 +13,11 @@ reused rather than fitted twice;
 8. else one DAgger round from the step-5 weights: the expert labels the states of that rollout,
 they join the demonstration and the head is refitted; 9. roll out again (two-shot test).
 
+``controls`` adds DAgger-MDI rows whose initialiser is another mapper kind, typically the
+controls ``mean-da`` (the training pairs' mean w_DA) and ``pistar-head`` (pi*'s own head): method
+``dagger-mdi-<kind>``. They tell whether DAgger-MDI gains from what the mapper learned about
+each seed or only from starting the refit at a good generic head.
+
 With ``early_stop`` set, every learner rollout runs under a
 :class:`~metadagger.imitation.early_stop.CosineEarlyStop` (paper 3.4.2): an episode whose
 accumulated cosine distance to the expert passes the threshold is cut off and fails. One row per
@@ -26,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import gymnasium as gym
 import numpy as np
@@ -48,6 +53,8 @@ from metadagger.tasks.base import Task
 
 #: The three methods of Table 6, in table order.
 METHODS = ("dagger-mdi", "dagger-bc", "dagger")
+#: Prefix of the control methods: DAgger-MDI initialised by another mapper kind.
+CONTROL_PREFIX = "dagger-mdi-"
 #: The two tests of Table 6 (steps 6 and 9).
 SHOTS = ("oneshot", "twoshot")
 #: Columns of ``eval/mdi.csv``. ``two_shot_success`` counts a seed solved at either test (the
@@ -80,6 +87,9 @@ class MDIConfig:
     mapper: str = "dm"
     """Kind of the mapper that initialises DAgger-MDI (the run's ``mappers/<kind>/``; the paper's
     Table 9 trains one mapping network)."""
+    controls: tuple[str, ...] = ()
+    """Further mapper kinds that initialise DAgger-MDI, each in rows of method ``dagger-mdi-<kind>``
+    (the Fetch presets: the controls ``mean-da`` and ``pistar-head``); () for none."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -91,6 +101,22 @@ class MDIConfig:
         check_threshold("mdi.early_stop", self.early_stop)
         if self.mapper not in KINDS:
             raise UserError(f"mdi.mapper must be one of {', '.join(KINDS)}, got {self.mapper!r}")
+        bad = [k for k in self.controls if k not in KINDS or k == self.mapper]
+        if bad or len(set(self.controls)) != len(self.controls):
+            raise UserError(
+                f"mdi.controls must be distinct mapper kinds of {', '.join(KINDS)} other than mdi.mapper "
+                f"({self.mapper!r}), got {list(self.controls)!r}"
+            )
+
+    @property
+    def kinds(self) -> dict[str, str]:
+        """Mapper kind of every DAgger-MDI method: ``dagger-mdi`` and one per control."""
+        return {"dagger-mdi": self.mapper, **{CONTROL_PREFIX + kind: kind for kind in self.controls}}
+
+    @property
+    def methods(self) -> tuple[str, ...]:
+        """Every method evaluated, in row order: :data:`METHODS`, then the controls."""
+        return METHODS + tuple(CONTROL_PREFIX + kind for kind in self.controls)
 
 
 @dataclass(frozen=True)
@@ -99,14 +125,15 @@ class MDIJob:
 
     task: Task
     groundtruth: str
-    mapper: str
+    mappers: dict[str, str]
+    """Mapper file of every DAgger-MDI method (see :attr:`MDIConfig.kinds`)."""
     seed: int
     config: MDIConfig
 
 
 def head_dir(run: str | Path, method: str, shot: str) -> Path:
     """Folder of the heads a method was tested with at one shot (``oneshot`` or ``twoshot``)."""
-    if method not in METHODS or shot not in SHOTS:
+    if not (method in METHODS or method.startswith(CONTROL_PREFIX)) or shot not in SHOTS:
         raise UserError(f"no MDI heads for method {method!r} shot {shot!r}: expected a method of {METHODS} and a shot of {SHOTS}")
     return Path(run) / "eval" / "heads" / f"mdi-{method}-{shot}"
 
@@ -127,12 +154,15 @@ def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
     return meter.total, meter.mean
 
 
-def _step5_heads(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache, mapper: Mapper) -> dict[str, np.ndarray]:
-    """Steps 2-5: each method's head after training on the demonstration."""
+def _step5_heads(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache, mappers: dict[str, Mapper]) -> dict[str, np.ndarray]:
+    """Steps 2-5: each method's head after training on the demonstration (``mappers``: the
+    initialiser of every DAgger-MDI method)."""
     fit_bc(policy, demo, bc, cache=cache)
     w_bc = _head(policy)
     heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
-    for method, init in (("dagger-mdi", mapper(w_bc)), ("dagger-bc", w_bc)):
+    inits = {"dagger-mdi": mappers["dagger-mdi"](w_bc), "dagger-bc": w_bc}
+    inits |= {method: mapper(w_bc) for method, mapper in mappers.items() if method != "dagger-mdi"}
+    for method, init in inits.items():
         policy.load_head_vector(init)
         fit_bc(policy, demo, bc, cache=cache)
         heads[method] = _head(policy)
@@ -158,8 +188,9 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     try:
         demo = rollout(env, seed=seed, policy=None).to_dataset()
         cache = FeatureCache(policy)
-        one_shot_heads = _step5_heads(policy, demo, bc, cache, cached_mapper(job.mapper))
-        for method in METHODS:
+        mappers = {method: cached_mapper(path) for method, path in job.mappers.items()}
+        one_shot_heads = _step5_heads(policy, demo, bc, cache, mappers)
+        for method in config.methods:
             heads[method, "oneshot"] = one_shot_heads[method]
             first = final = test(one_shot_heads[method])
             ran = not first.success
@@ -185,23 +216,27 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     return {"seed": seed, "rows": rows, "heads": heads}
 
 
-def _check_inputs(task: Task, run: Path, config: MDIConfig, groundtruth: Path, mapper_path: Path) -> None:
+def _check_inputs(task: Task, run: Path, config: MDIConfig, groundtruth: Path, mappers: dict[str, Path]) -> None:
     if not groundtruth.is_file():
         raise UserError(f"pi* not found at {groundtruth}; run `metadagger groundtruth --out {run}` first")
-    if not mapper_path.is_file():
-        raise UserError(f"MDI mapper not found at {mapper_path}; run `metadagger train-mapper --out {run} --kind {config.mapper}` first")
+    for method, kind in config.kinds.items():
+        if method not in mappers:
+            raise UserError(f"no mapper file given for mdi.controls kind {kind!r}; pass control_paths={{{kind!r}: path}}")
+        if not mappers[method].is_file():
+            raise UserError(f"MDI mapper not found at {mappers[method]}; run `metadagger train-mapper --out {run} --kind {kind}` first")
     if config.early_stop is not None and not isinstance(task.learner_action_space, gym.spaces.Box):
         raise UserError(
             f"mdi.early_stop={config.early_stop} needs displacement (Box) actions, but task {task.name!r} has "
             f"{task.learner_action_space}; set mdi.early_stop to null"
         )
     head_size = cached_groundtruth(str(groundtruth)).head_size
-    mapper_dim = cached_mapper(str(mapper_path)).dim
-    if mapper_dim != head_size:
-        raise UserError(
-            f"the mapper at {mapper_path} maps heads of length {mapper_dim}, but pi*'s head has {head_size}; "
-            "train the mapper on this run's pairs (metadagger train-mapper)"
-        )
+    for path in mappers.values():
+        mapper_dim = cached_mapper(str(path)).dim
+        if mapper_dim != head_size:
+            raise UserError(
+                f"the mapper at {path} maps heads of length {mapper_dim}, but pi*'s head has {head_size}; "
+                "train the mapper on this run's pairs (metadagger train-mapper)"
+            )
 
 
 def evaluate_mdi(
@@ -211,6 +246,7 @@ def evaluate_mdi(
     *,
     groundtruth: str | Path,
     mapper_path: str | Path,
+    control_paths: Mapping[str, str | Path] | None = None,
     executor: str = "local",
     workers: int | None = None,
     address: str | None = None,
@@ -225,6 +261,7 @@ def evaluate_mdi(
         config: seeds, fits and early stop.
         groundtruth: pi*'s ``policy.safetensors``.
         mapper_path: the mapper used as initialiser (a ``mapper.safetensors``).
+        control_paths: the mapper file of every kind in ``config.controls``.
         executor: ``"local"`` or ``"ray"`` (see :func:`metadagger.parallel.make_executor`).
         workers: parallel workers (default: all cores / the cluster's CPUs).
         address: Ray cluster address.
@@ -232,13 +269,16 @@ def evaluate_mdi(
 
     Returns:
         The rows (:data:`MDI_FIELDS`) of every seed of ``config``, by seed then in
-        :data:`METHODS` order.
+        ``config.methods`` order. A seed logged without some of ``config.methods`` (controls
+        added later) is evaluated again.
     """
-    run, groundtruth, mapper_path = Path(run), Path(groundtruth), Path(mapper_path)
-    _check_inputs(task, run, config, groundtruth, mapper_path)
+    run, groundtruth = Path(run), Path(groundtruth)
+    paths = {kind: Path(path) for kind, path in (control_paths or {}).items()} | {config.mapper: Path(mapper_path)}
+    mappers = {method: paths[kind] for method, kind in config.kinds.items() if kind in paths}
+    _check_inputs(task, run, config, groundtruth, mappers)
     log = RowLog(run / "eval" / "mdi_rows.jsonl")
-    done = log.done_seeds()
-    jobs = [MDIJob(task=task, groundtruth=str(groundtruth), mapper=str(mapper_path), seed=s, config=config)
+    done = log.done_seeds(methods=config.methods)
+    jobs = [MDIJob(task=task, groundtruth=str(groundtruth), mappers={m: str(p) for m, p in mappers.items()}, seed=s, config=config)
             for s in config.seeds if s not in done]
     if jobs:
         with make_executor(executor, workers=workers, address=address) as pool:

@@ -26,9 +26,12 @@ class RowLog:
     def _latest(self) -> dict[int, list[dict[str, Any]]]:
         return {int(r["seed"]): r["rows"] for r in read_lines(self.path, what="row record")}
 
-    def done_seeds(self) -> set[int]:
-        """Seeds already evaluated."""
-        return set(self._latest())
+    def done_seeds(self, methods: tuple[str, ...] | None = None) -> set[int]:
+        """Seeds already evaluated (with a row for each of ``methods``, when given)."""
+        latest = self._latest()
+        if methods is None:
+            return set(latest)
+        return {seed for seed, rows in latest.items() if set(methods) <= {row["method"] for row in rows}}
 
     def rows(self) -> list[dict[str, Any]]:
         """Every row, by seed then in evaluation order (a seed's last record wins)."""
