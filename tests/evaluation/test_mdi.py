@@ -15,6 +15,7 @@ from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_m
 from metadagger.evaluation.report_fetch import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
+from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import collect
 from metadagger.io import load_tensors
 from metadagger.mapping.mappers import Mapper
@@ -104,6 +105,32 @@ def test_dagger_one_shot_head_is_a_fresh_bc_fit_on_the_demo(evaluated):
     # DAgger-BC refits w_BC once more on the demonstration; DAgger-MDI starts from the mapper's output
     assert not torch.equal(head["dagger-bc"], head["dagger"])
     assert not torch.equal(head["dagger-mdi"], head["dagger-bc"])
+
+
+@pytest.mark.parametrize("dagger_init", ["saved", "one-shot"])
+def test_dagger_round_refits_from_the_configured_start(evaluated, dagger_init, tmp_path):
+    run, rows = evaluated
+    failed = [r for r in rows if r["two_shot_run"]]
+    assert {r["method"] for r in failed} >= {"dagger"}, "the toy run should fail DAgger's one-shot somewhere"
+    config = dataclasses.replace(CONFIG, dagger_init=dagger_init)
+    if dagger_init == "one-shot":  # evaluate a copy with the other setting
+        shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
+        run = tmp_path
+        evaluate_mdi(CorridorTask(discrete=False), run, config, groundtruth=groundtruth_path(run),
+                     mapper_path=evaluated[0] / "mappers" / "pistar-head" / "mapper.safetensors", workers=1, progress=False)
+    r = next(r for r in failed if r["method"] == "dagger")
+    seed = r["seed"]
+    task = CorridorTask(discrete=False)
+    policy = head_from_groundtruth(load_policy(groundtruth_path(run)), seed)  # the seed's Xavier head
+    demo = collect(task, [seed], policy=None)[0].to_dataset()
+    oneshot = load_tensors(head_dir(run, "dagger", "oneshot") / f"{seed}.safetensors")["head"]
+    policy.load_head_vector(oneshot)
+    first = collect(task, [seed], policy=policy, early_stop_factory=lambda: CosineEarlyStop(threshold=CONFIG.early_stop))[0]
+    if dagger_init == "saved":  # Table 6 step 8 for DAgger: a Xavier head again
+        policy = head_from_groundtruth(load_policy(groundtruth_path(run)), seed)
+    fit_bc(policy, demo.concat(first.to_dataset()), dataclasses.replace(CONFIG.dagger_bc, seed=seed))
+    twoshot = load_tensors(head_dir(run, "dagger", "twoshot") / f"{seed}.safetensors")["head"]
+    assert torch.equal(twoshot, policy.head_vector())
 
 
 def test_resume_skips_finished_seeds_and_matches_a_full_run(toy_run, evaluated, tmp_path):
@@ -213,6 +240,7 @@ def test_missing_inputs_are_user_errors(toy_run, tmp_path):
     [
         ({"seeds": ()}, "mdi.seeds must not be empty"),
         ({"controls": ("dm",)}, "mdi.controls must be distinct mapper kinds"),
+        ({"dagger_init": "xavier"}, "mdi.dagger_init must be one of saved, one-shot"),
         ({"controls": ("mean-da", "mean-da")}, "mdi.controls must be distinct"),
         ({"controls": ("nope",)}, "got \\['nope'\\]"),
         ({"seeds": (-1,)}, "non-negative"),

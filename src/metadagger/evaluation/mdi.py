@@ -10,8 +10,11 @@ DAgger-BC: w_BC initialises it, refitted likewise; DAgger: a Xavier head fitted 
 demonstration, which is step 2's fit itself (same seed, same data, same settings), so w_BC is
 reused rather than fitted twice;
 6. roll out (one-shot test); 7. stop if it succeeded;
-8. else one DAgger round from the step-5 weights: the expert labels the states of that rollout,
-they join the demonstration and the head is refitted; 9. roll out again (two-shot test).
+8. else one DAgger round: the expert labels the states of that rollout, they join the
+demonstration, and the head is fitted on the aggregate starting from the method's saved step-4
+initialisation (f(w_BC), w_BC, or the Xavier head for DAgger), as Table 6 says
+(``dagger_init="saved"``); ``dagger_init="one-shot"`` continues from the step-5 head instead;
+9. roll out again (two-shot test).
 
 ``controls`` adds DAgger-MDI rows whose initialiser is another mapper kind, typically the
 controls ``mean-da`` (the training pairs' mean w_DA) and ``pistar-head`` (pi*'s own head): method
@@ -55,6 +58,8 @@ from metadagger.tasks.base import Task
 METHODS = ("dagger-mdi", "dagger-bc", "dagger")
 #: Prefix of the control methods: DAgger-MDI initialised by another mapper kind.
 CONTROL_PREFIX = "dagger-mdi-"
+#: Where the DAgger round's refit (step 8) starts; see :attr:`MDIConfig.dagger_init`.
+DAGGER_INITS = ("saved", "one-shot")
 #: The two tests of Table 6 (steps 6 and 9).
 SHOTS = ("oneshot", "twoshot")
 #: Columns of ``eval/mdi.csv``. ``two_shot_success`` counts a seed solved at either test (the
@@ -87,6 +92,9 @@ class MDIConfig:
     mapper: str = "dm"
     """Kind of the mapper that initialises DAgger-MDI (the run's ``mappers/<kind>/``; the paper's
     Table 9 trains one mapping network)."""
+    dagger_init: str = "saved"
+    """Where step 8's refit starts: ``saved`` (Table 6: the method's step-4 initialisation, a
+    fresh Xavier head for DAgger) or ``one-shot`` (the step-5 head that failed the one-shot test)."""
     controls: tuple[str, ...] = ()
     """Further mapper kinds that initialise DAgger-MDI, each in rows of method ``dagger-mdi-<kind>``
     (the Fetch presets: the controls ``mean-da`` and ``pistar-head``); () for none."""
@@ -101,6 +109,8 @@ class MDIConfig:
         check_threshold("mdi.early_stop", self.early_stop)
         if self.mapper not in KINDS:
             raise UserError(f"mdi.mapper must be one of {', '.join(KINDS)}, got {self.mapper!r}")
+        if self.dagger_init not in DAGGER_INITS:
+            raise UserError(f"mdi.dagger_init must be one of {', '.join(DAGGER_INITS)}, got {self.dagger_init!r}")
         bad = [k for k in self.controls if k not in KINDS or k == self.mapper]
         if bad or len(set(self.controls)) != len(self.controls):
             raise UserError(
@@ -154,19 +164,22 @@ def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
     return meter.total, meter.mean
 
 
-def _step5_heads(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache, mappers: dict[str, Mapper]) -> dict[str, np.ndarray]:
-    """Steps 2-5: each method's head after training on the demonstration (``mappers``: the
-    initialiser of every DAgger-MDI method)."""
+def _steps_2_to_5(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache,
+                  mappers: dict[str, Mapper]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Steps 2-5 on a policy whose head is the seed's Xavier head: each method's saved
+    initialisation (step 4) and its head after training on the demonstration (step 5).
+    ``mappers``: the initialiser of every DAgger-MDI method."""
+    xavier = _head(policy)
     fit_bc(policy, demo, bc, cache=cache)
     w_bc = _head(policy)
-    heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
     inits = {"dagger-mdi": mappers["dagger-mdi"](w_bc), "dagger-bc": w_bc}
     inits |= {method: mapper(w_bc) for method, mapper in mappers.items() if method != "dagger-mdi"}
+    heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
     for method, init in inits.items():
         policy.load_head_vector(init)
         fit_bc(policy, demo, bc, cache=cache)
         heads[method] = _head(policy)
-    return heads
+    return inits | {"dagger": xavier}, heads
 
 
 def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
@@ -189,7 +202,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
         demo = rollout(env, seed=seed, policy=None).to_dataset()
         cache = FeatureCache(policy)
         mappers = {method: cached_mapper(path) for method, path in job.mappers.items()}
-        one_shot_heads = _step5_heads(policy, demo, bc, cache, mappers)
+        inits, one_shot_heads = _steps_2_to_5(policy, demo, bc, cache, mappers)
         for method in config.methods:
             heads[method, "oneshot"] = one_shot_heads[method]
             first = final = test(one_shot_heads[method])
@@ -197,6 +210,8 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
             if ran:
                 # The DAgger round's rollout is the one-shot test itself (same head, seed and early
                 # stop on a deterministic env), so its labelled states are aggregated directly.
+                if config.dagger_init == "saved":
+                    policy.load_head_vector(inits[method])
                 fit_bc(policy, demo.concat(first.to_dataset()), dagger_bc, cache=cache)
                 heads[method, "twoshot"] = _head(policy)
                 final = test(heads[method, "twoshot"])
