@@ -93,5 +93,52 @@ def test_evaluate_protocol_errors(tmp_path):
 
 
 def test_reproduce_with_unknown_task_names_the_known_ones(tmp_path):
-    out = _fails_cleanly(["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")], "unknown task 'cartpole'", "carracing, fetch")
+    _fails_cleanly(["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")], "unknown task 'cartpole'", "carracing, fetch")
     assert not (tmp_path / "r" / "config.yaml").exists()
+
+
+PRESETS_YAML = """\
+presets:
+  tiny:
+    max_episode_steps: 12
+    groundtruth:
+      seeds: 0-1
+      eval_seeds: 100-100
+      dagger_rounds: 1
+      bc: {lr: 3.0e-3, batch_size: 16, epochs: 1}
+"""
+
+
+def test_a_task_from_an_installed_package_runs_with_a_presets_file(tmp_path, monkeypatch):
+    from importlib.metadata import EntryPoint
+
+    import metadagger.tasks as tasks
+
+    plugin = EntryPoint(name="corridor-plugin", value="toy_task:RunCorridorTask", group=tasks.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(tasks, "entry_points", lambda group: [plugin] if group == tasks.ENTRY_POINT_GROUP else [])
+    assert "corridor-plugin" in tasks.available_tasks()
+    presets = tmp_path / "presets.yaml"
+    presets.write_text(PRESETS_YAML)
+    run = tmp_path / "run"
+    result = runner.invoke(app, ["groundtruth", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "tiny", "--out", str(run)])
+    assert result.exit_code == 0, result.output
+    assert (run / "groundtruth" / "policy.safetensors").is_file()
+    assert "max_episode_steps: 12" in (run / "config.yaml").read_text()
+    _fails_cleanly(["groundtruth", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "huge", "--out", str(tmp_path / "r2")],
+                   "has no preset 'huge'", "tiny")
+    _fails_cleanly(["groundtruth", "--task", "corridor-plugin", "--out", str(tmp_path / "r3")], "no packaged presets", "--presets")
+
+
+def test_a_task_whose_factory_rejects_the_run_arguments_is_a_user_error(tmp_path):
+    from toy_task import CorridorTask
+
+    from metadagger.tasks import _FACTORIES, register_task
+
+    register_task("corridor-no-kwargs", CorridorTask)
+    try:
+        presets = tmp_path / "presets.yaml"
+        presets.write_text(PRESETS_YAML)
+        _fails_cleanly(["groundtruth", "--task", "corridor-no-kwargs", "--presets", str(presets), "--preset", "tiny", "--out", str(tmp_path / "r")],
+                       "cannot be built with {'max_episode_steps': 12}")
+    finally:
+        del _FACTORIES["corridor-no-kwargs"]

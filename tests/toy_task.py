@@ -131,3 +131,12 @@ class CorridorTask(Task):
 
 #: A small network for 16x16 images (fast on one core); also the task's default.
 TOY_ARCH = CorridorTask.policy_arch
+
+
+class RunCorridorTask(CorridorTask):
+    """The discrete corridor as a task the run pipeline can build: ``make_task(name,
+    max_episode_steps=...)`` (what a run's config passes) sets the road's length."""
+
+    def __init__(self, *, max_episode_steps: int = 30):
+        super().__init__(discrete=True)
+        self.max_episode_steps = max_episode_steps

@@ -46,8 +46,9 @@ def user_errors(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
-TASK = typer.Option("carracing", "--task", help="Task name: carracing or fetch.")
-PRESET = typer.Option("quick", "--preset", help="Preset from configs/<task>.yaml: quick, paper or ci.")
+TASK = typer.Option("carracing", "--task", help="Task name: carracing, fetch, or one an installed package adds.")
+PRESET = typer.Option("quick", "--preset", help="Preset from configs/<task>.yaml (quick, paper or ci) or from --presets.")
+PRESETS_FILE = typer.Option(None, "--presets", help="YAML file of your own presets (same layout as configs/<task>.yaml).")
 
 
 @app.command()
@@ -96,12 +97,12 @@ ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: st
 
 @app.command()
 @user_errors
-def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT) -> None:
+def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets: Optional[Path] = PRESETS_FILE) -> None:
     """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
     from metadagger.metal.groundtruth import groundtruth_path
     from metadagger.pipeline import init_run, stage_groundtruth
 
-    metrics = stage_groundtruth(out, init_run(out, task, preset))
+    metrics = stage_groundtruth(out, init_run(out, task, preset, presets))
     for name in ("own_seeds", "unseen_seeds"):
         m = metrics[name]
         typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} laps ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
@@ -184,6 +185,7 @@ def reproduce(
     task: str = TASK,
     preset: str = PRESET,
     out: Path = typer.Option(Path("runs/quick"), "--out", help="Run folder; an unfinished run resumes."),
+    presets: Optional[Path] = PRESETS_FILE,
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
@@ -191,7 +193,7 @@ def reproduce(
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report, resuming finished stages."""
     from metadagger.pipeline import reproduce as run_all
 
-    path = run_all(task, preset, out, executor=executor, workers=workers, address=address)
+    path = run_all(task, preset, out, presets_file=presets, executor=executor, workers=workers, address=address)
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
 

@@ -1,7 +1,8 @@
 """Configuration: frozen dataclasses built from YAML presets, validated on construction.
 
-Presets live in ``metadagger/configs/<task>.yaml`` under ``presets: {quick, paper, ci}``; each
-preset has one section per pipeline stage. :func:`build` turns a mapping into a (nested) frozen
+Presets live in ``metadagger/configs/<task>.yaml`` under ``presets: {quick, paper, ci}``, or in a
+YAML file of your own with the same layout (``--presets FILE``); each preset has one section per
+pipeline stage. :func:`build` turns a mapping into a (nested) frozen
 dataclass and reports unknown or mistyped keys as one clear :class:`UserError` line.
 """
 
@@ -12,6 +13,7 @@ import re
 import types
 import typing
 from importlib import resources
+from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
@@ -41,21 +43,35 @@ def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
     return tuple(seeds)
 
 
-def load_preset(task: str, preset: str) -> dict[str, Any]:
-    """The raw mapping of one preset of a task's YAML file."""
+def load_preset(task: str, preset: str, presets_file: str | Path | None = None) -> dict[str, Any]:
+    """The raw mapping of one preset: from the task's packaged YAML file, or from ``presets_file``
+    (a YAML file of the same layout, ``presets: {name: {section: ...}}``, any preset names)."""
     from metadagger.tasks import available_tasks  # tasks import this module's helpers
 
     if task not in available_tasks():
         raise UserError(f"unknown task {task!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these")
-    if preset not in PRESETS:
-        raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
+    if presets_file is None:
+        if preset not in PRESETS:
+            raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
+        try:
+            text = resources.files("metadagger.configs").joinpath(f"{task}.yaml").read_text()
+        except FileNotFoundError:
+            raise UserError(f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)") from None
+        where = f"metadagger/configs/{task}.yaml"
+    else:
+        try:
+            text = Path(presets_file).read_text()
+        except OSError as exc:
+            raise UserError(f"cannot read presets file {presets_file} ({exc.strerror}); pass an existing YAML file") from None
+        where = str(presets_file)
     try:
-        text = resources.files("metadagger.configs").joinpath(f"{task}.yaml").read_text()
-    except FileNotFoundError:
-        raise UserError(f"task {task!r} has no presets: expected a file metadagger/configs/{task}.yaml (see docs/custom_task.md)") from None
-    presets = yaml.safe_load(text)["presets"]
+        presets = yaml.safe_load(text).get("presets")
+    except (yaml.YAMLError, AttributeError):
+        presets = None
+    if not isinstance(presets, dict):
+        raise UserError(f"{where} must be YAML with a top-level 'presets:' mapping of preset names to stage sections")
     if preset not in presets:
-        raise UserError(f"task {task!r} has no preset {preset!r}: expected one of {', '.join(sorted(presets))}")
+        raise UserError(f"{where} has no preset {preset!r}: expected one of {', '.join(sorted(presets))}")
     return presets[preset]
 
 

@@ -92,11 +92,12 @@ def stage_mdi(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = Non
                         executor=executor, workers=workers, address=address, progress=progress)
 
 
-def reproduce(task: str, preset: str, run: str | Path, *, executor: str = "local", workers: int | None = None,
-              address: str | None = None, progress: bool = True) -> Path:
-    """Every stage in order, each resuming where a previous run stopped; returns the report path."""
+def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Path | None = None, executor: str = "local",
+              workers: int | None = None, address: str | None = None, progress: bool = True) -> Path:
+    """Every stage in order, each resuming where a previous run stopped; returns the report path.
+    ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one."""
     run = Path(run)
-    config = init_run(run, task, preset)
+    config = init_run(run, task, preset, presets_file)
     stage_groundtruth(run, config, progress=progress)
     stage_pairs(run, config, executor=executor, workers=workers, address=address, progress=progress)
     stage_mappers(run, config, progress=progress)

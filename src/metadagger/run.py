@@ -85,8 +85,9 @@ def config_path(run: str | Path) -> Path:
     return Path(run) / "config.yaml"
 
 
-def init_run(run: str | Path, task: str, preset: str) -> RunConfig:
-    """Create ``<run>/config.yaml`` from a preset, or read the existing one (which must match)."""
+def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path | None = None) -> RunConfig:
+    """Create ``<run>/config.yaml`` from a preset (packaged, or from ``presets_file``), or read the
+    existing one (which must match)."""
     path = config_path(run)
     if path.is_file():
         config = load_run(run)
@@ -96,7 +97,7 @@ def init_run(run: str | Path, task: str, preset: str) -> RunConfig:
                 "use another --out or the same task and preset"
             )
         return config
-    sections = {k: v for k, v in load_preset(task, preset).items() if k != "demo"}
+    sections = {k: v for k, v in load_preset(task, preset, presets_file).items() if k != "demo"}
     config = build(RunConfig, {"task": task, "preset": preset, **sections}, where=f"{task}.{preset}")
     write_text(path, dump_yaml(config))
     return config

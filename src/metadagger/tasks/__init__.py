@@ -1,12 +1,22 @@
-"""Task registry: ``make_task(name)`` returns a :class:`~metadagger.tasks.base.Task`."""
+"""Task registry: ``make_task(name)`` returns a :class:`~metadagger.tasks.base.Task`.
+
+Tasks come from three places: the built-in ones, :func:`register_task` (in your own process),
+and installed packages that declare an entry point in the group ``metadagger.tasks``
+(``mytask = "mypkg.tasks:MyTask"``), which the command line then knows too.
+"""
 
 from __future__ import annotations
 
 import importlib
+import inspect
+from importlib.metadata import entry_points
 from typing import Callable
 
 from metadagger.errors import UserError
 from metadagger.tasks.base import LearnerEnv, Task
+
+#: Entry-point group through which installed packages add tasks.
+ENTRY_POINT_GROUP = "metadagger.tasks"
 
 _FACTORIES: dict[str, Callable[[], Task] | str] = {
     "carracing": "metadagger.tasks.carracing:CarRacingTask",
@@ -19,14 +29,20 @@ def register_task(name: str, factory: Callable[[], Task]) -> None:
     _FACTORIES[name] = factory
 
 
+def _factories() -> dict[str, Callable[[], Task] | str]:
+    """Every known task factory: installed entry points, overridden by built-in and registered ones."""
+    plugins = {ep.name: ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)}
+    return {**plugins, **_FACTORIES}
+
+
 def available_tasks() -> list[str]:
     """Names accepted by :func:`make_task`."""
-    return sorted(_FACTORIES)
+    return sorted(_factories())
 
 
 def make_task(name: str, **kwargs) -> Task:
     """Build the task called ``name``; an unknown name raises a :class:`UserError`."""
-    factory = _FACTORIES.get(name)
+    factory = _factories().get(name)
     if factory is None:
         raise UserError(f"unknown task {name!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these")
     if isinstance(factory, str):
@@ -37,6 +53,15 @@ def make_task(name: str, **kwargs) -> Task:
             raise UserError(
                 f"task {name!r} needs a missing dependency ({exc.name}); install it with pip install 'metadagger[{name}]'"
             ) from None
+    try:
+        inspect.signature(factory).bind(**kwargs)
+    except TypeError:
+        raise UserError(
+            f"task {name!r} cannot be built with {kwargs}: its factory {factory!r} must accept these keyword arguments "
+            "(see docs/custom_task.md)"
+        ) from None
+    except ValueError:  # no signature to check (a builtin): let the call tell
+        pass
     return factory(**kwargs)
 
 
