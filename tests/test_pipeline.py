@@ -87,9 +87,14 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
     assert _stamps(run) == before
 
 
-def _artifacts(run: Path) -> dict[str, bytes]:
-    """Every artifact but the report (whose title names the run folder), by relative path."""
-    return {str(p.relative_to(run)): p.read_bytes() for p in sorted(run.rglob("*")) if p.is_file() and "report" not in p.parts}
+def _artifacts(run: Path) -> dict[str, bytes | list[bytes]]:
+    """Every artifact but the report (whose title names the run folder), by relative path. The
+    JSON-lines resume logs list seeds in the order workers finished them, so their lines are
+    compared as a sorted list."""
+    return {
+        str(p.relative_to(run)): sorted(p.read_bytes().splitlines()) if p.suffix == ".jsonl" else p.read_bytes()
+        for p in sorted(run.rglob("*")) if p.is_file() and "report" not in p.parts
+    }
 
 
 def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(tmp_path):
