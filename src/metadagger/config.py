@@ -46,10 +46,9 @@ def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
 def load_preset(task: str, preset: str, presets_file: str | Path | None = None) -> dict[str, Any]:
     """The raw mapping of one preset: from the task's packaged YAML file, or from ``presets_file``
     (a YAML file of the same layout, ``presets: {name: {section: ...}}``, any preset names)."""
-    from metadagger.tasks import available_tasks  # tasks import this module's helpers
+    from metadagger.tasks import check_task  # tasks import this module's helpers
 
-    if task not in available_tasks():
-        raise UserError(f"unknown task {task!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these")
+    check_task(task)
     if presets_file is None:
         if preset not in PRESETS:
             raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")

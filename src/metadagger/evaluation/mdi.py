@@ -172,8 +172,7 @@ def _steps_2_to_5(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCac
     xavier = _head(policy)
     fit_bc(policy, demo, bc, cache=cache)
     w_bc = _head(policy)
-    inits = {"dagger-mdi": mappers["dagger-mdi"](w_bc), "dagger-bc": w_bc}
-    inits |= {method: mapper(w_bc) for method, mapper in mappers.items() if method != "dagger-mdi"}
+    inits = {method: mapper(w_bc) for method, mapper in mappers.items()} | {"dagger-bc": w_bc}
     heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
     for method, init in inits.items():
         policy.load_head_vector(init)
@@ -288,8 +287,8 @@ def evaluate_mdi(
         added later) is evaluated again.
     """
     run, groundtruth = Path(run), Path(groundtruth)
-    paths = {kind: Path(path) for kind, path in (control_paths or {}).items()} | {config.mapper: Path(mapper_path)}
-    mappers = {method: paths[kind] for method, kind in config.kinds.items() if kind in paths}
+    paths = {**(control_paths or {}), config.mapper: mapper_path}
+    mappers = {method: Path(paths[kind]) for method, kind in config.kinds.items() if kind in paths}
     _check_inputs(task, run, config, groundtruth, mappers)
     log = RowLog(run / "eval" / "mdi_rows.jsonl")
     done = log.done_seeds(methods=config.methods)

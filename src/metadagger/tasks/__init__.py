@@ -40,11 +40,16 @@ def available_tasks() -> list[str]:
     return sorted(_factories())
 
 
+def check_task(name: str) -> None:
+    """Raise a :class:`UserError` naming the known tasks unless ``name`` is one of them."""
+    if name not in _factories():
+        raise UserError(f"unknown task {name!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these")
+
+
 def make_task(name: str, **kwargs) -> Task:
     """Build the task called ``name``; an unknown name raises a :class:`UserError`."""
-    factory = _factories().get(name)
-    if factory is None:
-        raise UserError(f"unknown task {name!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these")
+    check_task(name)
+    factory = _factories()[name]
     if isinstance(factory, str):
         module, attr = factory.split(":")
         try:
@@ -65,4 +70,4 @@ def make_task(name: str, **kwargs) -> Task:
     return factory(**kwargs)
 
 
-__all__ = ["LearnerEnv", "Task", "available_tasks", "make_task", "register_task"]
+__all__ = ["LearnerEnv", "Task", "available_tasks", "check_task", "make_task", "register_task"]
