@@ -13,7 +13,7 @@ from metadagger.errors import CheckpointError, UserError
 from metadagger.registration import register_envs
 from metadagger.tasks import make_task, register_task
 
-__version__ = "0.1.0"
+from metadagger.version import __version__
 
 register_envs()
 

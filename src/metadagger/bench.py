@@ -106,7 +106,7 @@ def _bench_fetch(seeds: Sequence[int], steps: int) -> dict:
     """Frames per second of the Fetch pixel env (every step renders; there is no fast/slow pair
     to compare: upstream renders the same scene with anti-aliasing, see docs/fetch.md)."""
     try:
-        from metadagger.tasks.fetch_env import bench_fetch_env
+        from metadagger.tasks.fetch.env import bench_fetch_env
     except ImportError as exc:
         raise UserError(f"bench env --task fetch needs the fetch extra ({exc}); pip install -c constraints.txt -e '.[fetch]'") from None
     return {"task": "fetch", **bench_fetch_env(seeds=list(seeds), steps=steps), "machine": _machine()}

@@ -12,8 +12,8 @@ from pathlib import Path
 
 from metadagger.config import build, dump_yaml, load_preset
 from metadagger.errors import UserError
-from metadagger.evaluation.episodes import evaluate_policy
-from metadagger.evaluation.metrics import summarize
+from metadagger.imitation.episodes import evaluate_policy
+from metadagger.imitation.metrics import summarize
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger

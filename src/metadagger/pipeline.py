@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Sequence
 
 from metadagger.errors import UserError
+from metadagger.evaluation.curves import plot_curves
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import MAPPER_METHODS, evaluate_run, mapper_path
 from metadagger.evaluation.report import build_report
@@ -57,7 +58,9 @@ def stage_mappers(run: Path, config: RunConfig, kinds: Sequence[str] | None = No
     head = load_policy(groundtruth_path(run)).head_vector()
     paths = []
     for kind in kinds:
-        train_mapper(split, config.mapper_config(kind), mapper_path(run, kind).parent, pistar_head=head, progress=progress)
+        folder = mapper_path(run, kind).parent
+        train_mapper(split, config.mapper_config(kind), folder, pistar_head=head, progress=progress)
+        plot_curves(folder / "curves.csv", folder / "curves.png")
         paths.append(mapper_path(run, kind))
     return paths
 

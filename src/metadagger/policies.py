@@ -25,6 +25,7 @@ from torch.nn.utils import parameters_to_vector, vector_to_parameters
 from metadagger.errors import CheckpointError, UserError
 from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.tasks.base import Task
+from metadagger.version import __version__
 
 #: Defaults sized for 96x96x3 -> 20 classes: about 150K parameters (paper Sec. 3.2).
 DEFAULT_CONV_CHANNELS = (8, 16, 32, 32)
@@ -250,8 +251,6 @@ class Policy:
 
     def save(self, path: str | Path) -> Path:
         """Write the weights and constructor arguments to a safetensors file (atomically)."""
-        from metadagger import __version__
-
         metadata = {
             "format": _FORMAT,
             "arch": json.dumps(self.net.arch, sort_keys=True),

@@ -5,10 +5,10 @@ from __future__ import annotations
 import gymnasium as gym
 
 ENV_IDS = {
-    "metadagger/CarRacing-v0": "metadagger.tasks.carracing_env:CarRacingFast",
-    "metadagger/CarRacingSteer-v0": "metadagger.tasks.carracing:make_steer_env",
-    "metadagger/FetchPickAndPlacePixels-v0": "metadagger.tasks.fetch_env:FetchPickAndPlacePixels",
-    "metadagger/FetchPickAndPlaceXYZ-v0": "metadagger.tasks.fetch:make_xyz_env",
+    "metadagger/CarRacing-v0": "metadagger.tasks.carracing.env:CarRacingFast",
+    "metadagger/CarRacingSteer-v0": "metadagger.tasks.carracing.task:make_steer_env",
+    "metadagger/FetchPickAndPlacePixels-v0": "metadagger.tasks.fetch.env:FetchPickAndPlacePixels",
+    "metadagger/FetchPickAndPlaceXYZ-v0": "metadagger.tasks.fetch.task:make_xyz_env",
 }
 _MAX_STEPS = {"metadagger/CarRacing-v0": 1000, "metadagger/FetchPickAndPlacePixels-v0": 50}
 

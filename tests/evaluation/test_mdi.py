@@ -20,7 +20,7 @@ from metadagger.imitation.rollouts import collect
 from metadagger.io import load_tensors
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.groundtruth import GroundTruthConfig, groundtruth_path, train_groundtruth
-from metadagger.metal.pairs import head_from_groundtruth
+from metadagger.metal.groundtruth import head_from_groundtruth
 from metadagger.policies import load_policy
 from metadagger.run import init_run, load_run
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
-from metadagger.evaluation.episodes import evaluate_policy
-from metadagger.evaluation.metrics import summarize
+from metadagger.imitation.episodes import evaluate_policy
+from metadagger.imitation.metrics import summarize
 from metadagger.tasks.base import Task
 
 

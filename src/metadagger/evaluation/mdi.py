@@ -49,7 +49,7 @@ from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
 from metadagger.mapping.mappers import KINDS, Mapper, cached_mapper
-from metadagger.metal.pairs import cached_groundtruth, head_from_groundtruth
+from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.parallel import make_executor
 from metadagger.policies import Policy
 from metadagger.tasks.base import Task

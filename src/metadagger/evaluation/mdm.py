@@ -24,7 +24,7 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import save_tensors
 from metadagger.mapping.mappers import cached_mapper
-from metadagger.metal.pairs import cached_groundtruth, head_from_groundtruth
+from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.parallel import make_executor
 from metadagger.tasks.base import Task
 

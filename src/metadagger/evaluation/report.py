@@ -12,11 +12,11 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from metadagger.evaluation.metrics import summarize
+from metadagger.imitation.metrics import summarize
 from metadagger.evaluation.report_fetch import mdi_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.io import write_text
-from metadagger.mapping.train import plot_curves
+from metadagger.evaluation.curves import plot_curves
 from metadagger.plotting import plt, save_figure
 
 METHOD_ORDER = ("bc", "dm", "sam", "tam", "mean-da", "pistar-head")

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from metadagger.evaluation.mdi import CONTROL_PREFIX, METHODS
-from metadagger.evaluation.metrics import summarize
+from metadagger.imitation.metrics import summarize
 from metadagger.evaluation.rows import read_csv
 from metadagger.plotting import plt, save_figure
 

@@ -28,6 +28,7 @@ from metadagger.errors import CheckpointError, UserError
 from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.mapping.autoencoder import Autoencoder
 from metadagger.mapping.blocks import mlp
+from metadagger.version import __version__
 
 __all__ = [
     "ARCH_FIELDS",
@@ -242,8 +243,6 @@ class Mapper:
 
     def save(self, path: str | Path) -> Path:
         """Write the mapper as one safetensors file (atomically); :func:`load_mapper` reads it back."""
-        from metadagger import __version__
-
         tensors: dict[str, torch.Tensor] = {}
         for name, net in self.networks.items():
             tensors.update({f"networks.{name}.{key}": value for key, value in net.state_dict().items()})

@@ -2,7 +2,7 @@
 
 :func:`train_mapper` fits the autoencoder(s) first, then the latent regression h on the frozen
 encoders' codes (SAM, TAM), or the single MLP (DM): Adam, MSE in standardised space, manual
-batching from one seeded generator. It writes ``curves.csv`` and ``curves.png`` (paper Fig. 8)
+batching from one seeded generator. It writes ``curves.csv`` (drawn as paper Fig. 8 by :mod:`metadagger.evaluation.curves`)
 and, last, ``mapper.safetensors``; an existing mapper file means the work is done and is loaded.
 """
 
@@ -30,7 +30,7 @@ from metadagger.io import write_text
 from metadagger.mapping.mappers import ARCH_FIELDS, KINDS, LEARNED_KINDS, ROUTES, Mapper, Route, Standardizer, build_networks, load_mapper
 from metadagger.metal.store import PairSplit
 
-__all__ = ["CURVE_COLUMNS", "PAPER_EPOCHS", "MapperConfig", "evaluate_mapping", "paper_config", "plot_curves", "train_mapper"]
+__all__ = ["CURVE_COLUMNS", "PAPER_EPOCHS", "MapperConfig", "evaluate_mapping", "paper_config", "train_mapper"]
 
 PAPER_EPOCHS = {"dm": 500, "sam": 1000, "tam": 1000}
 """Mapper training epochs of the paper's Table 8 (CarRacing); Table 9 (Fetch) uses 2000."""
@@ -124,7 +124,7 @@ def train_mapper(
     Args:
         split: training and validation pairs; only the training rows fit weights and standardisers.
         config: architecture and optimiser settings.
-        out_dir: receives ``mapper.safetensors``, ``curves.csv`` and ``curves.png``.
+        out_dir: receives ``mapper.safetensors`` and ``curves.csv``.
         pistar_head: pi*'s head vector, required by the ``pistar-head`` control.
         progress: show a progress bar per training stage.
 
@@ -147,7 +147,6 @@ def train_mapper(
         torch.manual_seed(config.seed)  # Dropout draws from torch's global generator
         mapper, rows = _train(split, config, config_data, pistar_head, progress)
     _write_curves(out_dir / "curves.csv", rows)
-    plot_curves(out_dir / "curves.csv", out_dir / "curves.png")
     mapper.save(path)  # last: its presence means every artifact of this stage is complete
     return mapper
 
@@ -285,37 +284,6 @@ def _write_curves(path: Path, rows: list[dict[str, Any]]) -> None:
     for row in rows:
         writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else format(v, ".9g") if isinstance(v, float) else v) for k, v in row.items()})
     write_text(path, buffer.getvalue())
-
-
-def plot_curves(csv_path: str | Path, png_path: str | Path) -> Path:
-    """Draw ``curves.csv`` as paper Fig. 8: train/val loss per epoch, one panel per model.
-
-    A last panel shows the whole mapping's MSE in weight units (the only panel of a control).
-    """
-    from metadagger.plotting import plt, save_figure
-
-    with open(csv_path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    models = list(dict.fromkeys(r["model"] for r in rows if r["train_loss"]))
-    mapped = [r for r in rows if r["val_mse_weights"] or r["train_mse_weights"]]
-    panels = [
-        (m, [r for r in rows if r["model"] == m], "train_loss", "val_loss", "MSE (latent codes)" if m == "h" else "MSE (standardised)")
-        for m in models
-    ]
-    if mapped:
-        panels.append(("whole mapping f", mapped, "train_mse_weights", "val_mse_weights", "MSE (weight units)"))
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.4), squeeze=False, layout="constrained")
-    for ax, (title, data, train_key, val_key, ylabel) in zip(axes[0], panels):
-        epochs = [int(r["epoch"]) for r in data]
-        for key, label in ((train_key, "train"), (val_key, "validation")):
-            values = [float(r[key]) if r[key] else math.nan for r in data]
-            ax.plot(epochs, values, marker="o" if len(data) == 1 else None, label=label)
-        ax.set_yscale("log")
-        ax.set_title(title)
-        ax.set_xlabel("epoch")
-        ax.set_ylabel(ylabel)
-        ax.legend()
-    return save_figure(fig, png_path)
 
 
 def evaluate_mapping(

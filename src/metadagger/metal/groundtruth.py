@@ -8,19 +8,20 @@ run resumes after its last finished fit.
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from metadagger.errors import UserError
-from metadagger.evaluation.episodes import evaluate_policy
-from metadagger.evaluation.metrics import summarize
+from metadagger.imitation.episodes import evaluate_policy
+from metadagger.imitation.metrics import summarize
 from metadagger.imitation.bc import BCConfig, fit_or_resume
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import collect
 from metadagger.io import write_json
-from metadagger.policies import make_policy
+from metadagger.policies import Policy, load_policy, make_policy
 from metadagger.tasks.base import Task
 
 
@@ -81,3 +82,16 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, run: str | Path, *,
     write_json(folder / "metrics.json", metrics)
     return metrics
 
+
+@functools.lru_cache(maxsize=2)
+def cached_groundtruth(path: str) -> Policy:
+    """pi* loaded once per worker process (callers copy it before changing it)."""
+    return load_policy(path)
+
+
+def head_from_groundtruth(groundtruth: Policy, seed: int) -> Policy:
+    """A copy of pi* with its trunk frozen and its head re-initialised from ``seed``."""
+    policy = groundtruth.copy()
+    policy.freeze_trunk()
+    policy.reset_head(seed)
+    return policy

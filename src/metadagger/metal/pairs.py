@@ -26,9 +26,9 @@ from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import write_json
+from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.metal.store import PairStore
 from metadagger.parallel import make_executor
-from metadagger.policies import Policy, load_policy
 from metadagger.tasks.base import Task
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")
@@ -84,20 +84,6 @@ def is_kept(rule: str, bc_success: bool, da_success: bool) -> bool:
     if rule == "da_success":
         return da_success
     return True
-
-
-@functools.lru_cache(maxsize=2)
-def cached_groundtruth(path: str) -> Policy:
-    """pi* loaded once per worker process (callers copy it before changing it)."""
-    return load_policy(path)
-
-
-def head_from_groundtruth(groundtruth: Policy, seed: int) -> Policy:
-    """A copy of pi* with its trunk frozen and its head re-initialised from ``seed``."""
-    policy = groundtruth.copy()
-    policy.freeze_trunk()
-    policy.reset_head(seed)
-    return policy
 
 
 def collect_pair(job: PairJob) -> dict[str, Any]:

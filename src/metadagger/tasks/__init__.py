@@ -19,8 +19,8 @@ from metadagger.tasks.base import LearnerEnv, Task
 ENTRY_POINT_GROUP = "metadagger.tasks"
 
 _FACTORIES: dict[str, Callable[[], Task] | str] = {
-    "carracing": "metadagger.tasks.carracing:CarRacingTask",
-    "fetch": "metadagger.tasks.fetch:FetchTask",
+    "carracing": "metadagger.tasks.carracing.task:CarRacingTask",
+    "fetch": "metadagger.tasks.fetch.task:FetchTask",
 }
 
 

@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 from metadagger.errors import UserError
-from metadagger.experts.pid import STEER_LIMIT, PIDExpert
+from metadagger.tasks.carracing.expert import STEER_LIMIT, PIDExpert
 from metadagger.tasks.base import LearnerEnv, Task
 
 #: The 20 steering values (the env's ``action[0]``; +1 steers right) the learner chooses from.
@@ -32,7 +32,7 @@ class CarRacingTask(Task):
     Args:
         max_episode_steps: step limit of one episode (the paper's 1000).
         expert: the expert driving gas and brake and labelling states; a default
-            :class:`~metadagger.experts.pid.PIDExpert` if ``None``.
+            :class:`~metadagger.tasks.carracing.expert.PIDExpert` if ``None``.
     """
 
     name = "carracing"
@@ -50,8 +50,8 @@ class CarRacingTask(Task):
         return gym.spaces.Discrete(len(STEERING_VALUES))
 
     def make_base_env(self, **kwargs: Any) -> gym.Env:
-        """A :class:`~metadagger.tasks.carracing_env.CarRacingFast` (upstream kwargs and ``render``)."""
-        from metadagger.tasks.carracing_env import CarRacingFast
+        """A :class:`~metadagger.tasks.carracing.env.CarRacingFast` (upstream kwargs and ``render``)."""
+        from metadagger.tasks.carracing.env import CarRacingFast
 
         return CarRacingFast(**kwargs)
 
@@ -82,7 +82,7 @@ def make_steer_env(*, max_episode_steps: int = 1000, **kwargs: Any) -> LearnerEn
 
     Args:
         max_episode_steps: step limit of one episode.
-        **kwargs: passed to :class:`~metadagger.tasks.carracing_env.CarRacingFast`
+        **kwargs: passed to :class:`~metadagger.tasks.carracing.env.CarRacingFast`
             (e.g. ``render_mode``, ``render``).
     """
     return CarRacingTask(max_episode_steps=max_episode_steps).make_env(**kwargs)

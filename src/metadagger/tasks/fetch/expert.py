@@ -19,7 +19,7 @@ from torch import nn
 
 from metadagger.errors import CheckpointError
 from metadagger.io import load_tensors, read_metadata, save_tensors
-from metadagger.tasks.fetch_env import UPSTREAM_ID, FetchState, lower_goal_to_object, read_fetch_state
+from metadagger.tasks.fetch.env import UPSTREAM_ID, FetchState, lower_goal_to_object, read_fetch_state
 
 #: Half the cube's side (metres): the grip site sits at the cube's centre when it is held.
 CUBE_HALF = 0.025

@@ -17,8 +17,8 @@ import gymnasium as gym  # noqa: E402
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import metadagger  # noqa: E402
-from metadagger.tasks.fetch import FetchTask, expert_success  # noqa: E402
-from metadagger.tasks.fetch_env import (  # noqa: E402
+from metadagger.tasks.fetch.task import FetchTask, expert_success  # noqa: E402
+from metadagger.tasks.fetch.env import (  # noqa: E402
     UPSTREAM_ID,
     FetchPickAndPlacePixels,
     bench_fetch_env,
@@ -197,7 +197,7 @@ def test_bench_reports_rates():
 
 _AFTER_SDL = """
 import os
-from metadagger.tasks.fetch_env import FetchPickAndPlacePixels
+from metadagger.tasks.fetch.env import FetchPickAndPlacePixels
 env = FetchPickAndPlacePixels(); env.reset(seed=0); env.close()
 import pygame  # what check_env on upstream CarRacing does with render_mode="human", headless
 pygame.display.init(); pygame.display.set_mode((8, 8)); pygame.quit()

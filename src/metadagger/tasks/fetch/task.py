@@ -11,10 +11,10 @@ from typing import Any, Callable, Sequence
 import gymnasium as gym
 import numpy as np
 
-from metadagger.experts.fetch import FetchExpert
+from metadagger.tasks.fetch.expert import FetchExpert
 from metadagger.errors import UserError
 from metadagger.tasks.base import LearnerEnv, Task
-from metadagger.tasks.fetch_env import FetchPickAndPlacePixels, fetch_is_success
+from metadagger.tasks.fetch.env import FetchPickAndPlacePixels, fetch_is_success
 
 #: Episode length of the paper's Fetch setting.
 MAX_EPISODE_STEPS = 50
@@ -25,8 +25,8 @@ class FetchTask(Task):
 
     Args:
         expert: Callable returning the full action for a Fetch env's current state; defaults to
-            the scripted :class:`~metadagger.experts.fetch.FetchExpert` (a
-            :class:`~metadagger.experts.fetch.DistilledFetchExpert` also fits).
+            the scripted :class:`~metadagger.tasks.fetch.expert.FetchExpert` (a
+            :class:`~metadagger.tasks.fetch.expert.DistilledFetchExpert` also fits).
     """
 
     name = "fetch"
@@ -70,7 +70,7 @@ class FetchTask(Task):
 def make_xyz_env(**kwargs: Any) -> LearnerEnv:
     """Entry point of ``metadagger/FetchPickAndPlaceXYZ-v0``: the learner-facing env (Box(3) actions).
 
-    Keyword arguments go to :class:`~metadagger.tasks.fetch_env.FetchPickAndPlacePixels`.
+    Keyword arguments go to :class:`~metadagger.tasks.fetch.env.FetchPickAndPlacePixels`.
     """
     task = FetchTask()
     return LearnerEnv(task.make_base_env(**kwargs), task=task, max_episode_steps=task.max_episode_steps)

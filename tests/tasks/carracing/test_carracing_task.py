@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env
 import metadagger
 from metadagger.errors import UserError
 from metadagger.tasks.base import LearnerEnv
-from metadagger.tasks.carracing import STEERING_VALUES, CarRacingTask, make_steer_env
+from metadagger.tasks.carracing.task import STEERING_VALUES, CarRacingTask, make_steer_env
 
 
 @pytest.fixture

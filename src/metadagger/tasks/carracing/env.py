@@ -7,7 +7,7 @@ from gymnasium.envs.box2d.car_racing import CarRacing
 from gymnasium.utils import EzPickle
 
 from metadagger.errors import UserError
-from metadagger.tasks.carracing_render import StateRenderer
+from metadagger.tasks.carracing.render import StateRenderer
 
 RENDERERS = ("fast", "reference")
 
@@ -20,7 +20,7 @@ class CarRacingFast(CarRacing):
     and only replaces how the 96x96 state image is drawn. Upstream draws ~700 polygons with
     pygame at 1000x800 and downscales; here the state is drawn directly at 96x96 with OpenCV
     (a map of the track drawn once per episode and sampled each frame, the car filled on top;
-    see :mod:`metadagger.tasks.carracing_render`), many times faster and within a grey level of
+    see :mod:`metadagger.tasks.carracing.render`), many times faster and within a grey level of
     upstream's image on average.
 
     ## Action Space

@@ -1,6 +1,6 @@
 import pytest
 
-from metadagger.evaluation.metrics import summarize, wilson_interval
+from metadagger.imitation.metrics import summarize, wilson_interval
 
 
 def test_wilson_matches_known_values():

@@ -13,7 +13,7 @@ from gymnasium.utils.env_checker import check_env
 import metadagger  # noqa: F401  (registers the ids)
 from metadagger.bench import smooth_actions
 from metadagger.errors import UserError
-from metadagger.tasks.carracing_env import CarRacingFast
+from metadagger.tasks.carracing.env import CarRacingFast
 
 STEPS = 120
 MAX_MAE = 3.0  # the bound on the mean absolute image error (0-255 scale)

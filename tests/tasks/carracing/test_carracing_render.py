@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metadagger.tasks import carracing_render as cr_render
-from metadagger.tasks.carracing_render import STATE_SIZE, StateRenderer, miters, text_patch
+from metadagger.tasks.carracing import render as cr_render
+from metadagger.tasks.carracing.render import STATE_SIZE, StateRenderer, miters, text_patch
 
 
 def rectangle(w: float, h: float, clockwise: bool = False) -> np.ndarray:

@@ -1,0 +1,1 @@
+"""FetchPickAndPlace from pixels: the env, its scripted expert and the task."""
