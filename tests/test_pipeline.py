@@ -11,9 +11,10 @@ from typer.testing import CliRunner
 from metadagger.cli import app
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import METHODS as MDI_METHODS
-from metadagger.evaluation.mdm import MAPPER_METHODS
-from metadagger.evaluation.report_fetch import FIGURE as MDI_FIGURE
+from metadagger.evaluation.report_mdi import FIGURE as MDI_FIGURE
 from metadagger.evaluation.rows import read_csv
+from metadagger.layout import RunLayout
+from metadagger.mapping.registry import kind_names
 from metadagger.pipeline import init_run, reproduce, stage_mdi
 
 runner = CliRunner()
@@ -107,11 +108,11 @@ def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(tmp_path)
 
 
 def test_mapper_kinds_follow_the_run_config(tmp_path):
-    assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == MAPPER_METHODS
+    assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == kind_names()
     assert init_run(tmp_path / "fetch", "fetch", "ci").mapper_kinds == ("dm", "mean-da", "pistar-head")
 
 
 def test_stage_mdi_skips_runs_without_mdi_and_checks_seeds(tmp_path):
-    assert stage_mdi(tmp_path / "cr", init_run(tmp_path / "cr", "carracing", "ci")) == []
+    assert stage_mdi(RunLayout(tmp_path / "cr"), init_run(tmp_path / "cr", "carracing", "ci")) == []
     with pytest.raises(UserError, match="evaluation seeds must be unseen, but \\[1000\\]"):
-        stage_mdi(tmp_path / "fetch", init_run(tmp_path / "fetch", "fetch", "ci"), seeds=[1000, 5000])
+        stage_mdi(RunLayout(tmp_path / "fetch"), init_run(tmp_path / "fetch", "fetch", "ci"), seeds=[1000, 5000])

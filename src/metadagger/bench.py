@@ -212,11 +212,12 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     import json
     import tempfile
 
-    from metadagger.metal.groundtruth import groundtruth_path
+    from metadagger.layout import RunLayout
     from metadagger.metal.pairs import collect_pairs
     from metadagger.pipeline import load_run, run_task
 
     run = Path(run)
+    layout = RunLayout(run)
     config = load_run(run)
     if seeds < 1 or len(config.pairs.seeds) < seeds:
         raise UserError(f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}")
@@ -226,10 +227,13 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     summary: dict = {}
     for n in workers:
         with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
+            scratch = RunLayout(tmp)  # a scratch run that shares the run's pi*
+            scratch.groundtruth_dir.mkdir()
+            scratch.groundtruth.symlink_to(layout.groundtruth.resolve())
             start = time.perf_counter()
-            summary = collect_pairs(task, groundtruth_path(run), pairs_config, tmp, workers=n, progress=False)
+            summary = collect_pairs(task, scratch, pairs_config, workers=n, progress=False)
             timings[str(n)] = time.perf_counter() - start
-    run_summary = run / "pairs" / "summary.json"
+    run_summary = layout.pairs_summary
     kept_source = json.loads(run_summary.read_text()) if run_summary.is_file() else summary
     kept_share = kept_source["kept"] / kept_source["seeds"] if kept_source["seeds"] else 0.0
     best = str(max(workers))

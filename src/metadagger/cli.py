@@ -13,11 +13,14 @@ from typing import Callable, Optional, TypeVar
 import typer
 
 from metadagger.errors import UserError
+from metadagger.mapping.registry import kind_names
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.")
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
 app.add_typer(bench_app, name="bench")
+config_app = typer.Typer(no_args_is_help=True, help="Inspect run configs.")
+app.add_typer(config_app, name="config")
 
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -90,6 +93,10 @@ def expert(
 
 
 OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
+SET = typer.Option([], "--set", help="Override a config field: section.key=value, the value read as YAML "
+                   "(e.g. --set pairs.dagger_rounds=4 --set 'evaluate.methods=[dm, sam]'); repeatable.")
+REBUILD = typer.Option(False, "--rebuild", help="Redo this stage's work that was made from other inputs (another pi*, "
+                       "other pairs or settings) instead of refusing.")
 EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
 WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
 ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: start a local Ray instance).")
@@ -97,41 +104,48 @@ ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: st
 
 @app.command()
 @user_errors
-def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets: Optional[Path] = PRESETS_FILE) -> None:
+def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets: Optional[Path] = PRESETS_FILE,
+                overrides: list[str] = SET, rebuild: bool = REBUILD) -> None:
     """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
-    from metadagger.metal.groundtruth import groundtruth_path
+    from metadagger.layout import RunLayout
     from metadagger.pipeline import init_run, stage_groundtruth
 
-    metrics = stage_groundtruth(out, init_run(out, task, preset, presets))
+    layout = RunLayout(out)
+    metrics = stage_groundtruth(layout, init_run(out, task, preset, presets, overrides), rebuild=rebuild)
     for name in ("own_seeds", "unseen_seeds"):
         m = metrics[name]
-        typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} laps ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
-    typer.echo(f"wrote {groundtruth_path(out)}")
+        typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} successes ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
+    typer.echo(f"wrote {layout.groundtruth}")
 
 
 @app.command()
 @user_errors
-def pairs(out: Path = OUT, executor: str = EXECUTOR, workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
+def pairs(out: Path = OUT, overrides: list[str] = SET, rebuild: bool = REBUILD, executor: str = EXECUTOR,
+          workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
     """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
+    from metadagger.layout import RunLayout
     from metadagger.pipeline import load_run, stage_pairs
 
-    summary = stage_pairs(out, load_run(out), executor=executor, workers=workers, address=address)
+    layout = RunLayout(out)
+    summary = stage_pairs(layout, load_run(out, overrides), rebuild=rebuild, executor=executor, workers=workers, address=address)
     typer.echo(json.dumps(summary, indent=2))
-    typer.echo(f"wrote {out / 'pairs'}")
+    typer.echo(f"wrote {layout.pairs_dir}")
 
 
 @app.command("train-mapper")
 @user_errors
 def train_mapper_cmd(
     out: Path = OUT,
-    kind: str = typer.Option("all", "--kind", help="dm, sam, tam, mean-da, pistar-head or all."),
+    kind: str = typer.Option("all", "--kind", help=f"A mapper kind ({', '.join(kind_names())}) or all."),
+    overrides: list[str] = SET,
+    rebuild: bool = REBUILD,
 ) -> None:
     """Train mappers on the run's kept pairs (curves.csv and curves.png beside each)."""
-    from metadagger.evaluation.mdm import MAPPER_METHODS
+    from metadagger.layout import RunLayout
     from metadagger.pipeline import load_run, stage_mappers
 
-    kinds = MAPPER_METHODS if kind == "all" else (kind,)
-    for path in stage_mappers(out, load_run(out), kinds):
+    kinds = kind_names() if kind == "all" else (kind,)
+    for path in stage_mappers(RunLayout(out), load_run(out, overrides), kinds, rebuild=rebuild):
         typer.echo(f"wrote {path}")
 
 
@@ -144,28 +158,34 @@ def evaluate(
     out: Path = OUT,
     seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's evaluate.seeds and mdi.seeds)."),
     protocol: str = typer.Option("all", "--protocol", help="mdm (MDM and one-shot), mdi (runs with an mdi section) or all."),
+    overrides: list[str] = SET,
+    rebuild: bool = REBUILD,
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
     """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds, and the
-    MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) for runs whose config has an mdi section."""
+    MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) for runs whose config has an mdi section.
+    Only the missing (seed, method) rows are evaluated."""
     from metadagger.config import parse_seeds
+    from metadagger.layout import RunLayout
     from metadagger.pipeline import load_run, stage_evaluate, stage_mdi
 
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; expected {', '.join(PROTOCOLS)}")
-    config = load_run(out)
+    layout = RunLayout(out)
+    config = load_run(out, overrides)
     if protocol == "mdi" and config.mdi is None:
         raise UserError(f"run {out} (task {config.task}) has no mdi section; use --protocol mdm")
-    options = {"seeds": parse_seeds(seeds) if seeds else None, "executor": executor, "workers": workers, "address": address}
+    options = {"seeds": parse_seeds(seeds) if seeds else None, "rebuild": rebuild, "executor": executor,
+               "workers": workers, "address": address}
     if protocol in ("mdm", "all"):
-        rows = stage_evaluate(out, config, **options)
-        files = ("mdm.csv", "oneshot.csv") if config.evaluate.oneshot else ("mdm.csv",)
-        typer.echo(f"MDM: evaluated {len({r['seed'] for r in rows})} seeds; wrote {', '.join(str(out / 'eval' / f) for f in files)}")
+        rows = stage_evaluate(layout, config, **options)
+        tables = ("mdm", "oneshot") if config.evaluate.oneshot else ("mdm",)
+        typer.echo(f"MDM: evaluated {len({r['seed'] for r in rows})} seeds; wrote {', '.join(str(layout.eval_table(t)) for t in tables)}")
     if protocol in ("mdi", "all") and config.mdi is not None:
-        rows = stage_mdi(out, config, **options)
-        typer.echo(f"MDI: evaluated {len({r['seed'] for r in rows})} seeds; wrote {out / 'eval' / 'mdi.csv'}")
+        rows = stage_mdi(layout, config, **options)
+        typer.echo(f"MDI: evaluated {len({r['seed'] for r in rows})} seeds; wrote {layout.eval_table('mdi')}")
 
 
 @app.command()
@@ -173,10 +193,9 @@ def evaluate(
 def report(out: Path = OUT) -> None:
     """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
     from metadagger.evaluation.report import build_report
+    from metadagger.layout import RunLayout
 
-    if not out.is_dir():
-        raise UserError(f"no run folder at {out}; pass the --out of a run")
-    typer.echo(f"wrote {build_report(out)}")
+    typer.echo(f"wrote {build_report(RunLayout(out))}")
 
 
 @app.command()
@@ -186,14 +205,16 @@ def reproduce(
     preset: str = PRESET,
     out: Path = typer.Option(Path("runs/quick"), "--out", help="Run folder; an unfinished run resumes."),
     presets: Optional[Path] = PRESETS_FILE,
+    overrides: list[str] = SET,
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report, resuming finished stages."""
+    """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report,
+    resuming finished work and rebuilding what a changed config or input made stale."""
     from metadagger.pipeline import reproduce as run_all
 
-    path = run_all(task, preset, out, presets_file=presets, executor=executor, workers=workers, address=address)
+    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, executor=executor, workers=workers, address=address)
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
 
@@ -246,6 +267,16 @@ def bench_pairs_cmd(
     write_bench(result, json_out)
     typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
     typer.echo(f"wrote {json_out}")
+
+
+@config_app.command("show")
+@user_errors
+def config_show(task: str = TASK, preset: str = PRESET, presets: Optional[Path] = PRESETS_FILE, overrides: list[str] = SET) -> None:
+    """Print the resolved config of a preset with --set overrides, as YAML (what a new run would use)."""
+    from metadagger.config import dump_yaml
+    from metadagger.run import resolve_config
+
+    typer.echo(dump_yaml(resolve_config(task, preset, presets, overrides)), nl=False)
 
 
 def main() -> None:

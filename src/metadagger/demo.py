@@ -20,6 +20,7 @@ from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import collect
 from metadagger.io import write_json, write_text
+from metadagger.layout import RunLayout
 from metadagger.policies import make_policy
 from metadagger.tasks import make_task
 
@@ -75,7 +76,7 @@ class DemoResult:
 def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> DemoResult:
     """Run the demo and write its artifacts under ``<out>/demo/``."""
     out = Path(out)
-    folder = out / "demo"
+    folder = RunLayout(out).demo_dir
     write_text(folder / "config.yaml", dump_yaml(config))
     task = make_task(config.task, max_episode_steps=config.max_episode_steps)
 

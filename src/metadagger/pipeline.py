@@ -1,28 +1,40 @@
 """The MetaL DAgger pipeline as stages over one run folder:
-groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> report. Each stage reads the run's
-config and the previous stages' artifacts and skips the work whose artifacts exist, so
-``reproduce`` resumes. The mdi stage runs only for runs whose config has an ``mdi`` section (Fetch).
+groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> report.
+
+Each stage reads the run's config and the previous stages' artifacts, checks that those are
+complete and made from today's config (their stamps, :mod:`metadagger.stamps`), and skips the work
+whose artifacts exist. Run alone, a stage whose inputs changed refuses with one line naming what
+changed; with ``rebuild`` (what ``reproduce`` passes) it redoes the stale work instead, so a
+changed input rebuilds exactly what depends on it. The mdi stage runs only for runs whose config
+has an ``mdi`` section (Fetch).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import sys
 from pathlib import Path
 from typing import Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.curves import plot_curves
 from metadagger.evaluation.mdi import evaluate_mdi
-from metadagger.evaluation.mdm import MAPPER_METHODS, evaluate_run, mapper_path
+from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
-from metadagger.mapping.train import train_mapper
-from metadagger.metal.groundtruth import groundtruth_path, train_groundtruth
-from metadagger.metal.pairs import collect_pairs
-from metadagger.metal.store import PairStore
-from metadagger.policies import load_policy
+from metadagger.layout import RunLayout
+from metadagger.mapping.mappers import load_mapper
+from metadagger.mapping.registry import get_kind
+from metadagger.mapping.train import mapper_stamp, train_mapper
+from metadagger.metal.groundtruth import groundtruth_changes, train_groundtruth
+from metadagger.metal.pairs import collect_pairs, pair_status
+from metadagger.metal.store import PairSplit, PairStore
+from metadagger.policies import Policy, load_policy
 from metadagger.run import RunConfig, init_run, load_run
+from metadagger.stamps import describe_changes
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
+
+STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "report")
 
 
 def run_task(config: RunConfig) -> Task:
@@ -30,39 +42,78 @@ def run_task(config: RunConfig) -> Task:
     return make_task(config.task, **config.task_kwargs)
 
 
-def stage_groundtruth(run: Path, config: RunConfig, *, progress: bool = True) -> dict:
-    """Train pi* (skipped when done)."""
-    return train_groundtruth(run_task(config), config.groundtruth, run, progress=progress)
+def stage_groundtruth(layout: RunLayout, config: RunConfig, *, rebuild: bool = False, progress: bool = True) -> dict:
+    """Train pi* (skipped when done and made from this config)."""
+    return train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=rebuild, progress=progress)
 
 
-def stage_pairs(run: Path, config: RunConfig, *, executor: str = "local", workers: int | None = None,
-                address: str | None = None, progress: bool = True) -> dict:
-    """Collect the pairs of every seed not stored yet."""
-    return collect_pairs(run_task(config), groundtruth_path(run), config.pairs, run,
-                         executor=executor, workers=workers, address=address, progress=progress)
+def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Policy:
+    """pi*, checked to exist, to load and to be made from this run's config."""
+    if not layout.groundtruth.is_file():
+        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+    changes = groundtruth_changes(task, config.groundtruth, layout)
+    if changes:
+        raise UserError(f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
+                        f"run `metadagger reproduce` to rebuild it and what depends on it")
+    return load_policy(layout.groundtruth)
 
 
-def stage_mappers(run: Path, config: RunConfig, kinds: Sequence[str] | None = None, *, progress: bool = True) -> list[Path]:
-    """Train the mappers of ``kinds`` (dm, sam, tam and the controls mean-da, pistar-head); by
-    default the kinds the run evaluates (``config.mapper_kinds``)."""
-    kinds = config.mapper_kinds if kinds is None else kinds
-    unknown = sorted(set(kinds) - set(MAPPER_METHODS))
-    if unknown:
-        raise UserError(f"unknown mapper kind(s) {unknown}; expected {', '.join(MAPPER_METHODS)} or all")
-    split = PairStore(run / "pairs").load_split(val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True)
+def stage_pairs(layout: RunLayout, config: RunConfig, *, rebuild: bool = False, executor: str = "local",
+                workers: int | None = None, address: str | None = None, progress: bool = True) -> dict:
+    """Collect the pairs of every seed not stored yet (with ``rebuild``, also the stale ones)."""
+    task = run_task(config)
+    _current_groundtruth(layout, config, task)
+    return collect_pairs(task, layout, config.pairs, rebuild=rebuild, executor=executor, workers=workers,
+                         address=address, progress=progress)
+
+
+def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSplit:
+    """The kept pairs of ``pairs.seeds``, split; every seed must have a pair made from today's pi*
+    and pair settings."""
+    missing, changes = pair_status(task, layout, config.pairs)
+    if missing:
+        why = f"made from other inputs ({'; '.join(changes)})" if changes else "not collected"
+        raise UserError(
+            f"{len(missing)} of {len(config.pairs.seeds)} seeds of pairs.seeds have no current pair (e.g. {missing[0]}: {why}); "
+            f"run `metadagger pairs --out {layout.root}`" + (" --rebuild" if changes else "") + " or `metadagger reproduce` first"
+        )
+    store = PairStore(layout.pairs_dir)
+    split = store.load_split(val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True, seeds=config.pairs.seeds)
     if len(split.train_seeds) < 2:
         raise UserError(
-            f"only {len(split.train_seeds) + len(split.val_seeds)} kept pairs in {run / 'pairs'}; "
+            f"only {len(split.train_seeds) + len(split.val_seeds)} kept pairs in {layout.pairs_dir}; "
             "collect more seeds (pairs.seeds) or relax pairs.keep"
         )
-    head = load_policy(groundtruth_path(run)).head_vector()
-    paths = []
+    return split
+
+
+def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | None = None, *, rebuild: bool = False,
+                  progress: bool = True) -> list[Path]:
+    """Train the mappers of ``kinds`` (default: the kinds the run uses, ``config.mapper_kinds``)
+    on the run's current kept pairs; curves.png beside each."""
+    kinds = config.mapper_kinds if kinds is None else tuple(kinds)
     for kind in kinds:
-        folder = mapper_path(run, kind).parent
-        train_mapper(split, config.mapper_config(kind), folder, pistar_head=head, progress=progress)
-        plot_curves(folder / "curves.csv", folder / "curves.png")
-        paths.append(mapper_path(run, kind))
-    return paths
+        get_kind(kind)  # unknown kinds fail before any work
+    task = run_task(config)
+    head = _current_groundtruth(layout, config, task).head_vector()
+    split = _current_split(layout, config, task)
+    for kind in kinds:
+        train_mapper(split, config.mapper_config(kind), layout.mapper_dir(kind), pistar_head=head, rebuild=rebuild, progress=progress)
+        plot_curves(layout.mapper_curves(kind), layout.mapper_curves_figure(kind))
+    return [layout.mapper(kind) for kind in kinds]
+
+
+def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequence[str], head: Policy) -> None:
+    """Every mapper of ``kinds`` exists and was made from the run's current pairs and settings."""
+    split = None
+    for kind in kinds:
+        if not layout.mapper(kind).is_file():
+            raise UserError(f"mapper {kind} not trained yet (no {layout.mapper(kind)}); run `metadagger train-mapper --out {layout.root} --kind all` first")
+        split = split or _current_split(layout, config, task)
+        changes = describe_changes(load_mapper(layout.mapper(kind)).stamp, mapper_stamp(split, config.mapper_config(kind), head.head_vector()))
+        if changes:
+            raise UserError(f"mapper {kind} in {layout.mapper_dir(kind)} was made from other inputs ({'; '.join(changes)}); "
+                            f"run `metadagger train-mapper --out {layout.root} --kind {kind} --rebuild` or `metadagger reproduce`")
 
 
 def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
@@ -74,39 +125,62 @@ def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
     return tuple(seeds)
 
 
-def stage_evaluate(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = None, executor: str = "local",
-                   workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
-    """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``)."""
+def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None, rebuild: bool = False,
+                   executor: str = "local", workers: int | None = None, address: str | None = None,
+                   progress: bool = True) -> list[dict]:
+    """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``): the missing
+    (seed, method) rows only."""
     eval_config = config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
-    return evaluate_run(run_task(config), run, eval_config, groundtruth=groundtruth_path(run), bc=config.pairs.bc,
-                        executor=executor, workers=workers, address=address, progress=progress)
+    task = run_task(config)
+    pistar = _current_groundtruth(layout, config, task)
+    _check_mappers(layout, config, task, eval_config.methods, pistar)
+    return evaluate_run(task, layout, eval_config, bc=config.pairs.bc, rebuild=rebuild, executor=executor,
+                        workers=workers, address=address, progress=progress)
 
 
-def stage_mdi(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = None, executor: str = "local",
-              workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
+def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None, rebuild: bool = False,
+              executor: str = "local", workers: int | None = None, address: str | None = None,
+              progress: bool = True) -> list[dict]:
     """The MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) on the config's unseen seeds (or on
     ``seeds``); [] for a run without an ``mdi`` section."""
-    if config.mdi is None:
+    mdi = config.mdi_config
+    if mdi is None:
         return []
-    mdi_config = config.mdi if seeds is None else dataclasses.replace(config.mdi, seeds=_unseen(config, seeds))
-    return evaluate_mdi(run_task(config), run, mdi_config, groundtruth=groundtruth_path(run),
-                        mapper_path=mapper_path(run, mdi_config.mapper),
-                        control_paths={kind: mapper_path(run, kind) for kind in mdi_config.controls},
-                        executor=executor, workers=workers, address=address, progress=progress)
+    mdi = mdi if seeds is None else dataclasses.replace(mdi, seeds=_unseen(config, seeds))
+    task = run_task(config)
+    pistar = _current_groundtruth(layout, config, task)
+    _check_mappers(layout, config, task, tuple(mdi.kinds.values()), pistar)
+    return evaluate_mdi(task, layout, mdi, rebuild=rebuild, executor=executor, workers=workers, address=address,
+                        progress=progress)
 
 
-def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Path | None = None, executor: str = "local",
-              workers: int | None = None, address: str | None = None, progress: bool = True) -> Path:
-    """Every stage in order, each resuming where a previous run stopped; returns the report path.
-    ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one."""
-    run = Path(run)
-    config = init_run(run, task, preset, presets_file)
-    stage_groundtruth(run, config, progress=progress)
-    stage_pairs(run, config, executor=executor, workers=workers, address=address, progress=progress)
-    stage_mappers(run, config, progress=progress)
-    stage_evaluate(run, config, executor=executor, workers=workers, address=address, progress=progress)
-    stage_mdi(run, config, executor=executor, workers=workers, address=address, progress=progress)
-    return build_report(run)
+def _heading(number: int, stage: str, progress: bool) -> None:
+    if progress:
+        print(f"[{number}/{len(STAGES)}] {stage}", file=sys.stderr, flush=True)
 
 
-__all__ = ["load_run", "reproduce", "run_task", "stage_evaluate", "stage_groundtruth", "stage_mappers", "stage_mdi", "stage_pairs"]
+def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Path | None = None,
+              overrides: Sequence[str] = (), executor: str = "local", workers: int | None = None,
+              address: str | None = None, progress: bool = True) -> Path:
+    """Every stage in order, each resuming where a previous run stopped and rebuilding what a
+    changed input made stale; returns the report path. ``presets_file``: a YAML file of presets to
+    take ``preset`` from instead of the packaged one; ``overrides``: ``section.key=value`` items."""
+    layout = RunLayout(run)
+    config = init_run(run, task, preset, presets_file, overrides)
+    parallel = {"executor": executor, "workers": workers, "address": address, "progress": progress}
+    _heading(1, "groundtruth: pi*", progress)
+    stage_groundtruth(layout, config, rebuild=True, progress=progress)
+    _heading(2, "pairs (w_BC, w_DA)", progress)
+    stage_pairs(layout, config, rebuild=True, **parallel)
+    _heading(3, f"mappers: {', '.join(config.mapper_kinds)}", progress)
+    stage_mappers(layout, config, rebuild=True, progress=progress)
+    _heading(4, "evaluate: MDM and one-shot", progress)
+    stage_evaluate(layout, config, rebuild=True, **parallel)
+    _heading(5, "mdi: DAgger-MDI vs DAgger-BC vs DAgger" if config.mdi else "mdi: not in this preset", progress)
+    stage_mdi(layout, config, rebuild=True, **parallel)
+    _heading(6, "report", progress)
+    return build_report(layout)
+
+
+__all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_evaluate", "stage_groundtruth",
+           "stage_mappers", "stage_mdi", "stage_pairs"]

@@ -2,6 +2,8 @@
 
 ``metadagger groundtruth --task T --preset P --out RUN`` creates it from a preset; ``metadagger
 pairs --out RUN`` and the later stages read it back, so a run is described by its folder alone.
+Every command also takes ``--set section.key=value`` overrides (the value read as YAML), validated
+by the same builder as the presets; the config a command ran with is written back to the folder.
 """
 
 from __future__ import annotations
@@ -9,14 +11,17 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Sequence
 
 import yaml
 
-from metadagger.config import build, dump_yaml, load_preset
+from metadagger.config import build, dump_yaml, load_preset, to_dict
 from metadagger.errors import UserError
-from metadagger.io import write_text
 from metadagger.evaluation.mdi import MDIConfig
-from metadagger.evaluation.mdm import MAPPER_METHODS, EvalConfig
+from metadagger.evaluation.mdm import EvalConfig
+from metadagger.io import write_text
+from metadagger.layout import RunLayout
+from metadagger.mapping.registry import kind_names, learned_names
 from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig
 from metadagger.metal.pairs import PairConfig
@@ -39,11 +44,12 @@ class RunConfig:
     split_seed: int = 0
     """Seed of the train/validation split of the kept pairs."""
     mappers: dict = field(default_factory=dict)
-    """Per-kind overrides of the paper's mapper settings, e.g. ``{sam: {epochs: 300}}`` (keys dm, sam, tam)."""
+    """Per-kind overrides of the paper's mapper settings, e.g. ``{sam: {epochs: 300}}`` (keys: learned kinds)."""
     evaluate: EvalConfig = field(default_factory=EvalConfig)
     """MDM and one-shot evaluation on unseen seeds."""
     mdi: MDIConfig | None = None
-    """The MDI protocol (paper Table 6) on unseen seeds; None: not run (CarRacing)."""
+    """The MDI protocol (paper Table 6) on unseen seeds; None: not run (CarRacing). Its ``bc``
+    defaults to ``pairs.bc`` (:attr:`mdi_config`)."""
 
     def __post_init__(self) -> None:
         if self.max_episode_steps < 1:
@@ -56,9 +62,12 @@ class RunConfig:
         seen = sorted((gt | set(self.pairs.seeds)) & unseen)
         if seen:
             raise UserError(f"evaluate.seeds and mdi.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' seeds; pick disjoint ranges")
-        unknown = sorted(set(self.mappers) - {"dm", "sam", "tam"})
+        unknown = sorted(set(self.mappers) - set(learned_names()))
         if unknown:
-            raise UserError(f"mappers has unknown kind(s) {unknown}; expected dm, sam or tam")
+            raise UserError(f"mappers has unknown kind(s) {unknown}; expected one of {', '.join(learned_names())}")
+        if self.mdi is not None and self.mdi.bc is not None and self.mdi.bc != self.pairs.bc:
+            raise UserError("mdi.bc differs from pairs.bc, but DAgger-MDI must fit w_BC exactly as the pairs did (the mapper "
+                            "learned from those); drop mdi.bc (it defaults to pairs.bc)")
         for kind in self.mappers:
             self.mapper_config(kind)  # validates the overrides now, not hours later
 
@@ -68,11 +77,16 @@ class RunConfig:
         return build(MapperConfig, {**paper, **(self.mappers.get(kind) or {})}, where=f"mappers.{kind}")
 
     @property
+    def mdi_config(self) -> MDIConfig | None:
+        """The MDI section with ``bc`` resolved to ``pairs.bc``; None when the run has none."""
+        return None if self.mdi is None else dataclasses.replace(self.mdi, bc=self.pairs.bc)
+
+    @property
     def mapper_kinds(self) -> tuple[str, ...]:
         """The mapper kinds this run uses (``evaluate.methods``, ``mdi.mapper`` and
-        ``mdi.controls``), in :data:`~metadagger.evaluation.mdm.MAPPER_METHODS` order."""
+        ``mdi.controls``), in registry order (:mod:`metadagger.mapping.registry`)."""
         used = set(self.evaluate.methods) | (set(self.mdi.kinds.values()) if self.mdi else set())
-        return tuple(kind for kind in MAPPER_METHODS if kind in used)
+        return tuple(kind for kind in kind_names() if kind in used)
 
     @property
     def task_kwargs(self) -> dict:
@@ -80,36 +94,71 @@ class RunConfig:
         return {"max_episode_steps": self.max_episode_steps}
 
 
-def config_path(run: str | Path) -> Path:
-    """Where a run's config lives."""
-    return Path(run) / "config.yaml"
+def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """``data`` with each ``section.key=value`` of ``overrides`` set (the value read as YAML, so
+    ``evaluate.methods=[dm, sam]`` gives a list); returns a new mapping."""
+    data = to_dict(data)
+    for item in overrides:
+        path, sep, text = item.partition("=")
+        keys = path.strip().split(".")
+        if not sep or not all(keys):
+            raise UserError(f"bad --set {item!r}: expected section.key=value, e.g. --set pairs.dagger_rounds=4")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise UserError(f"bad --set {item!r}: the value is not YAML ({exc.problem}); quote it, e.g. --set 'evaluate.methods=[dm, sam]'") from None
+        node = data
+        for key in keys[:-1]:
+            child = node.get(key)
+            if child is None:
+                child = node[key] = {}
+            if not isinstance(child, dict):
+                raise UserError(f"bad --set {item!r}: {key} is a value ({child!r}), not a section")
+            node = child
+        node[keys[-1]] = value
+    return data
 
 
-def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path | None = None) -> RunConfig:
-    """Create ``<run>/config.yaml`` from a preset (packaged, or from ``presets_file``), or read the
-    existing one (which must match)."""
-    path = config_path(run)
-    if path.is_file():
-        config = load_run(run)
+def resolve_config(task: str, preset: str, presets_file: str | Path | None = None, overrides: Sequence[str] = ()) -> RunConfig:
+    """The config of a new run: a preset (packaged, or from ``presets_file``) with ``overrides``."""
+    sections = {k: v for k, v in load_preset(task, preset, presets_file).items() if k != "demo"}
+    data = apply_overrides({"task": task, "preset": preset, **sections}, overrides)
+    return build(RunConfig, data, where=f"{task}.{preset}" + (" with --set" if overrides else ""))
+
+
+def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path | None = None,
+             overrides: Sequence[str] = ()) -> RunConfig:
+    """Create ``<run>/config.yaml`` from a preset and ``overrides``, or read the existing one (of
+    the same task and preset) with ``overrides`` applied; the result is written back."""
+    layout = RunLayout(run)
+    if layout.root.exists() and not layout.root.is_dir():
+        raise UserError(f"--out {run} is a file, not a run folder; pass a folder path")
+    if layout.config.is_file():
+        config = load_run(run, overrides)
         if (config.task, config.preset) != (task, preset):
             raise UserError(
                 f"run folder {run} holds task {config.task!r} preset {config.preset!r}, not {task!r} {preset!r}; "
                 "use another --out or the same task and preset"
             )
         return config
-    sections = {k: v for k, v in load_preset(task, preset, presets_file).items() if k != "demo"}
-    config = build(RunConfig, {"task": task, "preset": preset, **sections}, where=f"{task}.{preset}")
-    write_text(path, dump_yaml(config))
+    config = resolve_config(task, preset, presets_file, overrides)
+    write_text(layout.config, dump_yaml(config))
     return config
 
 
-def load_run(run: str | Path) -> RunConfig:
-    """Read a run's config; a missing or broken file is a :class:`UserError`."""
-    path = config_path(run)
+def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
+    """Read a run's config with ``overrides`` applied (and written back when they change it); a
+    missing or broken file is a :class:`UserError`."""
+    path = RunLayout(run).config
     if not path.is_file():
         raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise UserError(f"{path} is not valid YAML ({exc}); fix or delete it") from None
-    return build(RunConfig, data, where=str(path))
+    if not isinstance(data, dict):
+        raise UserError(f"{path} must be a mapping of config sections; fix or delete it")
+    config = build(RunConfig, apply_overrides(data, overrides), where=str(path) + (" with --set" if overrides else ""))
+    if overrides and dump_yaml(config) != path.read_text():
+        write_text(path, dump_yaml(config))
+    return config

@@ -11,34 +11,48 @@ import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
-from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_mdi, head_dir
-from metadagger.evaluation.report_fetch import FIGURE, mdi_section
+from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_mdi, head_folder
+from metadagger.evaluation.report_mdi import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import collect
 from metadagger.io import load_tensors
+from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.groundtruth import GroundTruthConfig, groundtruth_path, train_groundtruth
-from metadagger.metal.groundtruth import head_from_groundtruth
+from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.policies import load_policy
 from metadagger.run import init_run, load_run
 
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 # 1-D displacements: the cosine distance per step is 0 (same sign), 1 (one is zero) or 2 (opposite)
 CONFIG = MDIConfig(
-    seeds=(300, 301, 302), early_stop=6.0,
+    seeds=(300, 301, 302), early_stop=6.0, mapper="pistar-head",
     bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
     dagger_bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
 )
+
+
+def groundtruth_path(run: Path) -> Path:
+    return RunLayout(run).groundtruth
+
+
+def head_dir(run: Path, method: str, shot: str) -> Path:
+    return RunLayout(run).heads(head_folder(method, shot))
+
+
+def copy_run(run: Path, to: Path) -> None:
+    """pi* and the mappers of ``run`` in a fresh folder (no evaluation yet)."""
+    shutil.copytree(run / "groundtruth", to / "groundtruth")
+    shutil.copytree(run / "mappers", to / "mappers")
 
 
 @pytest.fixture(scope="module")
 def toy_run(tmp_path_factory) -> tuple[Path, Path]:
     """A run folder with a tiny pi* (Box corridor) and a pi*-head control mapper as the MDI mapper."""
     run = tmp_path_factory.mktemp("mdi")
-    train_groundtruth(CorridorTask(discrete=False), GT, run, progress=False)
-    mapper = run / "mappers" / "pistar-head" / "mapper.safetensors"
+    train_groundtruth(CorridorTask(discrete=False), GT, RunLayout(run), progress=False)
+    mapper = RunLayout(run).mapper("pistar-head")
     Mapper.pistar_head(load_policy(groundtruth_path(run)).head_vector()).save(mapper)
     return run, mapper
 
@@ -46,7 +60,7 @@ def toy_run(tmp_path_factory) -> tuple[Path, Path]:
 @pytest.fixture(scope="module")
 def evaluated(toy_run) -> tuple[Path, list[dict]]:
     run, mapper = toy_run
-    rows = evaluate_mdi(CorridorTask(discrete=False), run, CONFIG, groundtruth=groundtruth_path(run), mapper_path=mapper,
+    rows = evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), CONFIG,
                         workers=1, progress=False)
     return run, rows
 
@@ -114,10 +128,9 @@ def test_dagger_round_refits_from_the_configured_start(evaluated, dagger_init, t
     assert {r["method"] for r in failed} >= {"dagger"}, "the toy run should fail DAgger's one-shot somewhere"
     config = dataclasses.replace(CONFIG, dagger_init=dagger_init)
     if dagger_init == "one-shot":  # evaluate a copy with the other setting
-        shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
+        copy_run(run, tmp_path)
         run = tmp_path
-        evaluate_mdi(CorridorTask(discrete=False), run, config, groundtruth=groundtruth_path(run),
-                     mapper_path=evaluated[0] / "mappers" / "pistar-head" / "mapper.safetensors", workers=1, progress=False)
+        evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), config, workers=1, progress=False)
     r = next(r for r in failed if r["method"] == "dagger")
     seed = r["seed"]
     task = CorridorTask(discrete=False)
@@ -136,12 +149,12 @@ def test_dagger_round_refits_from_the_configured_start(evaluated, dagger_init, t
 def test_resume_skips_finished_seeds_and_matches_a_full_run(toy_run, evaluated, tmp_path):
     run, mapper = toy_run
     task = CorridorTask(discrete=False)
-    shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
+    copy_run(run, tmp_path)
     first = MDIConfig(**{**CONFIG.__dict__, "seeds": CONFIG.seeds[:1]})
-    evaluate_mdi(task, tmp_path, first, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    evaluate_mdi(task, RunLayout(tmp_path), first, workers=1, progress=False)
     head = head_dir(tmp_path, "dagger", "oneshot") / f"{CONFIG.seeds[0]}.safetensors"
     stamp = head.stat().st_mtime_ns
-    evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    evaluate_mdi(task, RunLayout(tmp_path), CONFIG, workers=1, progress=False)
     assert head.stat().st_mtime_ns == stamp
     assert (tmp_path / "eval" / "mdi.csv").read_bytes() == (evaluated[0] / "eval" / "mdi.csv").read_bytes()
 
@@ -149,23 +162,23 @@ def test_resume_skips_finished_seeds_and_matches_a_full_run(toy_run, evaluated, 
 def test_report_section_renders_from_the_csv_alone(evaluated, tmp_path):
     (tmp_path / "eval").mkdir()
     shutil.copy(evaluated[0] / "eval" / "mdi.csv", tmp_path / "eval" / "mdi.csv")
-    lines = mdi_section(tmp_path, tmp_path / "report" / "figures")
+    lines = mdi_section(RunLayout(tmp_path))
     text = "\n".join(lines)
     assert "Table 7" in text and all(name in text for name in ("DAgger-MDI", "DAgger-BC", "| DAgger |"))
     assert f"figures/{FIGURE}" in text and (tmp_path / "report" / "figures" / FIGURE).is_file()
-    assert mdi_section(tmp_path / "missing", tmp_path / "figures") == []
+    assert mdi_section(RunLayout(tmp_path / "missing")) == []
 
 
 def test_discrete_task_has_no_cosine_distances_and_no_figure(tmp_path):
     task = CorridorTask(discrete=True)
-    train_groundtruth(task, GroundTruthConfig(**{**GT.__dict__, "seeds": (0, 1), "dagger_rounds": 0}), tmp_path, progress=False)
-    mapper = tmp_path / "mapper.safetensors"
+    train_groundtruth(task, GroundTruthConfig(**{**GT.__dict__, "seeds": (0, 1), "dagger_rounds": 0}), RunLayout(tmp_path), progress=False)
+    mapper = RunLayout(tmp_path).mapper("pistar-head")
     Mapper.pistar_head(load_policy(groundtruth_path(tmp_path)).head_vector()).save(mapper)
     config = MDIConfig(**{**CONFIG.__dict__, "seeds": (300,), "early_stop": None})
-    rows = evaluate_mdi(task, tmp_path, config, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    rows = evaluate_mdi(task, RunLayout(tmp_path), config, workers=1, progress=False)
     assert len(rows) == len(METHODS) and all(r["cosine_total"] is None and r["cosine_per_action"] is None for r in rows)
     assert not any(r["one_shot_early_stopped"] for r in rows)
-    lines = mdi_section(tmp_path, tmp_path / "report" / "figures")
+    lines = mdi_section(RunLayout(tmp_path))
     assert any("Table 7" in line for line in lines) and not (tmp_path / "report" / "figures" / FIGURE).exists()
 
 
@@ -176,11 +189,11 @@ def test_table7_counts_and_wilson_intervals(tmp_path):
             rows.append({"method": method, "seed": seed, "one_shot_success": one, "two_shot_success": two,
                          "two_shot_run": not one, "expert_queries": 50 + (0 if one else 20), "cosine_total": None, "cosine_per_action": None})
     write_csv(tmp_path / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
-    lines = mdi_section(tmp_path, tmp_path / "figures")
+    lines = mdi_section(RunLayout(tmp_path))
     # 1/4 -> Wilson 4.6%-69.9%, 2/4 -> 15.0%-85.0%; queries (50 + 3 * 70) / 4 = 65
     assert "| DAgger-MDI | 25.0% (1/4; 4.6%-69.9%) | 50.0% (2/4; 15.0%-85.0%) | 65.0 |" in lines
     assert not any("Fig. 5" in line for line in lines)  # no distances recorded: no figure
-    assert not (tmp_path / "figures" / FIGURE).exists()
+    assert not (RunLayout(tmp_path).figures / FIGURE).exists()
 
 
 def test_fig5_counts_the_seeds_where_dagger_mdi_is_closer(tmp_path):
@@ -189,24 +202,23 @@ def test_fig5_counts_the_seeds_where_dagger_mdi_is_closer(tmp_path):
              "cosine_total": totals[m][seed], "cosine_per_action": totals[m][seed] / 10}
             for seed in range(3) for m in METHODS]
     write_csv(tmp_path / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
-    lines = mdi_section(tmp_path, tmp_path / "figures")
+    lines = mdi_section(RunLayout(tmp_path))
     assert "| DAgger-BC | 3 | 2/3 | 2/3 |" in lines
     assert "| DAgger | 3 | 1/3 | 1/3 |" in lines  # a tie is not "lower"
-    assert (tmp_path / "figures" / FIGURE).is_file()
+    assert (RunLayout(tmp_path).figures / FIGURE).is_file()
 
 
 def test_controls_add_rows_and_rerun_seeds_logged_without_them(toy_run, evaluated, tmp_path):
     run, mapper = toy_run
     task = CorridorTask(discrete=False)
-    shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
-    evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, workers=1, progress=False)
+    copy_run(run, tmp_path)
+    evaluate_mdi(task, RunLayout(tmp_path), CONFIG, workers=1, progress=False)
     head = load_policy(groundtruth_path(run)).head_vector()
-    control = tmp_path / "mean-da.safetensors"
+    control = RunLayout(tmp_path).mapper("mean-da")
     Mapper.mean_da(torch.stack([head, head])).save(control)  # the mean is pi*'s head, the MDI mapper's output
     config = dataclasses.replace(CONFIG, controls=("mean-da",))
     assert config.methods == METHODS + ("dagger-mdi-mean-da",)
-    rows = evaluate_mdi(task, tmp_path, config, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper,
-                        control_paths={"mean-da": control}, workers=1, progress=False)
+    rows = evaluate_mdi(task, RunLayout(tmp_path), config, workers=1, progress=False)
     assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in config.methods]
     # the three methods' rows do not change; a mean-DA head equal to pi*'s head gives DAgger-MDI's rows
     main = {(r["method"], r["seed"]): r for r in evaluated[1]}
@@ -214,25 +226,38 @@ def test_controls_add_rows_and_rerun_seeds_logged_without_them(toy_run, evaluate
         expected = main[("dagger-mdi" if r["method"] == "dagger-mdi-mean-da" else r["method"], r["seed"])]
         assert {k: v for k, v in r.items() if k != "method"} == {k: v for k, v in expected.items() if k != "method"}
     assert (head_dir(tmp_path, "dagger-mdi-mean-da", "oneshot") / f"{CONFIG.seeds[0]}.safetensors").is_file()
-    text = "\n".join(mdi_section(tmp_path, tmp_path / "report" / "figures"))
+    text = "\n".join(mdi_section(RunLayout(tmp_path)))
     assert "| control: DAgger-MDI initialised by mean-da |" in text
-    with pytest.raises(UserError, match="control_paths"):
-        evaluate_mdi(task, tmp_path, config, groundtruth=groundtruth_path(tmp_path), mapper_path=mapper, progress=False)
 
 
 def test_missing_inputs_are_user_errors(toy_run, tmp_path):
     run, mapper = toy_run
     task = CorridorTask(discrete=False)
-    with pytest.raises(UserError, match="pi\\* not found"):
-        evaluate_mdi(task, tmp_path, CONFIG, groundtruth=tmp_path / "nope.safetensors", mapper_path=mapper, progress=False)
-    with pytest.raises(UserError, match="train-mapper"):
-        evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(run), mapper_path=tmp_path / "nope.safetensors", progress=False)
+    shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
+    with pytest.raises(UserError, match="train-mapper"):  # no mapper in this run
+        evaluate_mdi(task, RunLayout(tmp_path), CONFIG, progress=False)
     with pytest.raises(UserError, match="early_stop"):
-        evaluate_mdi(CorridorTask(discrete=True), tmp_path, CONFIG, groundtruth=groundtruth_path(run), mapper_path=mapper, progress=False)
-    wrong = tmp_path / "wrong.safetensors"
-    Mapper.pistar_head(torch.zeros(7)).save(wrong)
+        evaluate_mdi(CorridorTask(discrete=True), RunLayout(run), CONFIG, progress=False)
+    Mapper.pistar_head(torch.zeros(7)).save(RunLayout(tmp_path).mapper("pistar-head"))
     with pytest.raises(UserError, match="length 7"):
-        evaluate_mdi(task, tmp_path, CONFIG, groundtruth=groundtruth_path(run), mapper_path=wrong, progress=False)
+        evaluate_mdi(task, RunLayout(tmp_path), CONFIG, progress=False)
+
+
+def test_rows_of_a_changed_mapper_are_refused_then_rebuilt(toy_run, evaluated, tmp_path):
+    run, _ = toy_run
+    copy_run(run, tmp_path)
+    layout = RunLayout(tmp_path)
+    task = CorridorTask(discrete=False)
+    evaluate_mdi(task, layout, CONFIG, workers=1, progress=False)
+    Mapper.pistar_head(torch.zeros_like(load_policy(layout.groundtruth).head_vector())).save(layout.mapper("pistar-head"))
+    with pytest.raises(UserError, match="'dagger-mdi'.*mapper: changed.*--rebuild"):
+        evaluate_mdi(task, layout, CONFIG, workers=1, progress=False)
+    before = {(r["method"], r["seed"]): r for r in read_csv(layout.eval_table("mdi"))}
+    rows = evaluate_mdi(task, layout, CONFIG, rebuild=True, workers=1, progress=False)
+    # only DAgger-MDI's rows depend on the mapper: the others are reused as they were
+    for r in rows:
+        if r["method"] != "dagger-mdi":
+            assert r["one_shot_reward"] == before[(r["method"], r["seed"])]["one_shot_reward"]
 
 
 @pytest.mark.parametrize(
@@ -245,6 +270,7 @@ def test_missing_inputs_are_user_errors(toy_run, tmp_path):
         ({"controls": ("nope",)}, "got \\['nope'\\]"),
         ({"seeds": (-1,)}, "non-negative"),
         ({"bc": BCConfig(head_only=False)}, "head_only"),
+        ({"bc": None, "dagger_bc": BCConfig(head_only=False)}, "head_only"),
         ({"early_stop": 0.0}, "mdi.early_stop"),
         ({"early_stop": float("inf")}, "mdi.early_stop"),
         ({"mapper": "xyz"}, "mdi.mapper"),
@@ -263,4 +289,9 @@ def test_fetch_presets_build(preset, tmp_path):
     assert mdi is not None and mdi.early_stop is not None
     assert mdi.mapper in config.mappers and mdi.mapper in config.mapper_kinds  # configured, and trained by reproduce
     assert config.mapper_config(mdi.mapper).kind == mdi.mapper
-    assert mdi.bc == config.pairs.bc  # MDI's BC fit is the pairs' BC fit
+    assert mdi.bc is None and config.mdi_config.bc == config.pairs.bc  # MDI's BC fit is the pairs' BC fit
+
+
+def test_an_mdi_bc_other_than_the_pairs_is_refused(tmp_path):
+    with pytest.raises(UserError, match="mdi.bc differs from pairs.bc"):
+        init_run(tmp_path, "fetch", "ci", overrides=["mdi.bc={lr: 0.5, head_only: true}"])

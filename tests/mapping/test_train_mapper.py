@@ -12,10 +12,12 @@ from mapping_data import synthetic_split, tiny_config
 
 from metadagger.errors import UserError
 from metadagger.mapping import train as train_module
-from metadagger.mapping.mappers import KINDS, Mapper, load_mapper
+from metadagger.mapping.mappers import Mapper, load_mapper
+from metadagger.mapping.registry import kind_names
 from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, evaluate_mapping, paper_config, train_mapper
 
+KINDS = kind_names()
 STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
 
 
@@ -116,8 +118,17 @@ def test_resume_loads_instead_of_training(trained, split, monkeypatch):
     again = train_mapper(split, tiny_config("dm"), out_dir, progress=False)
     np.testing.assert_array_equal(again.map_batch(split.w_bc_val), mapper.map_batch(split.w_bc_val))
     assert (out_dir / "curves.csv").stat().st_mtime_ns == before
-    with pytest.raises(UserError, match="another config .*epochs"):
+    with pytest.raises(UserError, match="made from other inputs \\(config.epochs: 40 -> 7\\)"):
         train_mapper(split, tiny_config("dm", epochs=7), out_dir, progress=False)
+    with pytest.raises(UserError, match="made from other inputs \\(pairs: changed\\)"):
+        train_mapper(synthetic_split(seed=1), tiny_config("dm"), out_dir, progress=False)
+
+
+def test_rebuild_retrains_a_mapper_made_from_other_pairs(split, tmp_path):
+    first = train_mapper(split, tiny_config("dm", epochs=2), tmp_path, progress=False)
+    other = synthetic_split(seed=1)
+    again = train_mapper(other, tiny_config("dm", epochs=2), tmp_path, rebuild=True, progress=False)
+    assert again.stamp != first.stamp and load_mapper(tmp_path / "mapper.safetensors").stamp == again.stamp
 
 
 def test_empty_validation_set(tmp_path):

@@ -13,7 +13,8 @@ import pytest
 from toy_task import CorridorTask
 
 from metadagger.imitation.bc import BCConfig
-from metadagger.metal.groundtruth import GroundTruthConfig, groundtruth_path, train_groundtruth
+from metadagger.layout import RunLayout
+from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
 from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
@@ -27,10 +28,22 @@ PAIRS = PairConfig(
 )
 
 
+def groundtruth_path(run: Path) -> Path:
+    return RunLayout(run).groundtruth
+
+
+def with_pistar(gt_run: Path, run: Path) -> RunLayout:
+    """A fresh run folder holding a copy of ``gt_run``'s pi*."""
+    layout = RunLayout(run)
+    layout.groundtruth_dir.mkdir(parents=True)
+    layout.groundtruth.write_bytes(groundtruth_path(gt_run).read_bytes())
+    return layout
+
+
 @pytest.fixture(scope="module")
 def gt_run(tmp_path_factory) -> Path:
     run = tmp_path_factory.mktemp("run")
-    train_groundtruth(CorridorTask(), GT, run, progress=False)
+    train_groundtruth(CorridorTask(), GT, RunLayout(run), progress=False)
     return run
 
 
@@ -47,7 +60,8 @@ def test_groundtruth_resumes_from_round_checkpoints(gt_run, tmp_path):
     for src in (gt_run / "groundtruth" / "rounds").iterdir():
         (tmp_path / "groundtruth" / "rounds").mkdir(exist_ok=True)
         (tmp_path / "groundtruth" / "rounds" / src.name).write_bytes(src.read_bytes())
-    metrics = train_groundtruth(CorridorTask(), GT, tmp_path, progress=False)
+    (tmp_path / "groundtruth" / "stamp.json").write_bytes((gt_run / "groundtruth" / "stamp.json").read_bytes())
+    metrics = train_groundtruth(CorridorTask(), GT, RunLayout(tmp_path), progress=False)
     assert all(r["dagger/final_loss"] is None for r in metrics["rounds"])  # nothing refitted
     assert groundtruth_path(tmp_path).read_bytes() == groundtruth_path(gt_run).read_bytes()
 
@@ -62,7 +76,7 @@ def test_keep_rules():
 def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     for run in (a, b):
-        summary = collect_pairs(CorridorTask(), groundtruth_path(gt_run), PAIRS, run, workers=2, progress=False)
+        summary = collect_pairs(CorridorTask(), with_pistar(gt_run, run), PAIRS, workers=2, progress=False)
     assert summary["seeds"] == len(PAIRS.seeds) and summary["kept"] == len(PAIRS.seeds)
     assert sum(summary["outcomes"].values()) == len(PAIRS.seeds)
     for seed in PAIRS.seeds:
@@ -74,9 +88,10 @@ def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_
 
 def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
     first = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:2]})
-    collect_pairs(CorridorTask(), groundtruth_path(gt_run), first, tmp_path, workers=1, progress=False)
+    layout = with_pistar(gt_run, tmp_path)
+    collect_pairs(CorridorTask(), layout, first, workers=1, progress=False)
     stamps = {s: (tmp_path / "pairs" / f"{s}.safetensors").stat().st_mtime_ns for s in first.seeds}
-    collect_pairs(CorridorTask(), groundtruth_path(gt_run), PAIRS, tmp_path, workers=1, progress=False)
+    collect_pairs(CorridorTask(), layout, PAIRS, workers=1, progress=False)
     assert {s: (tmp_path / "pairs" / f"{s}.safetensors").stat().st_mtime_ns for s in first.seeds} == stamps
     assert PairStore(tmp_path / "pairs").done_seeds() == set(PAIRS.seeds)
 
@@ -84,16 +99,18 @@ def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
 _KILLABLE = """
 import sys
 from slow_task import SlowCorridorTask
+from metadagger.layout import RunLayout
 from metadagger.metal.pairs import collect_pairs
 from test_groundtruth_pairs import PAIRS
-collect_pairs(SlowCorridorTask(), sys.argv[1], PAIRS, sys.argv[2], workers=1, progress=False)
+collect_pairs(SlowCorridorTask(), RunLayout(sys.argv[1]), PAIRS, workers=1, progress=False)
 """
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
 def test_killed_pairs_run_resumes_without_redoing_or_losing_seeds(gt_run, tmp_path, sig):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), str(TESTS / "metal")])}
-    cmd = [sys.executable, "-c", _KILLABLE, str(groundtruth_path(gt_run)), str(tmp_path)]
+    with_pistar(gt_run, tmp_path)
+    cmd = [sys.executable, "-c", _KILLABLE, str(tmp_path)]
     proc = subprocess.Popen(cmd, env=env, start_new_session=True)
     store = PairStore(tmp_path / "pairs")
     deadline = time.monotonic() + 60
@@ -115,7 +132,7 @@ def test_ray_executor_pairs_equal_local(gt_run, tmp_path, monkeypatch):
     # the local Ray instance's workers inherit this, so they can import the toy task
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), str(TESTS / "metal")]))
     seeds = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:3]})
-    collect_pairs(CorridorTask(), groundtruth_path(gt_run), seeds, tmp_path / "local", workers=2, progress=False)
-    collect_pairs(CorridorTask(), groundtruth_path(gt_run), seeds, tmp_path / "ray", executor="ray", workers=2, progress=False)
+    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "local"), seeds, workers=2, progress=False)
+    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "ray"), seeds, executor="ray", workers=2, progress=False)
     for seed in seeds.seeds:
         assert (tmp_path / "local" / "pairs" / f"{seed}.safetensors").read_bytes() == (tmp_path / "ray" / "pairs" / f"{seed}.safetensors").read_bytes()

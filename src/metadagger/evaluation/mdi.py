@@ -33,25 +33,26 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
-from metadagger.evaluation.rows import RowLog, write_csv
+from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
-from metadagger.mapping.mappers import KINDS, Mapper, cached_mapper
+from metadagger.layout import RunLayout
+from metadagger.mapping.mappers import Mapper, cached_mapper
+from metadagger.mapping.registry import kind_names
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
-from metadagger.parallel import make_executor
 from metadagger.policies import Policy
+from metadagger.runner import RowLog, Stamp, drive, plan
+from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 #: The three methods of Table 6, in table order.
@@ -82,9 +83,10 @@ class MDIConfig:
 
     seeds: tuple[int, ...] = tuple(range(5000, 5020))
     """Unseen seeds (never used for pi* or the pairs)."""
-    bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
-    """The head-only fit on the demonstration (steps 2 and 5); keep it equal to ``pairs.bc``, the
-    fit whose w_BC the mapper learned from. Its ``seed`` is replaced by the env seed."""
+    bc: BCConfig | None = None
+    """The head-only fit on the demonstration (steps 2 and 5). None (the default): the run's
+    ``pairs.bc``, the fit whose w_BC the mapper learned from; a run config rejects any other
+    value. Its ``seed`` is replaced by the env seed."""
     dagger_bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
     """The head-only refit of the DAgger round (step 8)."""
     early_stop: float | None = None
@@ -104,17 +106,17 @@ class MDIConfig:
             raise UserError("mdi.seeds must not be empty; give e.g. seeds: 5000-5019")
         if not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in self.seeds):
             raise UserError(f"mdi.seeds must be non-negative integers, got {self.seeds!r}")
-        if not (self.bc.head_only and self.dagger_bc.head_only):
+        if not ((self.bc is None or self.bc.head_only) and self.dagger_bc.head_only):
             raise UserError("mdi.bc.head_only and mdi.dagger_bc.head_only must be true: only layer n is initialised and fitted")
         check_threshold("mdi.early_stop", self.early_stop)
-        if self.mapper not in KINDS:
-            raise UserError(f"mdi.mapper must be one of {', '.join(KINDS)}, got {self.mapper!r}")
+        if self.mapper not in kind_names():
+            raise UserError(f"mdi.mapper must be one of {', '.join(kind_names())}, got {self.mapper!r}")
         if self.dagger_init not in DAGGER_INITS:
             raise UserError(f"mdi.dagger_init must be one of {', '.join(DAGGER_INITS)}, got {self.dagger_init!r}")
-        bad = [k for k in self.controls if k not in KINDS or k == self.mapper]
+        bad = [k for k in self.controls if k not in kind_names() or k == self.mapper]
         if bad or len(set(self.controls)) != len(self.controls):
             raise UserError(
-                f"mdi.controls must be distinct mapper kinds of {', '.join(KINDS)} other than mdi.mapper "
+                f"mdi.controls must be distinct mapper kinds of {', '.join(kind_names())} other than mdi.mapper "
                 f"({self.mapper!r}), got {list(self.controls)!r}"
             )
 
@@ -136,16 +138,19 @@ class MDIJob:
     task: Task
     groundtruth: str
     mappers: dict[str, str]
-    """Mapper file of every DAgger-MDI method (see :attr:`MDIConfig.kinds`)."""
+    """Mapper file of every DAgger-MDI method of this job (see :attr:`MDIConfig.kinds`)."""
     seed: int
+    methods: tuple[str, ...]
+    """The methods this seed still needs."""
     config: MDIConfig
+    """With ``bc`` resolved (never None here)."""
 
 
-def head_dir(run: str | Path, method: str, shot: str) -> Path:
-    """Folder of the heads a method was tested with at one shot (``oneshot`` or ``twoshot``)."""
-    if not (method in METHODS or method.startswith(CONTROL_PREFIX)) or shot not in SHOTS:
-        raise UserError(f"no MDI heads for method {method!r} shot {shot!r}: expected a method of {METHODS} and a shot of {SHOTS}")
-    return Path(run) / "eval" / "heads" / f"mdi-{method}-{shot}"
+def head_folder(method: str, shot: str) -> str:
+    """The name of the folder of the heads a method was tested with at one shot."""
+    if shot not in SHOTS:
+        raise UserError(f"no MDI heads for shot {shot!r}: expected one of {SHOTS}")
+    return f"mdi-{method}-{shot}"
 
 
 def _head(policy: Policy) -> np.ndarray:
@@ -164,15 +169,17 @@ def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
     return meter.total, meter.mean
 
 
-def _steps_2_to_5(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache,
-                  mappers: dict[str, Mapper]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Steps 2-5 on a policy whose head is the seed's Xavier head: each method's saved
+def _steps_2_to_5(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache, mappers: dict[str, Mapper],
+                  methods: tuple[str, ...]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Steps 2-5 on a policy whose head is the seed's Xavier head: each of ``methods``' saved
     initialisation (step 4) and its head after training on the demonstration (step 5).
-    ``mappers``: the initialiser of every DAgger-MDI method."""
+    ``mappers``: the initialiser of every DAgger-MDI method among them."""
     xavier = _head(policy)
     fit_bc(policy, demo, bc, cache=cache)
     w_bc = _head(policy)
-    inits = {method: mapper(w_bc) for method, mapper in mappers.items()} | {"dagger-bc": w_bc}
+    inits = {method: mapper(w_bc) for method, mapper in mappers.items()}
+    if "dagger-bc" in methods:
+        inits["dagger-bc"] = w_bc
     heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
     for method, init in inits.items():
         policy.load_head_vector(init)
@@ -182,15 +189,15 @@ def _steps_2_to_5(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCac
 
 
 def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
-    """Run Table 6 for every method on one seed; returns ``seed``, ``rows`` and ``heads``
-    (``{(method, shot): head vector}``)."""
+    """Run Table 6 for the job's methods on one seed; returns ``seed``, ``entries``
+    (``{method: [row]}``) and ``heads`` (``{(method, shot): head vector}``)."""
     config, task, seed = job.config, job.task, job.seed
     policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), seed)
     bc = dataclasses.replace(config.bc, seed=seed)
     dagger_bc = dataclasses.replace(config.dagger_bc, seed=seed)
     stop = CosineEarlyStop(threshold=config.early_stop) if config.early_stop is not None else None
     env = task.make_env()
-    rows: list[dict[str, Any]] = []
+    entries: dict[str, list[dict[str, Any]]] = {}
     heads: dict[tuple[str, str], np.ndarray] = {}
 
     def test(head: np.ndarray) -> Trajectory:
@@ -201,8 +208,8 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
         demo = rollout(env, seed=seed, policy=None).to_dataset()
         cache = FeatureCache(policy)
         mappers = {method: cached_mapper(path) for method, path in job.mappers.items()}
-        inits, one_shot_heads = _steps_2_to_5(policy, demo, bc, cache, mappers)
-        for method in config.methods:
+        inits, one_shot_heads = _steps_2_to_5(policy, demo, bc, cache, mappers, job.methods)
+        for method in job.methods:
             heads[method, "oneshot"] = one_shot_heads[method]
             first = final = test(one_shot_heads[method])
             ran = not first.success
@@ -215,7 +222,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                 heads[method, "twoshot"] = _head(policy)
                 final = test(heads[method, "twoshot"])
             cosine_total, cosine_mean = _cosine(task, final)
-            rows.append({
+            entries[method] = [{
                 "method": method, "seed": seed,
                 "one_shot_success": bool(first.success), "one_shot_reward": float(first.reward),
                 "one_shot_steps": int(first.steps), "one_shot_early_stopped": bool(first.early_stopped),
@@ -224,27 +231,23 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                 "two_shot_early_stopped": bool(final.early_stopped) if ran else None,
                 "demo_steps": len(demo), "expert_queries": len(demo) + (first.expert_queries if ran else 0),
                 "cosine_total": cosine_total, "cosine_per_action": cosine_mean,
-            })
+            }]
     finally:
         env.close()
-    return {"seed": seed, "rows": rows, "heads": heads}
+    return {"seed": seed, "entries": entries, "heads": heads}
 
 
-def _check_inputs(task: Task, run: Path, config: MDIConfig, groundtruth: Path, mappers: dict[str, Path]) -> None:
-    if not groundtruth.is_file():
-        raise UserError(f"pi* not found at {groundtruth}; run `metadagger groundtruth --out {run}` first")
-    for method, kind in config.kinds.items():
-        if method not in mappers:
-            raise UserError(f"no mapper file given for mdi.controls kind {kind!r}; pass control_paths={{{kind!r}: path}}")
-        if not mappers[method].is_file():
-            raise UserError(f"MDI mapper not found at {mappers[method]}; run `metadagger train-mapper --out {run} --kind {kind}` first")
+def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
     if config.early_stop is not None and not isinstance(task.learner_action_space, gym.spaces.Box):
         raise UserError(
             f"mdi.early_stop={config.early_stop} needs displacement (Box) actions, but task {task.name!r} has "
             f"{task.learner_action_space}; set mdi.early_stop to null"
         )
-    head_size = cached_groundtruth(str(groundtruth)).head_size
-    for path in mappers.values():
+    head_size = cached_groundtruth(str(layout.groundtruth)).head_size
+    for kind in config.kinds.values():
+        path = layout.mapper(kind)
+        if not path.is_file():
+            raise UserError(f"MDI mapper not found at {path}; run `metadagger train-mapper --out {layout.root} --kind {kind}` first")
         mapper_dim = cached_mapper(str(path)).dim
         if mapper_dim != head_size:
             raise UserError(
@@ -253,29 +256,34 @@ def _check_inputs(task: Task, run: Path, config: MDIConfig, groundtruth: Path, m
             )
 
 
+def mdi_stamps(task: Task, layout: RunLayout, config: MDIConfig) -> dict[str, Stamp]:
+    """What each MDI method's rows are made from: the protocol's settings, pi* and its initialiser."""
+    common = {"protocol": "mdi", "task": task.name, **stamp_of(config, drop=("seeds", "mapper", "controls")),
+              "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
+    kinds = config.kinds
+    return {method: {**common, **({"mapper_fingerprint": file_fingerprint(layout.mapper(kinds[method]))} if method in kinds else {})}
+            for method in config.methods}
+
+
 def evaluate_mdi(
     task: Task,
-    run: str | Path,
+    layout: RunLayout,
     config: MDIConfig,
     *,
-    groundtruth: str | Path,
-    mapper_path: str | Path,
-    control_paths: Mapping[str, str | Path] | None = None,
+    rebuild: bool = False,
     executor: str = "local",
     workers: int | None = None,
     address: str | None = None,
     progress: bool = True,
 ) -> list[dict[str, Any]]:
-    """Run the MDI protocol on every seed of ``config`` not evaluated yet.
+    """Run the MDI protocol on the missing (seed, method) rows of ``config``.
 
     Args:
         task: the task (its learner env is rolled out).
-        run: the run folder; results go to ``eval/mdi.csv``, ``eval/mdi_rows.jsonl`` (the resume
-            log, one line per finished seed) and ``eval/heads/mdi-<method>-<shot>/``.
-        config: seeds, fits and early stop.
-        groundtruth: pi*'s ``policy.safetensors``.
-        mapper_path: the mapper used as initialiser (a ``mapper.safetensors``).
-        control_paths: the mapper file of every kind in ``config.controls``.
+        layout: the run folder; results go to ``eval/mdi.csv``, ``eval/mdi_rows.jsonl`` (the resume
+            log) and ``eval/heads/mdi-<method>-<shot>/``; pi* and the mappers are read from it.
+        config: seeds, fits (``bc`` resolved), early stop, initialisers.
+        rebuild: redo rows made from another pi*, mapper or settings (else they are an error).
         executor: ``"local"`` or ``"ray"`` (see :func:`metadagger.parallel.make_executor`).
         workers: parallel workers (default: all cores / the cluster's CPUs).
         address: Ray cluster address.
@@ -283,25 +291,24 @@ def evaluate_mdi(
 
     Returns:
         The rows (:data:`MDI_FIELDS`) of every seed of ``config``, by seed then in
-        ``config.methods`` order. A seed logged without some of ``config.methods`` (controls
-        added later) is evaluated again.
+        ``config.methods`` order.
     """
-    run, groundtruth = Path(run), Path(groundtruth)
-    paths = {**(control_paths or {}), config.mapper: mapper_path}
-    mappers = {method: Path(paths[kind]) for method, kind in config.kinds.items() if kind in paths}
-    _check_inputs(task, run, config, groundtruth, mappers)
-    log = RowLog(run / "eval" / "mdi_rows.jsonl")
-    done = log.done_seeds(methods=config.methods)
-    jobs = [MDIJob(task=task, groundtruth=str(groundtruth), mappers={m: str(p) for m, p in mappers.items()}, seed=s, config=config)
-            for s in config.seeds if s not in done]
-    if jobs:
-        with make_executor(executor, workers=workers, address=address) as pool:
-            for result in tqdm(pool.imap_unordered(evaluate_mdi_seed, jobs), total=len(jobs), desc="mdi", disable=not progress):
-                for (method, shot), head in result["heads"].items():
-                    save_tensors(head_dir(run, method, shot) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
-                # logged last: a seed counts as done only once its heads are on disk
-                log.append(result["seed"], result["rows"])
-    seeds = set(config.seeds)
-    rows = [r for r in log.rows() if r["seed"] in seeds]
-    write_csv(run / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
+    if config.bc is None:
+        raise UserError("mdi.bc is unresolved; build the run config with RunConfig (it takes pairs.bc)")
+    _check_inputs(task, layout, config)
+    stamps = mdi_stamps(task, layout, config)
+    log = RowLog(layout.eval_log("mdi"))
+    todo = plan(config.seeds, stamps, log, rebuild=rebuild, what="MDI evaluation",
+                fix=f"run `metadagger evaluate --out {layout.root} --protocol mdi --rebuild` to redo it, or `metadagger reproduce`")
+    jobs = [MDIJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config,
+                   mappers={m: str(layout.mapper(config.kinds[m])) for m in p.methods if m in config.kinds}) for p in todo]
+
+    def save(result: dict[str, Any]) -> None:
+        for (method, shot), head in result["heads"].items():
+            save_tensors(layout.heads(head_folder(method, shot)) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
+
+    drive(evaluate_mdi_seed, jobs, log=log, stamps=stamps, save=save, executor=executor, workers=workers,
+          address=address, progress=progress, desc="mdi")
+    rows = log.rows(config.seeds, stamps)
+    write_csv(layout.eval_table("mdi"), rows, fields=MDI_FIELDS)
     return rows

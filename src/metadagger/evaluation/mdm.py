@@ -11,24 +11,26 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
-from metadagger.evaluation.rows import RowLog, write_csv
+from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import save_tensors
+from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
+from metadagger.mapping.registry import kind_names
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
-from metadagger.parallel import make_executor
+from metadagger.runner import RowLog, Stamp, drive, plan
+from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
-MAPPER_METHODS = ("dm", "sam", "tam", "mean-da", "pistar-head")
+#: Prefix of the one-shot rows of a mapper kind: ``oneshot-<kind>``.
+ONESHOT_PREFIX = "oneshot-"
 
 
 @dataclass(frozen=True)
@@ -37,45 +39,52 @@ class EvalConfig:
 
     seeds: tuple[int, ...] = tuple(range(5000, 5020))
     """Unseen seeds (never used for pi* or pairs); the paper uses 20."""
-    methods: tuple[str, ...] = MAPPER_METHODS
-    """Mappers evaluated beside BC: dm, sam, tam and the controls mean-da and pistar-head."""
+    methods: tuple[str, ...] = ("dm", "sam", "tam", "mean-da", "pistar-head")
+    """Mapper kinds evaluated beside BC (:mod:`metadagger.mapping.registry`): the paper's dm, sam,
+    tam and the controls mean-da and pistar-head."""
     oneshot: bool = True
     """Also run one-shot learning for every mapper that fails on a seed (Tables 3-5)."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
             raise UserError("evaluate.seeds must not be empty")
-        unknown = sorted(set(self.methods) - set(MAPPER_METHODS))
+        unknown = sorted(set(self.methods) - set(kind_names()))
         if unknown:
-            raise UserError(f"evaluate.methods has unknown method(s) {unknown}; allowed: {', '.join(MAPPER_METHODS)}")
+            raise UserError(f"evaluate.methods has unknown method(s) {unknown}; allowed: {', '.join(kind_names())}")
+        if len(set(self.methods)) != len(self.methods):
+            raise UserError(f"evaluate.methods lists a method twice: {list(self.methods)}; list each once")
 
 
 @dataclass(frozen=True)
 class EvalJob:
-    """One seed's evaluation (picklable)."""
+    """One seed's evaluation (picklable): the methods it still needs."""
 
     task: Task
     groundtruth: str
     mappers: dict[str, str]
+    """Mapper file of every kind this job evaluates."""
     seed: int
+    methods: tuple[str, ...]
+    """``bc`` and/or mapper kinds."""
     bc: BCConfig
     oneshot: bool
 
 
 def evaluate_seed(job: EvalJob) -> dict[str, Any]:
-    """Evaluate BC, every mapper and their one-shot refits on one seed."""
+    """Evaluate BC and the job's mappers (and their one-shot refits) on one seed; returns
+    ``seed``, ``entries`` (``{method: rows}``) and ``heads`` (``{row method: head}``)."""
     policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.seed)
     bc_config = dataclasses.replace(job.bc, seed=job.seed)
     env = job.task.make_env()
-    rows: list[dict[str, Any]] = []
+    entries: dict[str, list[dict[str, Any]]] = {}
     heads: dict[str, np.ndarray] = {}
 
-    def run(method: str, head: np.ndarray, queries: int) -> bool:
+    def run(owner: str, method: str, head: np.ndarray, queries: int) -> bool:
         policy.load_head_vector(torch.from_numpy(head))
         traj = rollout(env, seed=job.seed, policy=policy)
         heads[method] = head
-        rows.append({"method": method, "seed": job.seed, "success": bool(traj.success), "reward": float(traj.reward),
-                     "steps": int(traj.steps), "expert_queries": queries})
+        entries.setdefault(owner, []).append({"method": method, "seed": job.seed, "success": bool(traj.success),
+                                              "reward": float(traj.reward), "steps": int(traj.steps), "expert_queries": queries})
         return bool(traj.success)
 
     try:
@@ -83,53 +92,65 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
         cache = FeatureCache(policy)
         fit_bc(policy, demo, bc_config, cache=cache)
         w_bc = policy.head_vector().numpy().copy()
-        run("bc", w_bc, len(demo))
-        failed = [m for m, path in job.mappers.items() if not run(m, cached_mapper(path)(w_bc), len(demo))]
-        for method in failed if job.oneshot else []:
-            policy.load_head_vector(torch.from_numpy(heads[method]))
+        if "bc" in job.methods:
+            run("bc", "bc", w_bc, len(demo))
+        for kind in (m for m in job.methods if m != "bc"):
+            mapped = cached_mapper(job.mappers[kind])(w_bc)
+            if run(kind, kind, mapped, len(demo)) or not job.oneshot:
+                continue
+            policy.load_head_vector(torch.from_numpy(mapped))
             fit_bc(policy, demo, bc_config, cache=cache)
             # one-shot reuses the same demonstration: no further expert queries
-            run(f"oneshot-{method}", policy.head_vector().numpy().copy(), len(demo))
+            run(kind, ONESHOT_PREFIX + kind, policy.head_vector().numpy().copy(), len(demo))
     finally:
         env.close()
-    return {"seed": job.seed, "rows": rows, "heads": heads}
+    return {"seed": job.seed, "entries": entries, "heads": heads}
 
 
-def mapper_path(run: str | Path, kind: str) -> Path:
-    """Where the mapper of ``kind`` of a run lives."""
-    return Path(run) / "mappers" / kind / "mapper.safetensors"
+def mdm_stamps(task: Task, layout: RunLayout, config: EvalConfig, bc: BCConfig) -> dict[str, Stamp]:
+    """What each MDM method's rows are made from: the protocol's settings, pi* and its mapper."""
+    common = {"protocol": "mdm", "task": task.name, "bc": stamp_of(bc), "oneshot": config.oneshot,
+              "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
+    return {"bc": common, **{kind: {**common, "mapper_fingerprint": file_fingerprint(layout.mapper(kind))}
+                             for kind in config.methods}}
 
 
 def evaluate_run(
     task: Task,
-    run: str | Path,
+    layout: RunLayout,
     config: EvalConfig,
     *,
-    groundtruth: str | Path,
     bc: BCConfig,
+    rebuild: bool = False,
     executor: str = "local",
     workers: int | None = None,
     address: str | None = None,
     progress: bool = True,
 ) -> list[dict[str, Any]]:
-    """Evaluate every seed of ``config`` not evaluated yet; return all rows of those seeds and
-    write ``eval/mdm.csv`` (BC + mappers) and, when ``config.oneshot``, ``eval/oneshot.csv``."""
-    run = Path(run)
-    mappers = {m: str(mapper_path(run, m)) for m in config.methods}
-    missing = [m for m, p in mappers.items() if not Path(p).is_file()]
+    """Evaluate the missing (seed, method) rows of ``config``; write ``eval/mdm.csv`` (BC +
+    mappers) and, when ``config.oneshot``, ``eval/oneshot.csv``; return the rows of ``config``.
+
+    Rows made from another pi*, mapper or settings are redone with ``rebuild``, else an error.
+    """
+    missing = [m for m in config.methods if not layout.mapper(m).is_file()]
     if missing:
-        raise UserError(f"mappers not trained yet: {', '.join(missing)}; run `metadagger train-mapper --out {run} --kind all` first")
-    log = RowLog(run / "eval" / "rows.jsonl")
-    todo = [s for s in config.seeds if s not in log.done_seeds()]
-    jobs = [EvalJob(task=task, groundtruth=str(groundtruth), mappers=mappers, seed=s, bc=bc, oneshot=config.oneshot) for s in todo]
-    if jobs:
-        with make_executor(executor, workers=workers, address=address) as pool:
-            for result in tqdm(pool.imap_unordered(evaluate_seed, jobs), total=len(jobs), desc="evaluate", disable=not progress):
-                for method, head in result["heads"].items():
-                    save_tensors(run / "eval" / "heads" / method / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
-                log.append(result["seed"], result["rows"])
-    rows = [r for r in log.rows() if r["seed"] in set(config.seeds)]
-    write_csv(run / "eval" / "mdm.csv", [r for r in rows if not r["method"].startswith("oneshot-")])
+        raise UserError(f"mappers not trained yet: {', '.join(missing)}; run `metadagger train-mapper --out {layout.root} --kind all` first")
+    stamps = mdm_stamps(task, layout, config, bc)
+    log = RowLog(layout.eval_log("mdm"))
+    todo = plan(config.seeds, stamps, log, rebuild=rebuild, what="MDM evaluation",
+                fix=f"run `metadagger evaluate --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`")
+    mappers = {m: str(layout.mapper(m)) for m in config.methods}
+    jobs = [EvalJob(task=task, groundtruth=str(layout.groundtruth), mappers=mappers, seed=p.seed, methods=p.methods,
+                    bc=bc, oneshot=config.oneshot) for p in todo]
+
+    def save(result: dict[str, Any]) -> None:
+        for method, head in result["heads"].items():
+            save_tensors(layout.heads(method) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
+
+    drive(evaluate_seed, jobs, log=log, stamps=stamps, save=save, executor=executor, workers=workers,
+          address=address, progress=progress, desc="evaluate")
+    rows = log.rows(config.seeds, stamps)
+    write_csv(layout.eval_table("mdm"), [r for r in rows if not r["method"].startswith(ONESHOT_PREFIX)])
     if config.oneshot:
-        write_csv(run / "eval" / "oneshot.csv", [r for r in rows if r["method"].startswith("oneshot-")])
+        write_csv(layout.eval_table("oneshot"), [r for r in rows if r["method"].startswith(ONESHOT_PREFIX)])
     return rows

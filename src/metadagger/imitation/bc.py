@@ -43,15 +43,15 @@ class BCConfig:
 
     def __post_init__(self) -> None:
         if not self.lr > 0:
-            raise ValueError(f"BCConfig.lr must be > 0, got {self.lr}")
+            raise UserError(f"BCConfig.lr must be > 0, got {self.lr}")
         if not isinstance(self.batch_size, int) or self.batch_size < 1:
-            raise ValueError(f"BCConfig.batch_size must be an integer >= 1, got {self.batch_size!r}")
+            raise UserError(f"BCConfig.batch_size must be an integer >= 1, got {self.batch_size!r}")
         if not isinstance(self.epochs, int) or self.epochs < 1:
-            raise ValueError(f"BCConfig.epochs must be an integer >= 1, got {self.epochs!r}")
+            raise UserError(f"BCConfig.epochs must be an integer >= 1, got {self.epochs!r}")
         if not self.weight_decay >= 0:
-            raise ValueError(f"BCConfig.weight_decay must be >= 0, got {self.weight_decay}")
+            raise UserError(f"BCConfig.weight_decay must be >= 0, got {self.weight_decay}")
         if not isinstance(self.seed, int):
-            raise ValueError(f"BCConfig.seed must be an integer, got {self.seed!r}")
+            raise UserError(f"BCConfig.seed must be an integer, got {self.seed!r}")
 
 
 class FeatureCache:

@@ -9,6 +9,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 from tqdm.auto import tqdm
 
+from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import EarlyStop, collect
@@ -30,9 +31,9 @@ class DAggerConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.rounds, int) or self.rounds < 1:
-            raise ValueError(f"DAggerConfig.rounds must be an integer >= 1, got {self.rounds!r}")
+            raise UserError(f"DAggerConfig.rounds must be an integer >= 1, got {self.rounds!r}")
         if not isinstance(self.bc, BCConfig):
-            raise ValueError(f"DAggerConfig.bc must be a BCConfig, got {type(self.bc).__name__}")
+            raise UserError(f"DAggerConfig.bc must be a BCConfig, got {type(self.bc).__name__}")
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,7 @@
 """Mappers f: w_BC -> estimate of w_DA on flat head vectors (paper section 3.3), saved and loaded.
 
-Kinds:
-    ``dm``: one MLP from standardised w_BC to standardised w_DA (3.3.1).
-    ``sam``: one autoencoder sigma_ALL of w_BC and w_DA, f = D_ALL(h(E_ALL(w))) (3.3.2).
-    ``tam``: autoencoders sigma_BC and sigma_DA, f = D_DA(h(E_BC(w))) (3.3.2).
-    ``mean-da``: control, always the training set's mean w_DA.
-    ``pistar-head``: control, always a given vector (pi*'s own head).
+The kinds (DM, SAM, TAM and the controls mean-DA and pi*-head) are declared in
+:mod:`metadagger.mapping.registry`.
 
 Every learned kind works in standardised space: a :class:`Standardizer` per data set, fitted on
 the training split only and saved with the mapper. A mapper is one safetensors file whose
@@ -18,7 +14,7 @@ import functools
 import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import torch
@@ -26,48 +22,16 @@ from torch import nn
 
 from metadagger.errors import CheckpointError, UserError
 from metadagger.io import load_tensors, read_metadata, save_tensors
-from metadagger.mapping.autoencoder import Autoencoder
-from metadagger.mapping.blocks import mlp
+from metadagger.mapping.registry import get_kind
 from metadagger.version import __version__
 
-__all__ = [
-    "ARCH_FIELDS",
-    "CONTROL_KINDS",
-    "KINDS",
-    "LEARNED_KINDS",
-    "ROUTES",
-    "Mapper",
-    "Route",
-    "Standardizer",
-    "build_networks",
-    "load_mapper",
-]
+__all__ = ["ARCH_FIELDS", "Mapper", "Standardizer", "build_networks", "cached_mapper", "load_mapper"]
 
-LEARNED_KINDS = ("dm", "sam", "tam")
-CONTROL_KINDS = ("mean-da", "pistar-head")
-KINDS = LEARNED_KINDS + CONTROL_KINDS
 ARCH_FIELDS = ("hidden", "latent", "ae_hidden", "batchnorm", "dropout", "ae_dropout")
 """The config fields that decide the networks' shapes (stored with every mapper)."""
 
 _FORMAT = "metadagger.mapper"
 _FORMAT_VERSION = 1
-
-
-class Route(NamedTuple):
-    """How a learned kind maps: standardise, encode, core network, decode, unstandardise."""
-
-    in_scaler: str
-    encoder: str | None
-    core: str
-    decoder: str | None
-    out_scaler: str
-
-
-ROUTES = {
-    "dm": Route(in_scaler="bc", encoder=None, core="dm", decoder=None, out_scaler="da"),
-    "sam": Route(in_scaler="all", encoder="sigma_all", core="h", decoder="sigma_all", out_scaler="all"),
-    "tam": Route(in_scaler="bc", encoder="sigma_bc", core="h", decoder="sigma_da", out_scaler="da"),
-}
 
 
 class Standardizer:
@@ -108,32 +72,10 @@ class Standardizer:
         return z * self.std + self.mean
 
 
-def build_networks(
-    kind: str,
-    dim: int,
-    *,
-    hidden: Sequence[int],
-    latent: int,
-    ae_hidden: Sequence[int],
-    batchnorm: bool,
-    dropout: float,
-    ae_dropout: float,
-    generator: torch.Generator | None = None,
-) -> dict[str, nn.Module]:
-    """The untrained networks of a kind, named as in :data:`ROUTES` (none for the controls).
-
-    Autoencoders are built before h, so one generator gives the same weights every time.
-    """
-    if kind == "dm":
-        return {"dm": mlp(dim, hidden, dim, batchnorm=batchnorm, dropout=dropout, generator=generator)}
-    names = {"sam": ("sigma_all",), "tam": ("sigma_bc", "sigma_da")}.get(kind, ())
-    nets: dict[str, nn.Module] = {
-        name: Autoencoder(dim=dim, hidden=ae_hidden, latent=latent, batchnorm=batchnorm, dropout=ae_dropout, generator=generator)
-        for name in names
-    }
-    if names:
-        nets["h"] = mlp(latent, hidden, latent, batchnorm=batchnorm, dropout=dropout, generator=generator)
-    return nets
+def build_networks(kind: str, dim: int, *, generator: torch.Generator | None = None, **arch: Any) -> dict[str, nn.Module]:
+    """The untrained networks of a learned kind (``arch``: the :data:`ARCH_FIELDS`); none for a control."""
+    spec = get_kind(kind)
+    return spec.build(dim, generator=generator, **arch) if spec.build else {}
 
 
 class Mapper:
@@ -143,12 +85,13 @@ class Mapper:
     :meth:`pistar_head` or :func:`load_mapper`.
 
     Args:
-        kind: one of :data:`KINDS`.
+        kind: a kind of :mod:`metadagger.mapping.registry`.
         dim: length of the head vectors.
-        networks: the trained modules, named as in :data:`ROUTES` (learned kinds).
-        scalers: the standardisers, named as in :data:`ROUTES` (learned kinds).
+        networks: the trained modules, named as in the kind's route (learned kinds).
+        scalers: the standardisers, named as in the kind's route (learned kinds).
         constant: the vector a control always returns (controls).
         config: the training config as plain JSON data; its :data:`ARCH_FIELDS` rebuild the networks.
+        stamp: what it was made from (config and the fingerprint of its training data), saved with it.
     """
 
     def __init__(
@@ -160,44 +103,46 @@ class Mapper:
         scalers: Mapping[str, Standardizer] | None = None,
         constant: torch.Tensor | None = None,
         config: Mapping[str, Any] | None = None,
+        stamp: Mapping[str, Any] | None = None,
     ) -> None:
-        if kind not in KINDS:
-            raise UserError(f"unknown mapper kind {kind!r}: expected one of {', '.join(KINDS)}")
+        spec = get_kind(kind)
         self.kind = kind
         self.dim = int(dim)
         self.networks = dict(networks or {})
         self.scalers = dict(scalers or {})
         self.constant = constant
         self.config = dict(config or {})
-        if kind in CONTROL_KINDS:
+        self.stamp = dict(stamp or {})
+        if not spec.learned:
             if constant is None or tuple(constant.shape) != (self.dim,) or constant.dtype != torch.float32:
                 got = None if constant is None else f"{constant.dtype} {tuple(constant.shape)}"
                 raise ValueError(f"a {kind} mapper needs a float32 constant of shape ({self.dim},), got {got}")
-        else:
-            route = ROUTES[kind]
-            want_nets = {route.core, *(n for n in (route.encoder, route.decoder) if n)}
-            want_scalers = {route.in_scaler, route.out_scaler}
-            if set(self.networks) != want_nets or set(self.scalers) != want_scalers:
-                raise ValueError(
-                    f"a {kind} mapper needs networks {sorted(want_nets)} and scalers {sorted(want_scalers)}, "
-                    f"got {sorted(self.networks)} and {sorted(self.scalers)}"
-                )
+        elif set(self.networks) != set(spec.network_names) or set(self.scalers) != set(spec.scaler_names):
+            raise ValueError(
+                f"a {kind} mapper needs networks {sorted(spec.network_names)} and scalers {sorted(spec.scaler_names)}, "
+                f"got {sorted(self.networks)} and {sorted(self.scalers)}"
+            )
 
     @classmethod
     def mean_da(cls, w_da_train: np.ndarray | torch.Tensor, *, config: Mapping[str, Any] | None = None) -> Mapper:
         """The ``mean-da`` control: always the mean of the training w_DA rows ``[N, d]``."""
-        w = _as_float32(w_da_train)
-        if w.ndim != 2 or w.shape[0] == 0:
-            raise UserError(f"mean-da needs training rows [N, d] with N >= 1, got shape {tuple(w.shape)}")
-        return cls(kind="mean-da", dim=w.shape[1], constant=w.mean(dim=0), config=config or {"kind": "mean-da"})
+        return cls.control("mean-da", w_da_train=_as_float32(w_da_train), config=config)
 
     @classmethod
     def pistar_head(cls, head: np.ndarray | torch.Tensor, *, config: Mapping[str, Any] | None = None) -> Mapper:
         """The ``pistar-head`` control: always ``head`` (pi*'s own head vector, 1-D)."""
-        v = _as_float32(head)
-        if v.ndim != 1 or v.numel() == 0:
-            raise UserError(f"pistar_head must be a non-empty 1-D head vector, got shape {tuple(v.shape)}; pass pi*'s policy.head_vector()")
-        return cls(kind="pistar-head", dim=v.shape[0], constant=v.clone(), config=config or {"kind": "pistar-head"})
+        return cls.control("pistar-head", pistar_head=_as_float32(head), config=config)
+
+    @classmethod
+    def control(cls, kind: str, *, w_da_train: torch.Tensor | None = None, pistar_head: torch.Tensor | None = None,
+                config: Mapping[str, Any] | None = None) -> Mapper:
+        """The control ``kind``, its constant computed from the training w_DA rows or pi*'s head."""
+        spec = get_kind(kind)
+        if spec.constant is None:
+            raise UserError(f"mapper kind {kind!r} is learned, not a control; train it with train_mapper")
+        w_da = torch.zeros(0, 0) if w_da_train is None else w_da_train
+        constant = spec.constant(w_da, pistar_head).to(torch.float32)
+        return cls(kind=kind, dim=constant.shape[0], constant=constant, config=config or {"kind": kind})
 
     @property
     def in_dim(self) -> int:
@@ -229,7 +174,7 @@ class Mapper:
         """Map a float32 tensor ``[N, d]`` without input checks (eval mode, no gradients)."""
         if self.constant is not None:
             return self.constant.expand(w.shape[0], -1).clone()
-        route = ROUTES[self.kind]
+        route = get_kind(self.kind).route
         for net in self.networks.values():
             net.eval()
         with torch.inference_mode():
@@ -257,6 +202,7 @@ class Mapper:
             "kind": self.kind,
             "dim": str(self.dim),
             "config": json.dumps(self.config, sort_keys=True),
+            "stamp": json.dumps(self.stamp, sort_keys=True),
             "metadagger_version": __version__,
         }
         return save_tensors(path, tensors, metadata=metadata)
@@ -277,10 +223,10 @@ def load_mapper(path: str | Path) -> Mapper:
         kind = meta["kind"]
         dim = int(meta["dim"])
         config = json.loads(meta["config"])
-        if kind not in KINDS:
-            raise ValueError(f"unknown kind {kind!r}")
-        if kind in CONTROL_KINDS:
-            return Mapper(kind=kind, dim=dim, constant=tensors["constant"], config=config)
+        stamp = json.loads(meta.get("stamp", "{}"))
+        spec = get_kind(kind)
+        if not spec.learned:
+            return Mapper(kind=kind, dim=dim, constant=tensors["constant"], config=config, stamp=stamp)
         # A throwaway generator: rebuilding must not consume the caller's global torch RNG.
         arch = {field: config[field] for field in ARCH_FIELDS}
         networks = build_networks(kind, dim, **arch, generator=torch.Generator().manual_seed(0))
@@ -289,9 +235,11 @@ def load_mapper(path: str | Path) -> Mapper:
             net.load_state_dict({k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}, strict=True)
         scalers = {
             name: Standardizer(mean=tensors[f"scalers.{name}.mean"], std=tensors[f"scalers.{name}.std"])
-            for name in {ROUTES[kind].in_scaler, ROUTES[kind].out_scaler}
+            for name in spec.scaler_names
         }
-        return Mapper(kind=kind, dim=dim, networks=networks, scalers=scalers, config=config)
+        return Mapper(kind=kind, dim=dim, networks=networks, scalers=scalers, config=config, stamp=stamp)
+    except UserError as exc:
+        raise CheckpointError(f"mapper file {path}: {exc}; delete it and re-run train-mapper") from None
     except (KeyError, ValueError, TypeError, RuntimeError) as exc:
         raise CheckpointError(f"mapper file {path} does not match its own metadata ({exc}); delete it and re-run train-mapper") from None
 

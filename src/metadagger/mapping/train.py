@@ -27,13 +27,13 @@ from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
 from metadagger.io import write_text
-from metadagger.mapping.mappers import ARCH_FIELDS, KINDS, LEARNED_KINDS, ROUTES, Mapper, Route, Standardizer, build_networks, load_mapper
+from metadagger.layout import CURVES_FILE, MAPPER_FILE
+from metadagger.mapping.mappers import ARCH_FIELDS, Mapper, Standardizer, build_networks, load_mapper
+from metadagger.mapping.registry import Route, get_kind, kind_names
 from metadagger.metal.store import PairSplit
+from metadagger.stamps import data_fingerprint, describe_changes
 
-__all__ = ["CURVE_COLUMNS", "PAPER_EPOCHS", "MapperConfig", "evaluate_mapping", "paper_config", "train_mapper"]
-
-PAPER_EPOCHS = {"dm": 500, "sam": 1000, "tam": 1000}
-"""Mapper training epochs of the paper's Table 8 (CarRacing); Table 9 (Fetch) uses 2000."""
+__all__ = ["CURVE_COLUMNS", "MapperConfig", "evaluate_mapping", "paper_config", "train_mapper"]
 
 CURVE_COLUMNS = ("model", "epoch", "train_loss", "val_loss", "train_mse_weights", "val_mse_weights")
 """``curves.csv`` columns. ``*_loss``: the model's own MSE (standardised weights, or latent codes
@@ -79,28 +79,28 @@ class MapperConfig:
     """Seeds the initial weights, the batch order and Dropout."""
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise ValueError(f"MapperConfig.kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        if self.kind not in kind_names():
+            raise UserError(f"MapperConfig.kind must be one of {', '.join(kind_names())}, got {self.kind!r}")
         for name in ("hidden", "ae_hidden"):
             widths = getattr(self, name)
             if not isinstance(widths, tuple) or not all(_is_int(w) and w >= 1 for w in widths):
-                raise ValueError(f"MapperConfig.{name} must be a tuple of integers >= 1, got {widths!r}")
+                raise UserError(f"MapperConfig.{name} must be a tuple of integers >= 1, got {widths!r}")
         for name in ("latent", "batch_size", "epochs", "ae_epochs"):
             value = getattr(self, name)
             if not _is_int(value) or value < 1:
-                raise ValueError(f"MapperConfig.{name} must be an integer >= 1, got {value!r}")
+                raise UserError(f"MapperConfig.{name} must be an integer >= 1, got {value!r}")
         if not isinstance(self.batchnorm, bool):
-            raise ValueError(f"MapperConfig.batchnorm must be a bool, got {self.batchnorm!r}")
+            raise UserError(f"MapperConfig.batchnorm must be a bool, got {self.batchnorm!r}")
         for name in ("dropout", "ae_dropout"):
             if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"MapperConfig.{name} must be in [0, 1), got {getattr(self, name)!r}")
+                raise UserError(f"MapperConfig.{name} must be in [0, 1), got {getattr(self, name)!r}")
         if not self.lr > 0:
-            raise ValueError(f"MapperConfig.lr must be > 0, got {self.lr!r}")
+            raise UserError(f"MapperConfig.lr must be > 0, got {self.lr!r}")
         for name in ("weight_decay", "ae_weight_decay"):
             if not getattr(self, name) >= 0:
-                raise ValueError(f"MapperConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+                raise UserError(f"MapperConfig.{name} must be >= 0, got {getattr(self, name)!r}")
         if not _is_int(self.seed):
-            raise ValueError(f"MapperConfig.seed must be an integer, got {self.seed!r}")
+            raise UserError(f"MapperConfig.seed must be an integer, got {self.seed!r}")
 
 
 def paper_config(kind: str, **overrides: Any) -> MapperConfig:
@@ -108,7 +108,8 @@ def paper_config(kind: str, **overrides: Any) -> MapperConfig:
 
     For Fetch (Table 9) pass ``epochs=2000``.
     """
-    return MapperConfig(**{"kind": kind, "epochs": PAPER_EPOCHS.get(kind, MapperConfig.epochs), **overrides})
+    epochs = get_kind(kind).paper_epochs or MapperConfig.epochs
+    return MapperConfig(**{"kind": kind, "epochs": epochs, **overrides})
 
 
 def train_mapper(
@@ -117,47 +118,59 @@ def train_mapper(
     out_dir: str | Path,
     *,
     pistar_head: np.ndarray | torch.Tensor | None = None,
+    rebuild: bool = False,
     progress: bool = True,
 ) -> Mapper:
-    """Train (or, if ``out_dir/mapper.safetensors`` exists, load) a mapper of ``config.kind``.
+    """Train (or, if ``out_dir/mapper.safetensors`` exists and was made from the same config and
+    data, load) a mapper of ``config.kind``.
 
     Args:
         split: training and validation pairs; only the training rows fit weights and standardisers.
         config: architecture and optimiser settings.
         out_dir: receives ``mapper.safetensors`` and ``curves.csv``.
         pistar_head: pi*'s head vector, required by the ``pistar-head`` control.
+        rebuild: retrain a mapper in ``out_dir`` that was made from another config or other pairs.
         progress: show a progress bar per training stage.
 
     Returns:
-        The mapper, in eval mode (the same one ``load_mapper(out_dir / "mapper.safetensors")`` gives).
+        The mapper, in eval mode (the same one ``load_mapper(out_dir / MAPPER_FILE)`` gives).
 
     Raises:
-        UserError: too few training pairs, a missing or mis-sized ``pistar_head``, or an existing
-            mapper in ``out_dir`` trained with another config.
+        UserError: too few training pairs, a missing or mis-sized ``pistar_head``, or (without
+            ``rebuild``) an existing mapper in ``out_dir`` made from another config or other pairs.
     """
     out_dir = Path(out_dir)
-    path = out_dir / "mapper.safetensors"
+    path = out_dir / MAPPER_FILE
     dim = split.w_bc_train.shape[1]
     config_data = json.loads(json.dumps(dataclasses.asdict(config)))
+    stamp = mapper_stamp(split, config, pistar_head)
     if path.exists():
-        return _resume(path, dim, config_data)
-    if config.kind in LEARNED_KINDS and len(split.train_seeds) < 2:
+        existing = load_mapper(path)
+        changes = describe_changes(existing.stamp, stamp)
+        if not changes:
+            return existing
+        if not rebuild:
+            raise UserError(f"{path} holds a mapper made from other inputs ({'; '.join(changes)}); "
+                            "pass --rebuild to retrain it, or run `metadagger reproduce`")
+    if get_kind(config.kind).learned and len(split.train_seeds) < 2:
         raise UserError(f"a {config.kind} mapper needs at least 2 training pairs, got {len(split.train_seeds)}; collect more seeds or lower val_fraction")
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)  # Dropout draws from torch's global generator
         mapper, rows = _train(split, config, config_data, pistar_head, progress)
-    _write_curves(out_dir / "curves.csv", rows)
+    mapper.stamp = stamp
+    _write_curves(out_dir / CURVES_FILE, rows)
     mapper.save(path)  # last: its presence means every artifact of this stage is complete
     return mapper
 
 
-def _resume(path: Path, dim: int, config_data: dict[str, Any]) -> Mapper:
-    mapper = load_mapper(path)
-    differing = sorted(k for k in set(config_data) | set(mapper.config) if config_data.get(k) != mapper.config.get(k))
-    if mapper.dim != dim or differing:
-        what = f"length {mapper.dim} (pairs have {dim})" if mapper.dim != dim else f"another config ({', '.join(differing)} differ)"
-        raise UserError(f"{path} holds a mapper with {what}; delete it to retrain, or write to another output folder")
-    return mapper
+def mapper_stamp(split: PairSplit, config: MapperConfig, pistar_head: np.ndarray | torch.Tensor | None = None) -> dict[str, Any]:
+    """What a mapper is made from: its config and a fingerprint of its training data (the split's
+    seeds and tensors, and pi*'s head for the ``pistar-head`` control)."""
+    parts: list[Any] = [list(split.train_seeds), list(split.val_seeds)]
+    parts += [t.contiguous().numpy().tobytes() for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val)]
+    if pistar_head is not None and config.kind == "pistar-head":
+        parts.append(torch.as_tensor(pistar_head, dtype=torch.float32).numpy().tobytes())
+    return {"config": json.loads(json.dumps(dataclasses.asdict(config))), "pairs_fingerprint": data_fingerprint(*parts)}
 
 
 def _train(
@@ -169,13 +182,10 @@ def _train(
     def weight_mse(mapper: Mapper) -> tuple[float, float]:
         return _mse(mapper.map_tensor(bc_tr), da_tr), _mse(mapper.map_tensor(bc_va), da_va)
 
-    if config.kind not in LEARNED_KINDS:
-        if config.kind == "mean-da":
-            mapper = Mapper.mean_da(da_tr, config=config_data)
-        elif pistar_head is None:
-            raise UserError("the pistar-head control needs pistar_head=pi*'s head vector (policy.head_vector())")
-        else:
-            mapper = Mapper.pistar_head(pistar_head, config=config_data)
+    spec = get_kind(config.kind)
+    if not spec.learned:
+        head = None if pistar_head is None else torch.as_tensor(pistar_head, dtype=torch.float32)
+        mapper = Mapper.control(config.kind, w_da_train=da_tr, pistar_head=head, config=config_data)
         if mapper.dim != dim:
             raise UserError(f"pistar_head has length {mapper.dim}, expected {dim}: the head of the policy the pairs came from")
         train_w, val_w = weight_mse(mapper)
@@ -183,7 +193,7 @@ def _train(
 
     generator = torch.Generator().manual_seed(config.seed)
     networks = build_networks(config.kind, dim, **{f: getattr(config, f) for f in ARCH_FIELDS}, generator=generator)
-    route = ROUTES[config.kind]
+    route = spec.route
     scalers = (
         {"all": Standardizer.fit(torch.cat([bc_tr, da_tr]))}
         if route.in_scaler == "all"

@@ -1,17 +1,17 @@
 """The ground-truth policy pi* (paper 3.4.1): one BC fit on expert demos of K seeds, then DAgger
 rounds over all K seeds. Its layers 1..n-1 are frozen into every per-seed policy afterwards.
 
-Artifacts under ``<run>/groundtruth/``: ``policy.safetensors`` (pi*), ``metrics.json`` (success on
-its own seeds and on unseen seeds) and ``rounds/round_<k>.safetensors`` checkpoints, so a killed
-run resumes after its last finished fit.
+Artifacts (paths from :class:`~metadagger.layout.RunLayout`): pi*, its metrics (success on its
+own seeds and on unseen seeds), the stamp of the config it is made from (written first) and
+per-round checkpoints, so a killed run resumes after its last finished fit.
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import shutil
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from metadagger.errors import UserError
 from metadagger.imitation.episodes import evaluate_policy
@@ -21,7 +21,9 @@ from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import collect
 from metadagger.io import write_json
+from metadagger.layout import RunLayout
 from metadagger.policies import Policy, load_policy, make_policy
+from metadagger.stamps import describe_changes, stamp_of
 from metadagger.tasks.base import Task
 
 
@@ -51,35 +53,53 @@ class GroundTruthConfig:
             raise UserError("groundtruth.bc.head_only must be false: pi* trains the whole policy")
 
 
-def groundtruth_path(run: str | Path) -> Path:
-    """Where pi* of a run lives."""
-    return Path(run) / "groundtruth" / "policy.safetensors"
+def groundtruth_stamp(task: Task, config: GroundTruthConfig) -> dict:
+    """What pi* is made from: the task and every setting of its training."""
+    return {"task": task.name, "max_episode_steps": task.max_episode_steps, **stamp_of(config)}
 
 
-def train_groundtruth(task: Task, config: GroundTruthConfig, run: str | Path, *, progress: bool = True) -> dict:
-    """Train pi* (or reuse a finished one) and return its metrics."""
-    folder = Path(run) / "groundtruth"
-    if groundtruth_path(run).is_file() and (folder / "metrics.json").is_file():
-        return json.loads((folder / "metrics.json").read_text())
-    rounds_dir = folder / "rounds"
+def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout) -> list[str]:
+    """How the recorded pi* differs from one ``config`` would make (``[]``: the same, or none yet)."""
+    if not layout.groundtruth_stamp.is_file():
+        return ["no stamp: made by an older metadagger"] if layout.groundtruth.is_file() else []
+    return describe_changes(json.loads(layout.groundtruth_stamp.read_text()), groundtruth_stamp(task, config))
+
+
+def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, *, rebuild: bool = False,
+                      progress: bool = True) -> dict:
+    """Train pi* (or reuse a finished one made from the same config) and return its metrics.
+
+    Raises:
+        UserError: the run's pi* (finished or not) was made from another config and ``rebuild``
+            is off; the message names the fields that differ.
+    """
+    changes = groundtruth_changes(task, config, layout)
+    if changes and not rebuild:
+        raise UserError(f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
+                        f"run `metadagger reproduce` (it rebuilds pi* and what depends on it) or use another --out")
+    if changes:
+        shutil.rmtree(layout.groundtruth_dir)
+    if layout.groundtruth.is_file() and layout.groundtruth_metrics.is_file():
+        return json.loads(layout.groundtruth_metrics.read_text())
+    write_json(layout.groundtruth_stamp, groundtruth_stamp(task, config))
 
     demos = collect(task, config.seeds, policy=None, progress=progress)
     data = Dataset.concat(*(t.to_dataset() for t in demos))
     policy = make_policy(task, seed=config.seed)
-    fit_or_resume(policy, data, config.bc, rounds_dir / "round_0.safetensors", progress=progress)
+    fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress)
     history = []
     if config.dagger_rounds:
         result = run_dagger(
             policy, task, config.seeds, initial=data,
             config=DAggerConfig(rounds=config.dagger_rounds, bc=config.bc),
-            progress=progress, checkpoints=rounds_dir,
+            progress=progress, checkpoints=layout.groundtruth_rounds,
         )
         history = result.rounds
     own = summarize(evaluate_policy(task, policy, config.seeds, label="pi* on its seeds", progress=progress))
     unseen = summarize(evaluate_policy(task, policy, config.eval_seeds, label="pi* on unseen seeds", progress=progress))
     metrics = {"own_seeds": own, "unseen_seeds": unseen, "rounds": history, "expert_queries": history[-1]["dagger/expert_queries"] if history else len(data)}
-    policy.save(groundtruth_path(run))
-    write_json(folder / "metrics.json", metrics)
+    policy.save(layout.groundtruth)
+    write_json(layout.groundtruth_metrics, metrics)
     return metrics
 
 

@@ -13,12 +13,9 @@ import dataclasses
 import functools
 from collections import Counter
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
-from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
@@ -26,9 +23,11 @@ from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import rollout
 from metadagger.io import write_json
+from metadagger.layout import RunLayout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.metal.store import PairStore
-from metadagger.parallel import make_executor
+from metadagger.runner import drive, plan
+from metadagger.stamps import describe_changes, file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")
@@ -116,34 +115,47 @@ def collect_pair(job: PairJob) -> dict[str, Any]:
     return {"seed": job.seed, "w_bc": w_bc, "w_da": policy.head_vector().numpy().copy(), "record": record}
 
 
+def pair_stamp(task: Task, layout: RunLayout, config: PairConfig) -> dict[str, Any]:
+    """What a pair is made from: the task, the pair settings (not the seed list) and pi*."""
+    return {"task": task.name, "max_episode_steps": task.max_episode_steps, **stamp_of(config, drop=("seeds", "val_fraction")),
+            "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
+
+
+def pair_status(task: Task, layout: RunLayout, config: PairConfig) -> tuple[list[int], list[str]]:
+    """The seeds of ``config`` without a current pair, and what changed for the stale ones
+    (empty lists: every pair is there and made from today's pi* and settings)."""
+    stamp = pair_stamp(task, layout, config)
+    logged = PairStore(layout.pairs_dir).stamps()
+    missing = [s for s in config.seeds if logged.get(s, {}).get("pair") != stamp]
+    stale = next((logged[s]["pair"] for s in missing if s in logged), None)
+    return missing, describe_changes(stale, stamp) if stale is not None else []
+
+
 def collect_pairs(
     task: Task,
-    groundtruth: str | Path,
+    layout: RunLayout,
     config: PairConfig,
-    run: str | Path,
     *,
+    rebuild: bool = False,
     executor: str = "local",
     workers: int | None = None,
     address: str | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Collect the pairs of every seed not stored yet, then write and return the outcome summary."""
-    if not Path(groundtruth).is_file():
-        raise UserError(f"pi* not found at {groundtruth}; run `metadagger groundtruth --out {run}` first")
-    store = PairStore(Path(run) / "pairs")
-    done = store.done_seeds()
-    todo = [s for s in config.seeds if s not in done]
-    jobs = [PairJob(task=task, groundtruth=str(groundtruth), seed=s, config=config) for s in todo]
-    if jobs:
-        with make_executor(executor, workers=workers, address=address) as pool:
-            bar = tqdm(total=len(config.seeds), initial=len(config.seeds) - len(jobs), desc="pairs", disable=not progress)
-            for result in pool.imap_unordered(collect_pair, jobs):
-                # np.array copies: arrays from Ray workers are read-only, which torch warns about
-                store.write(result["seed"], torch.from_numpy(np.array(result["w_bc"])), torch.from_numpy(np.array(result["w_da"])), result["record"])
-                bar.update(1)
-            bar.close()
-    summary = summarize_pairs([r for r in store.records() if r["seed"] in set(config.seeds)])
-    write_json(Path(run) / "pairs" / "summary.json", summary)
+    """Collect the pairs of every seed not stored yet (and, with ``rebuild``, of every seed whose
+    pair was made from another pi* or other settings), then write and return the outcome summary."""
+    if not layout.groundtruth.is_file():
+        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+    store = PairStore(layout.pairs_dir)
+    stamps = {"pair": pair_stamp(task, layout, config)}
+    todo = plan(config.seeds, stamps, store, rebuild=rebuild, what="the pair",
+                fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`")
+    jobs = [PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, config=config) for p in todo]
+    drive(collect_pair, jobs, log=store, stamps=stamps, executor=executor, workers=workers, address=address,
+          progress=progress, desc="pairs")
+    current = {s for s, stamp in store.stamps().items() if stamp["pair"] == stamps["pair"]} & set(config.seeds)
+    summary = summarize_pairs([r for r in store.records() if r["seed"] in current] if current else [])
+    write_json(layout.pairs_summary, summary)
     return summary
 
 

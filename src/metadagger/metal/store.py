@@ -157,7 +157,22 @@ class PairStore:
                 )
         return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
 
-    def load_split(self, *, val_fraction: float, seed: int, kept_only: bool = True) -> PairSplit:
+    def stamps(self) -> dict[int, dict[str, Any]]:
+        """For the per-seed driver (:mod:`metadagger.runner`): each done seed's ``{"pair": stamp}``
+        (what its pair was made from; seeds recorded without a stamp are left out)."""
+        done = self.done_seeds()
+        return {seed: {"pair": record["stamp"]} for seed, record in self._latest_records().items()
+                if seed in done and "stamp" in record} if done else {}
+
+    def append(self, result: Mapping[str, Any], stamps: Mapping[str, Any]) -> None:
+        """For the per-seed driver: store a collected pair (``seed``, ``w_bc``, ``w_da``, ``record``)
+        with the stamp it was made from."""
+        # np.array copies: arrays from Ray workers are read-only, which torch warns about
+        self.write(result["seed"], torch.from_numpy(np.array(result["w_bc"])), torch.from_numpy(np.array(result["w_da"])),
+                   {**result["record"], "stamp": dict(stamps["pair"])})
+
+    def load_split(self, *, val_fraction: float, seed: int, kept_only: bool = True,
+                   seeds: Iterable[int] | None = None) -> PairSplit:
         """Split the stored pairs into train and validation sets by a seeded permutation.
 
         Args:
@@ -165,13 +180,15 @@ class PairStore:
                 least one pair (rounded to the nearest count otherwise).
             seed: seeds the permutation; the same store and seed give the same split.
             kept_only: use only records with ``kept`` true (BC failed and DAgger succeeded).
+            seeds: use only these seeds' records (default: every recorded seed).
 
         Raises:
             UserError: bad ``val_fraction``, or too few pairs for a training set.
         """
         if not isinstance(val_fraction, (int, float)) or not 0.0 <= val_fraction < 1.0:
             raise UserError(f"val_fraction must be in [0, 1), got {val_fraction!r}; e.g. 0.2 holds out a fifth of the pairs")
-        seeds = [r["seed"] for r in self.records() if r.get("kept") is True or not kept_only]
+        wanted = None if seeds is None else set(seeds)
+        seeds = [r["seed"] for r in self.records() if (r.get("kept") is True or not kept_only) and (wanted is None or r["seed"] in wanted)]
         n_val = max(1, math.floor(val_fraction * len(seeds) + 0.5)) if val_fraction > 0 else 0
         if len(seeds) - n_val < 1:
             which = "kept pairs" if kept_only else "pairs"

@@ -5,31 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from metadagger.evaluation.mdi import CONTROL_PREFIX, METHODS
-from metadagger.imitation.metrics import summarize
+from metadagger.evaluation.mdi import METHODS
 from metadagger.evaluation.rows import read_csv
+from metadagger.evaluation.tables import markdown_table, method_label, rate
+from metadagger.layout import RunLayout
 from metadagger.plotting import plt, save_figure
 
-LABELS = {"dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger"}
 FIGURE = "mdi_cosine.png"
 COSINE_KEYS = (("cosine_total", "accumulated"), ("cosine_per_action", "per action"))
-
-
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f}%"
-
-
-def _rate(rows: list[dict[str, Any]], key: str) -> str:
-    s = summarize({"success": r[key], "reward": 0.0, "steps": 0} for r in rows)
-    return (f"{_pct(s['success_rate'])} ({s['successes']}/{s['episodes']}; "
-            f"{_pct(s['success_ci_low'])}-{_pct(s['success_ci_high'])})")
-
-
-def _label(method: str) -> str:
-    """Table label of a method; a control is DAgger-MDI initialised by another mapper kind."""
-    if method in LABELS:
-        return LABELS[method]
-    return f"control: DAgger-MDI initialised by {method.removeprefix(CONTROL_PREFIX)}"
 
 
 def _by_method(rows: list[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:
@@ -40,11 +23,10 @@ def _by_method(rows: list[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]
     return table
 
 
-def mdi_section(run: str | Path, figures: str | Path) -> list[str]:
-    """Markdown lines of the MDI section (Table 7, expert queries, Fig. 5); [] if there is no
-    ``eval/mdi.csv``. Fig. 5 is written to ``figures/mdi_cosine.png`` when the rows carry cosine
-    distances (continuous-action tasks), and linked relative to the report's folder."""
-    path = Path(run) / "eval" / "mdi.csv"
+def mdi_section(layout: RunLayout) -> list[str]:
+    """Markdown lines of the MDI section (Table 7, expert queries, Fig. 5); [] if the run has no
+    MDI table. Fig. 5 is drawn when the rows carry cosine distances (continuous-action tasks)."""
+    path = layout.eval_table("mdi")
     if not path.is_file():
         return []
     table = _by_method(read_csv(path))
@@ -53,18 +35,18 @@ def mdi_section(run: str | Path, figures: str | Path) -> list[str]:
              f"{len(table[methods[0]]) if methods else 0} unseen seeds. One-shot: solved by the head trained on the "
              "demonstration from the method's initialisation (Table 6 step 6). Two-shot: solved at step 6 or after "
              "one DAgger round (step 9).", "",
-             "### Table 7: success rate (95% Wilson interval) and expert queries", "",
-             "| method | one-shot | two-shot | mean expert queries per seed |", "|---|---|---|---|"]
+             "### Table 7: success rate (95% Wilson interval) and expert queries", ""]
+    cells = []
     for m in methods:
         rows = list(table[m].values())
         queries = sum(int(r["expert_queries"]) for r in rows) / len(rows)
-        lines.append(f"| {_label(m)} | {_rate(rows, 'one_shot_success')} | {_rate(rows, 'two_shot_success')} | {queries:.1f} |")
-    lines.append("")
-    if any(m.startswith(CONTROL_PREFIX) for m in methods):
+        cells.append((method_label(m), rate(rows, "one_shot_success"), rate(rows, "two_shot_success"), f"{queries:.1f}"))
+    lines += markdown_table(("method", "one-shot", "two-shot", "mean expert queries per seed"), cells) + [""]
+    if any(m not in METHODS for m in methods):
         lines += ["Controls (`mdi.controls`) run DAgger-MDI's steps with another initialiser: `mean-da` is the "
                   "training pairs' mean w_DA, `pistar-head` pi*'s own head. Neither depends on the seed's w_BC; "
                   "DAgger-MDI beating them is what shows the mapper learned something seed-specific.", ""]
-    return lines + _fig5(table, Path(figures))
+    return lines + _fig5(table, layout.figures)
 
 
 def _measured(row: dict[str, Any]) -> bool:
@@ -94,12 +76,12 @@ def _fig5(table: dict[str, dict[int, dict[str, Any]]], figures: Path) -> list[st
             ax.scatter(x, y, s=14)
             hi = max(x + y) or 1.0  # distances are >= 0: the diagonal starts at 0
             ax.plot([0.0, hi], [0.0, hi], "k--", lw=0.8)
-            ax.set_xlabel(f"{LABELS[m]}: {name}")
+            ax.set_xlabel(f"{method_label(m)}: {name}")
             ax.set_ylabel(f"DAgger-MDI: {name}")
             if row == 0:
-                ax.set_title(f"DAgger-MDI vs {LABELS[m]}")
+                ax.set_title(f"DAgger-MDI vs {method_label(m)}")
         n = len(seeds[m])
-        lines.append(f"| {LABELS[m]} | {n} | {lower[0]}/{n} | {lower[1]}/{n} |")
+        lines.append(f"| {method_label(m)} | {n} | {lower[0]}/{n} | {lower[1]}/{n} |")
     fig.tight_layout()
     save_figure(fig, figures / FIGURE)
     return lines + ["", f"![MDI cosine distances]({figures.name}/{FIGURE})", ""]

@@ -1,0 +1,57 @@
+"""What every report section shares: method labels, rows grouped by method, percentages and
+success cells with Wilson intervals, Markdown tables."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import Any, Iterable, Sequence
+
+from metadagger.imitation.metrics import summarize
+from metadagger.mapping.registry import get_kind, kind_names
+
+#: Labels of the methods that are not mapper kinds.
+PROTOCOL_LABELS = {"bc": "BC", "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger"}
+
+
+def method_label(method: str) -> str:
+    """How tables name a method: a mapper kind's registry label, BC, a one-shot refit
+    (``oneshot-<kind>``), a Table 6 method, or DAgger-MDI initialised by a control."""
+    if method in PROTOCOL_LABELS:
+        return PROTOCOL_LABELS[method]
+    if method.startswith("oneshot-"):
+        return f"one-shot {get_kind(method.removeprefix('oneshot-')).label}"
+    if method.startswith("dagger-mdi-"):
+        return f"control: DAgger-MDI initialised by {method.removeprefix('dagger-mdi-')}"
+    return get_kind(method).label
+
+
+def method_order(methods: Iterable[str]) -> list[str]:
+    """``methods`` with BC first, then the mapper kinds in registry order, then the rest as given."""
+    methods = list(dict.fromkeys(methods))
+    known = ["bc", *kind_names()]
+    return [m for m in known if m in methods] + [m for m in methods if m not in known]
+
+
+def by_method(rows: Iterable[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:
+    """Rows as ``{method: {seed: row}}``, methods in the order they first appear."""
+    table: dict[str, dict[int, dict[str, Any]]] = defaultdict(dict)
+    for r in rows:
+        table[r["method"]][r["seed"]] = r
+    return dict(table)
+
+
+def pct(x: float) -> str:
+    """A share as a percentage with one decimal."""
+    return f"{100 * x:.1f}%"
+
+
+def rate(rows: Iterable[dict[str, Any]], key: str = "success") -> str:
+    """``share (successes/n; low-high)`` of a boolean column, with its 95% Wilson interval."""
+    s = summarize({"success": r[key], "reward": 0.0, "steps": 0} for r in rows)
+    return f"{pct(s['success_rate'])} ({s['successes']}/{s['episodes']}; {pct(s['success_ci_low'])}-{pct(s['success_ci_high'])})"
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
+    """A Markdown table as lines (cells as given, converted with ``str``)."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]

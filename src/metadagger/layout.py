@@ -1,0 +1,125 @@
+"""Every path of a run folder, in one place.
+
+A run folder holds one MetaL DAgger run: its config and every stage's artifacts. Stages, reports
+and the command line ask a :class:`RunLayout` for paths instead of joining folder names, so the
+layout is written down once (docs/architecture.md shows it as a tree).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+MAPPER_FILE = "mapper.safetensors"
+"""A mapper folder's trained mapper (written by :func:`metadagger.mapping.train.train_mapper`)."""
+CURVES_FILE = "curves.csv"
+"""A mapper folder's learning curves."""
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    """The paths of the run folder ``root``."""
+
+    root: Path
+
+    def __init__(self, root: str | Path) -> None:
+        object.__setattr__(self, "root", Path(root))
+
+    @property
+    def config(self) -> Path:
+        """The resolved run config (written first, read by every stage)."""
+        return self.root / "config.yaml"
+
+    # pi*
+    @property
+    def groundtruth_dir(self) -> Path:
+        """pi*'s folder."""
+        return self.root / "groundtruth"
+
+    @property
+    def groundtruth(self) -> Path:
+        """pi* itself."""
+        return self.groundtruth_dir / "policy.safetensors"
+
+    @property
+    def groundtruth_metrics(self) -> Path:
+        """pi*'s success on its own and on unseen seeds, and its expert queries."""
+        return self.groundtruth_dir / "metrics.json"
+
+    @property
+    def groundtruth_stamp(self) -> Path:
+        """What pi* is made from (written before its training starts)."""
+        return self.groundtruth_dir / "stamp.json"
+
+    @property
+    def groundtruth_rounds(self) -> Path:
+        """Checkpoints of pi*'s fits (resume)."""
+        return self.groundtruth_dir / "rounds"
+
+    # pairs
+    @property
+    def pairs_dir(self) -> Path:
+        """The pair store (one tensor file per seed, ``pairs.jsonl``)."""
+        return self.root / "pairs"
+
+    @property
+    def pairs_summary(self) -> Path:
+        """Outcome counts of the pairs."""
+        return self.pairs_dir / "summary.json"
+
+    # mappers
+    def mapper_dir(self, kind: str) -> Path:
+        """The folder of mapper ``kind``."""
+        return self.root / "mappers" / kind
+
+    def mapper(self, kind: str) -> Path:
+        """The trained mapper of ``kind``."""
+        return self.mapper_dir(kind) / MAPPER_FILE
+
+    def mapper_curves(self, kind: str) -> Path:
+        """Learning curves of mapper ``kind`` (CSV)."""
+        return self.mapper_dir(kind) / CURVES_FILE
+
+    def mapper_curves_figure(self, kind: str) -> Path:
+        """Learning curves of mapper ``kind`` (paper Fig. 8)."""
+        return self.mapper_dir(kind) / "curves.png"
+
+    # evaluation
+    @property
+    def eval_dir(self) -> Path:
+        """Evaluation on unseen seeds."""
+        return self.root / "eval"
+
+    def eval_log(self, protocol: str) -> Path:
+        """The resume log of a protocol (``mdm`` or ``mdi``): one line per finished seed."""
+        return self.eval_dir / ("rows.jsonl" if protocol == "mdm" else f"{protocol}_rows.jsonl")
+
+    def eval_table(self, name: str) -> Path:
+        """A table of evaluation rows: ``mdm``, ``oneshot`` or ``mdi``."""
+        return self.eval_dir / f"{name}.csv"
+
+    def heads(self, method: str) -> Path:
+        """The folder of the heads one method was evaluated with (``<seed>.safetensors``)."""
+        return self.eval_dir / "heads" / method
+
+    # report
+    @property
+    def report_dir(self) -> Path:
+        """The report and its figures."""
+        return self.root / "report"
+
+    @property
+    def report(self) -> Path:
+        """The Markdown report."""
+        return self.report_dir / "report.md"
+
+    @property
+    def figures(self) -> Path:
+        """The report's figures."""
+        return self.report_dir / "figures"
+
+    # demo
+    @property
+    def demo_dir(self) -> Path:
+        """``metadagger demo``'s output."""
+        return self.root / "demo"

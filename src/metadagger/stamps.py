@@ -1,0 +1,78 @@
+"""What an artifact was made from: plain data that is compared, never trusted blindly.
+
+Every stage records, beside its artifacts, the config fields and input fingerprints it ran with
+(its *stamp*). A later run compares its own stamp with the recorded one: equal means the artifact
+can be reused; different means it is stale, and :func:`describe_changes` names the fields that
+differ (``pairs.dagger_rounds: 3 -> 4``, ``groundtruth: changed``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+from metadagger.config import to_dict
+
+
+def file_fingerprint(path: str | Path) -> str:
+    """A short content hash of a file (16 hex digits of its SHA-256)."""
+    path = Path(path)
+    stat = path.stat()
+    return _file_fingerprint(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=64)
+def _file_fingerprint(path: str, mtime_ns: int, size: int) -> str:
+    # keyed by mtime and size too, so a rewritten file is hashed again
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()[:16]
+
+
+def data_fingerprint(*parts: Any) -> str:
+    """A short hash of JSON-able data and byte strings (16 hex digits)."""
+    digest = hashlib.sha256()
+    for part in parts:
+        digest.update(part if isinstance(part, bytes) else canonical(part).encode())
+    return digest.hexdigest()[:16]
+
+
+def canonical(data: Any) -> str:
+    """Data (dataclasses included) as sorted, compact JSON: equal data gives equal text."""
+    return json.dumps(to_dict(data), sort_keys=True, separators=(",", ":"))
+
+
+def stamp_of(obj: Any, *, drop: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A config dataclass as a stamp: its fields as plain data, without ``drop`` (the fields that
+    only widen the work, such as seed lists and method lists)."""
+    data = to_dict(obj) if dataclasses.is_dataclass(obj) else dict(obj)
+    return {k: v for k, v in data.items() if k not in drop}
+
+
+def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: str = "") -> list[str]:
+    """The fields whose values differ between two stamps, as ``name: old -> new`` (nested fields
+    joined with dots; a ``*_fingerprint`` field reported as ``name: changed``)."""
+    changes = []
+    for key in sorted(set(old) | set(new)):
+        name = f"{prefix}{key}"
+        a, b = old.get(key), new.get(key)
+        if a == b:
+            continue
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            changes += describe_changes(a, b, prefix=f"{name}.")
+        elif key.endswith("_fingerprint"):
+            changes.append(f"{name.removesuffix('_fingerprint')}: {'changed' if a and b else 'missing' if not b else 'new'}")
+        else:
+            changes.append(f"{name}: {_short(a)} -> {_short(b)}")
+    return changes
+
+
+def _short(value: Any) -> str:
+    text = json.dumps(value) if value is not None else "none"
+    return text if len(text) <= 40 else text[:37] + "..."

@@ -1,0 +1,102 @@
+"""MDM and one-shot evaluation (paper Tables 1-5) on the toy corridor, driven by the per-seed runner."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from toy_task import CorridorTask
+
+from metadagger.errors import UserError
+from metadagger.evaluation.mdm import EvalConfig, evaluate_run
+from metadagger.evaluation.rows import read_csv
+from metadagger.imitation.bc import BCConfig, fit_bc
+from metadagger.imitation.rollouts import collect
+from metadagger.io import load_tensors
+from metadagger.layout import RunLayout
+from metadagger.mapping.mappers import Mapper
+from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.policies import load_policy
+
+GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
+SEEDS = (300, 301, 302)
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory) -> RunLayout:
+    """pi* of the corridor and two control mappers (pi*'s head, and a zero head that always fails)."""
+    layout = RunLayout(tmp_path_factory.mktemp("mdm"))
+    train_groundtruth(CorridorTask(), GT, layout, progress=False)
+    head = load_policy(layout.groundtruth).head_vector()
+    Mapper.pistar_head(head).save(layout.mapper("pistar-head"))
+    Mapper.mean_da(torch.zeros(2, head.shape[0])).save(layout.mapper("mean-da"))
+    return layout
+
+
+def _copy(layout: RunLayout, to: Path) -> RunLayout:
+    shutil.copytree(layout.groundtruth_dir, to / "groundtruth")
+    shutil.copytree(layout.root / "mappers", to / "mappers")
+    return RunLayout(to)
+
+
+def _evaluate(layout: RunLayout, seeds, methods, **kwargs) -> list[dict]:
+    return evaluate_run(CorridorTask(), layout, EvalConfig(seeds=tuple(seeds), methods=tuple(methods)), bc=BC, workers=1,
+                        progress=False, **kwargs)
+
+
+def test_rows_heads_and_one_shot(toy_run, tmp_path):
+    layout = _copy(toy_run, tmp_path)
+    rows = _evaluate(layout, SEEDS, ("pistar-head", "mean-da"))
+    table = {(r["method"], r["seed"]): r for r in rows}
+    demos = {t.seed: t.steps for t in collect(CorridorTask(), SEEDS, policy=None)}
+    for seed in SEEDS:
+        assert table["pistar-head", seed]["success"]  # pi*'s own head drives the corridor
+        assert not table["mean-da", seed]["success"]  # a zero head does not
+        # one-shot refits only the failed mapper, on the same demonstration: no new queries
+        assert ("oneshot-mean-da", seed) in table and ("oneshot-pistar-head", seed) not in table
+        assert {r["expert_queries"] for (m, s), r in table.items() if s == seed} == {demos[seed]}
+        for method in ("bc", "pistar-head", "mean-da", "oneshot-mean-da"):
+            assert (layout.heads(method) / f"{seed}.safetensors").is_file()
+    # the BC row's head is the seed's Xavier head fitted on its demonstration
+    policy = head_from_groundtruth(load_policy(layout.groundtruth), SEEDS[0])
+    fit_bc(policy, collect(CorridorTask(), SEEDS[:1], policy=None)[0].to_dataset(), dataclasses.replace(BC, seed=SEEDS[0]))
+    assert torch.equal(load_tensors(layout.heads("bc") / f"{SEEDS[0]}.safetensors")["head"], policy.head_vector())
+    mdm = read_csv(layout.eval_table("mdm"))
+    assert [(r["method"], r["seed"]) for r in mdm] == [(m, s) for s in SEEDS for m in ("bc", "pistar-head", "mean-da")]
+    assert {r["method"] for r in read_csv(layout.eval_table("oneshot"))} == {"oneshot-mean-da"}
+
+
+def test_widening_methods_and_seeds_adds_exactly_the_missing_rows(toy_run, tmp_path):
+    """A seed evaluated with fewer methods gets exactly the missing rows, never a silent mix."""
+    layout = _copy(toy_run, tmp_path)
+    _evaluate(layout, SEEDS[:1], ("pistar-head",))
+    first = (layout.heads("pistar-head") / f"{SEEDS[0]}.safetensors").stat().st_mtime_ns
+    rows = _evaluate(layout, SEEDS[:2], ("pistar-head", "mean-da"))
+    assert sorted((r["method"], r["seed"]) for r in rows if not r["method"].startswith("oneshot-")) == sorted(
+        (m, s) for s in SEEDS[:2] for m in ("bc", "pistar-head", "mean-da"))
+    assert (layout.heads("pistar-head") / f"{SEEDS[0]}.safetensors").stat().st_mtime_ns == first  # not redone
+    # the same rows as a run that evaluated everything at once
+    full = _copy(toy_run, tmp_path / "full")
+    _evaluate(full, SEEDS[:2], ("pistar-head", "mean-da"))
+    assert layout.eval_table("mdm").read_bytes() == full.eval_table("mdm").read_bytes()
+
+
+def test_rows_of_a_changed_mapper_are_refused_then_rebuilt(toy_run, tmp_path):
+    layout = _copy(toy_run, tmp_path)
+    _evaluate(layout, SEEDS[:1], ("pistar-head", "mean-da"))
+    head = load_policy(layout.groundtruth).head_vector()
+    Mapper.mean_da(torch.stack([head, head])).save(layout.mapper("mean-da"))
+    with pytest.raises(UserError, match="MDM evaluation of 'mean-da' on 1 seed.*mapper: changed.*--rebuild"):
+        _evaluate(layout, SEEDS[:1], ("pistar-head", "mean-da"))
+    rows = _evaluate(layout, SEEDS[:1], ("pistar-head", "mean-da"), rebuild=True)
+    assert next(r for r in rows if r["method"] == "mean-da")["success"]  # now pi*'s head: it succeeds
+
+
+def test_missing_mapper_is_a_user_error(toy_run, tmp_path):
+    layout = _copy(toy_run, tmp_path)
+    with pytest.raises(UserError, match="mappers not trained yet: dm"):
+        _evaluate(layout, SEEDS[:1], ("dm",))

@@ -1,0 +1,72 @@
+"""The mapper-kind registry: every kind declared once; a new kind is its module plus one line."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from mapping_data import tiny_config
+from torch import nn
+
+from metadagger.errors import UserError
+from metadagger.evaluation.mdm import EvalConfig
+from metadagger.evaluation.tables import method_label
+from metadagger.mapping import registry
+from metadagger.mapping.mappers import load_mapper
+from metadagger.mapping.registry import MapperKind, Route, get_kind, kind_names, register_kind
+from metadagger.mapping.train import MapperConfig, train_mapper
+from metadagger.run import resolve_config
+
+
+def build_linear(dim: int, *, generator: torch.Generator | None = None, **_: object) -> dict[str, nn.Module]:
+    """A toy learned kind: one linear map between standardised heads (its whole 'module')."""
+    layer = nn.Linear(dim, dim)
+    with torch.no_grad():
+        layer.weight.copy_(torch.randn(dim, dim, generator=generator) * 0.01)
+        layer.bias.zero_()
+    return {"linear": layer}
+
+
+LINEAR = MapperKind("linear", "Linear", "toy: one linear map", route=Route("bc", None, "linear", None, "da"), build=build_linear)
+
+
+@pytest.fixture
+def with_linear(monkeypatch):
+    """The toy kind registered for one test, and removed after it."""
+    monkeypatch.setattr(registry, "_KINDS", dict(registry._KINDS))
+    register_kind(LINEAR)
+    yield LINEAR
+
+
+def test_builtin_kinds_and_their_declarations():
+    assert kind_names() == ("dm", "sam", "tam", "mean-da", "pistar-head")
+    assert [get_kind(k).learned for k in kind_names()] == [True, True, True, False, False]
+    assert get_kind("tam").network_names == ("sigma_bc", "h", "sigma_da")
+    assert get_kind("sam").scaler_names == ("all",) and get_kind("dm").paper_epochs == 500
+    assert method_label("sam") == "SAM" and method_label("oneshot-dm") == "one-shot DM"
+    with pytest.raises(UserError, match="unknown mapper kind 'xyz': expected one of dm, sam"):
+        get_kind("xyz")
+
+
+def test_a_kind_is_either_learned_or_a_control():
+    with pytest.raises(ValueError, match="either route and build"):
+        MapperKind("half", "Half", "route without builder", route=Route("bc", None, "x", None, "da"))
+
+
+def test_a_new_kind_trains_saves_loads_and_is_known_everywhere(with_linear, split, tmp_path):
+    assert "linear" in kind_names() and method_label("linear") == "Linear"
+    config = MapperConfig(**{**tiny_config("dm").__dict__, "kind": "linear"})
+    mapper = train_mapper(split, config, tmp_path, progress=False)
+    loaded = load_mapper(tmp_path / "mapper.safetensors")
+    assert loaded.kind == "linear"
+    torch.testing.assert_close(torch.from_numpy(loaded.map_batch(split.w_bc_val)), torch.from_numpy(mapper.map_batch(split.w_bc_val)))
+    # the evaluation and run configs accept it without any other change
+    assert EvalConfig(methods=("linear", "mean-da")).methods == ("linear", "mean-da")
+    run = resolve_config("carracing", "ci", overrides=["evaluate.methods=[linear]", "mappers={linear: {epochs: 2}}"])
+    assert run.mapper_kinds == ("linear",) and run.mapper_config("linear").epochs == 2
+
+
+def test_unregistered_kinds_are_refused_in_configs():
+    with pytest.raises(UserError, match="evaluate.methods has unknown method"):
+        EvalConfig(methods=("linear",))
+    with pytest.raises(UserError, match="mappers has unknown kind"):
+        resolve_config("carracing", "ci", overrides=["mappers={linear: {epochs: 2}}"])

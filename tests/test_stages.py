@@ -1,0 +1,112 @@
+"""Stages over one run folder, from the command line: widening what is evaluated, --set
+overrides, and inputs that changed under a finished run (nothing stale is reused)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from metadagger.cli import app
+from metadagger.evaluation.rows import read_csv
+from metadagger.layout import RunLayout
+
+runner = CliRunner()
+
+
+def _ok(args: list[str]) -> str:
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def _refused(args: list[str], *needles: str) -> str:
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), result.output
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """A finished CarRacing ci run (pi*, 4 pairs, every mapper, 2 evaluation seeds, report)."""
+    run = tmp_path_factory.mktemp("ci") / "run"
+    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", run, "--workers", "2"])
+    return run
+
+
+def _copy(run: Path, to: Path) -> RunLayout:
+    shutil.copytree(run, to)
+    return RunLayout(to)
+
+
+def test_widening_methods_from_the_command_line_fills_every_seed(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    shutil.rmtree(layout.eval_dir)
+    _ok(["evaluate", "--out", layout.root, "--seeds", "5000", "--set", "evaluate.methods=[pistar-head]"])
+    _ok(["evaluate", "--out", layout.root, "--seeds", "5000-5001", "--set", "evaluate.methods=[pistar-head, dm]"])
+    rows = read_csv(layout.eval_table("mdm"))
+    assert sorted((r["method"], r["seed"]) for r in rows) == sorted((m, s) for m in ("bc", "pistar-head", "dm") for s in (5000, 5001))
+    # and they are the rows the full run made
+    reference = {(r["method"], r["seed"]): r for r in read_csv(RunLayout(finished).eval_table("mdm"))}
+    assert all(r == reference[r["method"], r["seed"]] for r in rows)
+    assert "  - pistar-head\n  - dm\n" in layout.config.read_text()  # the config the command ran with
+
+
+def test_train_mapper_on_incomplete_pairs_refuses_and_reproduce_rebuilds(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    lines = (layout.pairs_dir / "pairs.jsonl").read_bytes().splitlines(keepends=True)
+    (layout.pairs_dir / "pairs.jsonl").write_bytes(b"".join(lines[:-1]))
+    for folder in (layout.root / "mappers", layout.eval_dir, layout.report_dir):
+        shutil.rmtree(folder)
+    _refused(["train-mapper", "--out", layout.root, "--kind", "all"], "1 of 4 seeds of pairs.seeds have no current pair",
+             "metadagger pairs")
+    _refused(["evaluate", "--out", layout.root], "mapper dm not trained yet")
+    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root])
+    # the refilled pair is the same, so the rebuilt mappers and tables are the reference run's
+    assert layout.eval_table("mdm").read_bytes() == RunLayout(finished).eval_table("mdm").read_bytes()
+    assert layout.mapper("sam").read_bytes() == RunLayout(finished).mapper("sam").read_bytes()
+
+
+def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    before = {kind: layout.mapper(kind).read_bytes() for kind in ("dm", "mean-da")}
+    _refused(["pairs", "--out", layout.root, "--set", "pairs.dagger_rounds=2"], "dagger_rounds: 1 -> 2", "--rebuild")
+    _refused(["train-mapper", "--out", layout.root, "--kind", "dm"], "no current pair", "dagger_rounds: 1 -> 2")
+    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root])
+    records = (layout.pairs_dir / "pairs.jsonl").read_text()
+    assert records.count('"dagger_rounds":2') == 4  # every pair made again with two rounds
+    assert layout.mapper("dm").read_bytes() != before["dm"]  # trained on the new pairs
+    assert layout.mapper("mean-da").read_bytes() != before["mean-da"]
+    # and the evaluation was redone with the new mappers: every row matches their stamps
+    log = (layout.eval_dir / "rows.jsonl").read_text()
+    assert len(read_csv(layout.eval_table("mdm"))) == 2 * 6 and log.count("\n") > 2
+
+
+def test_groundtruth_with_another_config_is_refused(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    _refused(["groundtruth", "--task", "carracing", "--preset", "ci", "--out", layout.root, "--set", "groundtruth.bc.epochs=2"],
+             "pi* in", "bc.epochs: 1 -> 2")
+
+
+def test_config_show_prints_the_resolved_config():
+    out = _ok(["config", "show", "--task", "fetch", "--preset", "ci", "--set", "pairs.dagger_rounds=3",
+               "--set", "evaluate.methods=[dm, sam]"])
+    assert "task: fetch\npreset: ci\n" in out and "  dagger_rounds: 3\n" in out and "  - dm\n  - sam\n" in out
+
+
+@pytest.mark.parametrize(("override", "needle"), [
+    ("pairs.dagger_rounds", "bad --set 'pairs.dagger_rounds': expected section.key=value"),
+    ("pairs.epochz=3", "unknown field(s) epochz"),
+    ("pairs.dagger_rounds=0", "pairs.dagger_rounds must be >= 1, got 0"),
+    ("evaluate.methods=[dm, xyz]", "unknown method(s) ['xyz']"),
+    ("mappers.dm.lr=-1", "MapperConfig.lr must be > 0"),
+    ("evaluate.methods=[dm", "not YAML"),
+])
+def test_bad_overrides_are_one_line(override, needle):
+    _refused(["config", "show", "--task", "carracing", "--preset", "ci", "--set", override], needle)
