@@ -16,7 +16,17 @@ from metadagger.errors import UserError
 from metadagger.tasks.carracing.env import CarRacingFast
 
 STEPS = 120
-MAX_MAE = 3.0  # the bound on the mean absolute image error (0-255 scale)
+# Bounds on the mean absolute image error against upstream (0-255 scale). Measured on these
+# 120-step episodes (STEPS, smooth_actions): episode mean 0.52 / 0.58 / 0.44 / 0.47 on seeds
+# 0 / 1 / 2 / 3 (higher than on full episodes, 0.38-0.45, as the zoom-in is a larger share);
+# worst single frame 1.36 / 1.26 / 1.34 / 1.20 (always frame 2, mid zoom-in); the first 50
+# (zoom-in) frames 0.65 / 0.61 / 0.63 / 0.62; frames on grass 0.30 / 0.56 / 0.31 / 0.29;
+# domain-randomised colours, seed 2, 15 steps: 0.77. Each bound is the worst of those plus about a third.
+MAX_EPISODE_MAE = 0.8
+MAX_FRAME_MAE = 1.8
+MAX_ZOOM_MAE = 0.9
+MAX_GRASS_MAE = 0.8
+MAX_RANDOMIZED_MAE = 1.0
 
 
 def rollout(env, seed: int, actions: np.ndarray) -> dict:
@@ -57,14 +67,14 @@ def test_dynamics_equal_upstream_exactly(episode_pair):
 def test_image_close_to_upstream_over_the_episode(episode_pair):
     seed, ours, upstream = episode_pair
     per_frame = [mae(a, b) for a, b in zip(ours["frames"], upstream["frames"])]
-    assert np.mean(per_frame) <= MAX_MAE, f"seed {seed}: episode MAE {np.mean(per_frame):.2f}"
-    assert max(per_frame) <= 2 * MAX_MAE
+    assert np.mean(per_frame) <= MAX_EPISODE_MAE, f"seed {seed}: episode MAE {np.mean(per_frame):.2f}"
+    assert max(per_frame) <= MAX_FRAME_MAE, f"seed {seed}: frame {int(np.argmax(per_frame))} MAE {max(per_frame):.2f}"
 
 
 def test_zoom_in_frames_are_close(episode_pair):
     _, ours, upstream = episode_pair
     zoom = slice(0, 50)  # the camera zooms in during the first second (50 frames)
-    assert mae(ours["frames"][zoom], upstream["frames"][zoom]) <= MAX_MAE
+    assert mae(ours["frames"][zoom], upstream["frames"][zoom]) <= MAX_ZOOM_MAE
 
 
 def test_frames_on_grass_are_close(episode_pair):
@@ -72,7 +82,7 @@ def test_frames_on_grass_are_close(episode_pair):
     on_grass = np.flatnonzero(ours["grass"])
     assert on_grass.size, "the action sequence should drive the car onto the grass"
     frames = on_grass + 1  # frames[0] is the reset observation
-    assert mae(ours["frames"][frames], upstream["frames"][frames]) <= MAX_MAE
+    assert mae(ours["frames"][frames], upstream["frames"][frames]) <= MAX_GRASS_MAE
 
 
 def test_reference_renderer_is_upstreams_image():
@@ -121,7 +131,7 @@ def test_domain_randomized_colours_are_drawn():
     actions = smooth_actions(2, 15)
     ours = rollout(CarRacingFast(domain_randomize=True), 2, actions)
     upstream = rollout(CarRacing(domain_randomize=True), 2, actions)
-    assert mae(ours["frames"], upstream["frames"]) <= MAX_MAE
+    assert mae(ours["frames"], upstream["frames"]) <= MAX_RANDOMIZED_MAE
 
 
 def test_env_checker_passes():
