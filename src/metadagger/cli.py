@@ -92,7 +92,7 @@ def expert(
 OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
 EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
 WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
-ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: start a local Ray instance).")
+ADDRESS = typer.Option(None, "--address", help="Ray cluster: ray://HEAD:10001, HEAD:6379 or auto (default: start a local Ray instance).")
 
 
 @app.command()
@@ -113,8 +113,10 @@ def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets
 @user_errors
 def pairs(out: Path = OUT, executor: str = EXECUTOR, workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
     """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
+    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import load_run, stage_pairs
 
+    check_executor_options(executor, workers, address)
     summary = stage_pairs(out, load_run(out), executor=executor, workers=workers, address=address)
     typer.echo(json.dumps(summary, indent=2))
     typer.echo(f"wrote {out / 'pairs'}")
@@ -151,8 +153,10 @@ def evaluate(
     """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds, and the
     MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) for runs whose config has an mdi section."""
     from metadagger.config import parse_seeds
+    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import load_run, stage_evaluate, stage_mdi
 
+    check_executor_options(executor, workers, address)
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; expected {', '.join(PROTOCOLS)}")
     config = load_run(out)
@@ -191,8 +195,10 @@ def reproduce(
     address: Optional[str] = ADDRESS,
 ) -> None:
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report, resuming finished stages."""
+    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import reproduce as run_all
 
+    check_executor_options(executor, workers, address)
     path = run_all(task, preset, out, presets_file=presets, executor=executor, workers=workers, address=address)
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
