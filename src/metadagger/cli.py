@@ -177,9 +177,13 @@ def evaluate(
 def report(out: Path = OUT) -> None:
     """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
     from metadagger.evaluation.report import build_report
+    from metadagger.run import config_path
 
-    if not out.is_dir():
-        raise UserError(f"no run folder at {out}; pass the --out of a run")
+    if not config_path(out).is_file():
+        raise UserError(
+            f"nothing has been run in {out} (no config.yaml there); "
+            "pass the --out of a run started with `metadagger groundtruth` or `metadagger reproduce`"
+        )
     typer.echo(f"wrote {build_report(out)}")
 
 

@@ -16,7 +16,7 @@ from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import MAPPER_METHODS, evaluate_run, mapper_path
 from metadagger.evaluation.report import build_report
 from metadagger.mapping.train import train_mapper
-from metadagger.metal.groundtruth import groundtruth_path, train_groundtruth
+from metadagger.metal.groundtruth import groundtruth_path, load_groundtruth, train_groundtruth
 from metadagger.metal.pairs import collect_pairs
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
@@ -38,6 +38,7 @@ def stage_groundtruth(run: Path, config: RunConfig, *, progress: bool = True) ->
 def stage_pairs(run: Path, config: RunConfig, *, executor: str = "local", workers: int | None = None,
                 address: str | None = None, progress: bool = True) -> dict:
     """Collect the pairs of every seed not stored yet."""
+    load_groundtruth(run)  # a missing or corrupt pi* is an error even when no seed is left
     return collect_pairs(run_task(config), groundtruth_path(run), config.pairs, run,
                          executor=executor, workers=workers, address=address, progress=progress)
 
@@ -77,6 +78,7 @@ def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
 def stage_evaluate(run: Path, config: RunConfig, *, seeds: Sequence[int] | None = None, executor: str = "local",
                    workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
     """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``)."""
+    load_groundtruth(run)  # a missing or corrupt pi* is an error even when no seed is left
     eval_config = config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
     return evaluate_run(run_task(config), run, eval_config, groundtruth=groundtruth_path(run), bc=config.pairs.bc,
                         executor=executor, workers=workers, address=address, progress=progress)

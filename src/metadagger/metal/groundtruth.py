@@ -56,6 +56,14 @@ def groundtruth_path(run: str | Path) -> Path:
     return Path(run) / "groundtruth" / "policy.safetensors"
 
 
+def load_groundtruth(run: str | Path) -> Policy:
+    """pi* of a run; a missing or corrupt file is a :class:`UserError` naming it."""
+    path = groundtruth_path(run)
+    if not path.is_file():
+        raise UserError(f"pi* not found at {path}; run `metadagger groundtruth --out {run}` first")
+    return load_policy(path)
+
+
 def train_groundtruth(task: Task, config: GroundTruthConfig, run: str | Path, *, progress: bool = True) -> dict:
     """Train pi* (or reuse a finished one) and return its metrics."""
     folder = Path(run) / "groundtruth"
