@@ -1,6 +1,9 @@
-"""Shared fixtures: one thread for torch (CI has 2 cores) and a seeded generator."""
+"""Shared fixtures: one thread for torch (CI has 2 cores), a seeded generator and a closed port."""
 
 from __future__ import annotations
+
+import socket
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -12,3 +15,11 @@ torch.set_num_threads(1)
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)
+
+
+@pytest.fixture
+def closed_port() -> Iterator[int]:
+    """A loopback port that refuses connections: bound (so nothing else takes it), not listening."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        yield sock.getsockname()[1]

@@ -2,28 +2,34 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from toy_task import CorridorTask
+from toy_task import CorridorTask, RunCorridorTask
 from typer.testing import CliRunner
 
 from metadagger.cli import app
 from metadagger.errors import UserError
-from metadagger.policies import load_policy, make_policy
+from metadagger.layout import RunLayout
+from metadagger.policies import make_policy
+from metadagger.run import init_run
 
 runner = CliRunner()
 
 
 def _fails_cleanly(args: list[str], *needles: str) -> str:
+    """Run the CLI; assert exit code 2 and one `error:` line holding every needle; return it."""
     result = runner.invoke(app, args)
-    assert result.exit_code != 0
+    assert result.exit_code == 2, result.output
     out = result.output
     assert "Traceback" not in out
+    errors = [line for line in out.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, out
     for needle in needles:
-        assert needle in out
+        assert needle in errors[0]
     return out
 
 
@@ -56,14 +62,14 @@ def test_missing_run_and_missing_groundtruth(tmp_path):
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "pi* not found")
 
 
-def test_corrupt_checkpoint_is_a_clear_error(tmp_path):
+@pytest.mark.parametrize("command", [["pairs"], ["evaluate", "--protocol", "mdm"]], ids=["pairs", "evaluate"])
+def test_corrupt_checkpoint_is_a_clear_error(tmp_path, command):
+    # a run folder whose pi* is garbage: the stage reports it before looking for work
     (tmp_path / "config.yaml").write_text("task: carracing\n")
-    gt = tmp_path / "groundtruth" / "policy.safetensors"
+    gt = RunLayout(tmp_path).groundtruth
     gt.parent.mkdir()
     gt.write_bytes(b"not a safetensors file")
-    _fails_cleanly(["train-mapper", "--out", str(tmp_path), "--kind", "dm"], "pair store not found")
-    with pytest.raises(UserError, match="corrupt or not a safetensors file"):
-        load_policy(gt)
+    _fails_cleanly([*command, "--out", str(tmp_path)], f"policy checkpoint is corrupt or not a safetensors file: {gt}")
 
 
 def test_wrong_head_vector_length_is_a_user_error():
@@ -86,6 +92,52 @@ def test_unknown_executor(tmp_path: Path):
     _fails_cleanly(["pairs", "--out", str(tmp_path), "--executor", "slurm"], "unknown executor 'slurm'")
 
 
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--workers", "0"], "workers must be a positive integer, got 0"),
+        (["--workers", "-1"], "workers must be a positive integer, got -1"),
+        (["--executor", "foo"], "unknown executor 'foo'; expected 'local' or 'ray'"),
+        (["--address", "auto"], "address 'auto' only applies to executor 'ray'; use --executor ray"),
+    ],
+    ids=["workers-0", "workers-negative", "unknown-executor", "address-without-ray"],
+)
+@pytest.mark.parametrize("command", ["pairs", "evaluate", "reproduce"])
+def test_executor_options_are_checked_before_any_work(tmp_path, command, options, message):
+    # an empty folder: reproduce would start a run there, the others would say there is none
+    out = tmp_path / "run"
+    _fails_cleanly([command, "--out", str(out), *options], message)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("scheme", ["ray://", ""], ids=["ray-client", "host-port"])
+def test_an_unreachable_ray_address_is_one_line_at_once(tmp_path, closed_port, scheme):
+    pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
+    address = f"{scheme}127.0.0.1:{closed_port}"
+    start = time.monotonic()
+    _fails_cleanly(["pairs", "--out", str(tmp_path), "--executor", "ray", "--address", address],
+                   f"cannot reach a Ray cluster at '{address}'", "ray://HEAD:10001")
+    assert time.monotonic() - start < 15
+
+
+def test_report_of_a_folder_without_a_run_is_an_error(tmp_path):
+    _fails_cleanly(["report", "--out", str(tmp_path)], f"nothing has been run in {tmp_path} (no config.yaml there)")
+    assert not (tmp_path / "report").exists()
+
+
+def test_demo_overrides_are_checked(tmp_path):
+    _fails_cleanly(["demo", "--epochs", "-1", "--out", str(tmp_path / "d")], "epochs must be an integer >= 1, got -1")
+    _fails_cleanly(["demo", "--rounds", "-2", "--out", str(tmp_path / "d")], "dagger_rounds must be >= 1, got -2")
+    assert not (tmp_path / "d").exists()
+
+
+def test_out_that_is_a_file_is_an_error(tmp_path):
+    existing = tmp_path / "notes.txt"
+    existing.write_text("keep me")
+    _fails_cleanly(["groundtruth", "--out", str(existing)], f"{existing} is a file, not a")
+    assert existing.read_text() == "keep me"
+
+
 def test_evaluate_protocol_errors(tmp_path):
     _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "xyz"], "unknown protocol 'xyz'", "mdm, mdi, all")
     (tmp_path / "config.yaml").write_text("task: carracing\n")
@@ -106,17 +158,40 @@ presets:
       eval_seeds: 100-100
       dagger_rounds: 1
       bc: {lr: 3.0e-3, batch_size: 16, epochs: 1}
+    evaluate: {seeds: 300-301, methods: [dm], oneshot: false}
 """
 
 
-def test_a_task_from_an_installed_package_runs_with_a_presets_file(tmp_path, monkeypatch):
+@pytest.fixture
+def corridor_plugin(monkeypatch):
+    """The corridor task, installed as if by a package under the name "corridor-plugin"."""
     from importlib.metadata import EntryPoint
 
     import metadagger.tasks as tasks
 
     plugin = EntryPoint(name="corridor-plugin", value="toy_task:RunCorridorTask", group=tasks.ENTRY_POINT_GROUP)
     monkeypatch.setattr(tasks, "entry_points", lambda group: [plugin] if group == tasks.ENTRY_POINT_GROUP else [])
-    assert "corridor-plugin" in tasks.available_tasks()
+    return "corridor-plugin"
+
+
+def test_a_corrupt_mapper_is_named_before_any_work(tmp_path, corridor_plugin):
+    presets = tmp_path / "presets.yaml"
+    presets.write_text(PRESETS_YAML)
+    run = tmp_path / "run"
+    init_run(run, corridor_plugin, "tiny", presets)
+    make_policy(RunCorridorTask(max_episode_steps=12), seed=0).save(RunLayout(run).groundtruth)
+    mapper = RunLayout(run).mapper("dm")
+    mapper.parent.mkdir(parents=True)
+    mapper.write_bytes(b"not a safetensors file")
+    out = _fails_cleanly(["evaluate", "--out", str(run), "--protocol", "mdm", "--workers", "1"],
+                         "error: ", f"corrupt or not a safetensors file: {mapper}")
+    assert "WorkerError" not in out
+
+
+def test_a_task_from_an_installed_package_runs_with_a_presets_file(tmp_path, corridor_plugin):
+    import metadagger.tasks as tasks
+
+    assert corridor_plugin in tasks.available_tasks()
     presets = tmp_path / "presets.yaml"
     presets.write_text(PRESETS_YAML)
     run = tmp_path / "run"

@@ -8,12 +8,13 @@ import sys
 import textwrap
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-from metadagger.errors import UserError
-from metadagger.parallel import Executor, LocalExecutor, WorkerError, make_executor
+from metadagger.errors import CheckpointError, UserError
+from metadagger.parallel import Executor, LocalExecutor, WorkerError, check_executor_options, make_executor
 
 ITEMS = list(range(12))
 
@@ -26,6 +27,17 @@ def _fail_on_seven(x: int) -> int:
     if x == 7:
         raise ValueError(f"cannot handle {x}")
     return x
+
+
+@dataclass(frozen=True)
+class _Job:
+    seed: int
+
+
+def _corrupt_file_on_seed_1003(job: _Job) -> int:
+    if job.seed == 1003:
+        raise CheckpointError("mapper checkpoint is corrupt or not a safetensors file: m.safetensors")
+    return job.seed
 
 
 def _slow_on_zero(x: int) -> int:
@@ -73,6 +85,16 @@ def test_worker_exception_names_the_item_and_closes() -> None:
             ex.imap_unordered(_square, ITEMS)
 
 
+def test_a_user_error_in_a_worker_stays_a_user_error() -> None:
+    jobs = [_Job(seed) for seed in range(1000, 1006)]
+    with make_executor("local", workers=2) as ex, pytest.raises(
+        UserError, match=r"^seed 1003: mapper checkpoint is corrupt or not a safetensors file: m\.safetensors$"
+    ) as info:
+        list(ex.imap_unordered(_corrupt_file_on_seed_1003, jobs))
+    assert not isinstance(info.value, WorkerError)
+    assert isinstance(info.value.__cause__, CheckpointError)
+
+
 def test_unpicklable_function_is_a_user_error(local: LocalExecutor) -> None:
     with pytest.raises(UserError, match="top level of a module"):
         local.imap_unordered(lambda x: x, ITEMS)
@@ -83,18 +105,37 @@ def test_unpicklable_function_is_a_user_error(local: LocalExecutor) -> None:
     [
         ({"kind": "dask"}, "unknown executor 'dask'; expected 'local' or 'ray'"),
         ({"kind": "local", "workers": 0}, "workers must be a positive integer, got 0"),
+        ({"kind": "ray", "workers": -1}, "workers must be a positive integer, got -1"),
         ({"kind": "local", "address": "auto"}, "only applies to executor 'ray'"),
     ],
 )
 def test_bad_arguments_are_user_errors(kwargs: dict, match: str) -> None:
+    with pytest.raises(UserError, match=match):
+        check_executor_options(kwargs.get("kind"), kwargs.get("workers"), kwargs.get("address"))
     with pytest.raises(UserError, match=match):
         make_executor(**kwargs)
 
 
 def test_ray_not_installed_says_how_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "ray", None)  # makes `import ray` raise ImportError
-    with pytest.raises(UserError, match=r"pip install 'metadagger\[ray\]'"):
+    with pytest.raises(UserError, match=r'install it with: pip install -c constraints\.txt -e "\.\[ray\]"$'):
         make_executor("ray")
+
+
+@pytest.mark.parametrize("scheme", ["ray://", ""], ids=["ray-client", "host-port"])
+def test_an_unreachable_ray_address_fails_at_once(closed_port: int, scheme: str) -> None:
+    pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
+    address = f"{scheme}127.0.0.1:{closed_port}"
+    start = time.monotonic()
+    with pytest.raises(UserError, match=f"cannot reach a Ray cluster at '{address}' .*'ray://HEAD:10001'"):
+        make_executor("ray", address=address)
+    assert time.monotonic() - start < 15
+
+
+def test_a_ray_address_without_a_port_is_a_user_error() -> None:
+    pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
+    with pytest.raises(UserError, match="bad Ray address 'ray://head'; expected 'ray://HEAD:10001'"):
+        check_executor_options("ray", None, "ray://head")
 
 
 _DRIVER = textwrap.dedent(
@@ -153,7 +194,7 @@ def test_stopping_the_driver_stops_its_workers_promptly(tmp_path: Path, sig: sig
 
 @pytest.fixture(scope="module")
 def ray_executor() -> Iterator[Executor]:
-    ray = pytest.importorskip("ray", reason="Ray is optional: pip install 'metadagger[ray]'")
+    ray = pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
     # Ray workers import a function's module by name, and this test module is not installed:
     # ship its functions by value instead.
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])

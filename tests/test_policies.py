@@ -59,6 +59,21 @@ def test_wrong_observation_is_a_user_error(rng):
         policy(np.zeros((16, 16, 3), np.float32))
 
 
+def test_one_observation_runs_on_one_thread_and_keeps_the_callers_setting(rng):
+    policy = small_policy()
+    seen = []
+    policy.net.head.register_forward_hook(lambda *_: seen.append(torch.get_num_threads()))
+    caller = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        policy(images(rng, 1)[0])
+        assert torch.get_num_threads() == 3
+        policy.act_batch(images(rng, 4))  # a batch uses the caller's threads
+    finally:
+        torch.set_num_threads(caller)
+    assert seen == [1, 3]
+
+
 def test_head_vector_round_trip(rng):
     policy, other = small_policy(seed=0), small_policy(seed=1)
     vector = policy.head_vector()

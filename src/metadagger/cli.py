@@ -99,7 +99,7 @@ REBUILD = typer.Option(False, "--rebuild", help="Redo this stage's work that was
                        "other pairs or settings) instead of refusing.")
 EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
 WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
-ADDRESS = typer.Option(None, "--address", help="Ray cluster address (default: start a local Ray instance).")
+ADDRESS = typer.Option(None, "--address", help="Ray cluster: ray://HEAD:10001, HEAD:6379 or auto (default: start a local Ray instance).")
 
 
 @app.command()
@@ -124,8 +124,10 @@ def pairs(out: Path = OUT, overrides: list[str] = SET, rebuild: bool = REBUILD, 
           workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
     """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
     from metadagger.layout import RunLayout
+    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import load_run, stage_pairs
 
+    check_executor_options(executor, workers, address)
     layout = RunLayout(out)
     summary = stage_pairs(layout, load_run(out, overrides), rebuild=rebuild, executor=executor, workers=workers, address=address)
     typer.echo(json.dumps(summary, indent=2))
@@ -169,8 +171,10 @@ def evaluate(
     Only the missing (seed, method) rows are evaluated."""
     from metadagger.config import parse_seeds
     from metadagger.layout import RunLayout
+    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import load_run, stage_evaluate, stage_mdi
 
+    check_executor_options(executor, workers, address)
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; expected {', '.join(PROTOCOLS)}")
     layout = RunLayout(out)
@@ -212,8 +216,10 @@ def reproduce(
 ) -> None:
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
+    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import reproduce as run_all
 
+    check_executor_options(executor, workers, address)
     path = run_all(task, preset, out, presets_file=presets, overrides=overrides, executor=executor, workers=workers, address=address)
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")

@@ -6,7 +6,6 @@ Read it top to bottom: collect demos -> fit BC -> evaluate -> DAgger (evaluate a
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -57,13 +56,13 @@ class DemoConfig:
 
 
 def demo_config(task: str, preset: str, *, rounds: int | None = None, epochs: int | None = None) -> DemoConfig:
-    """The demo section of a task's preset, with optional overrides."""
-    config = build(DemoConfig, {"task": task, **load_preset(task, preset).get("demo", {})}, where="demo")
+    """The demo section of a task's preset, with optional overrides (validated like the preset)."""
+    data = {"task": task, **load_preset(task, preset).get("demo", {})}
     if rounds is not None:
-        config = dataclasses.replace(config, dagger_rounds=rounds)
+        data["dagger_rounds"] = rounds
     if epochs is not None:
-        config = dataclasses.replace(config, bc=dataclasses.replace(config.bc, epochs=epochs))
-    return config
+        data["bc"] = {**data.get("bc", {}), "epochs": epochs}
+    return build(DemoConfig, data, where="demo")
 
 
 @dataclass(frozen=True)

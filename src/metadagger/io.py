@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from metadagger.errors import CheckpointError
+from metadagger.errors import CheckpointError, UserError
 
 
 def _current_umask() -> int:
@@ -27,10 +27,21 @@ def _current_umask() -> int:
 _UMASK = _current_umask()
 
 
+def _make_folder(folder: Path) -> None:
+    """Create ``folder`` and its parents; a file in the way is a :class:`UserError` naming it."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        blocker = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()), folder)
+        raise UserError(
+            f"cannot create folder {folder}: {blocker} is a file, not a folder; choose another output path or move that file"
+        ) from None
+
+
 def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Call ``write(tmp_path)`` then rename the temporary file onto ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_folder(path.parent)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)

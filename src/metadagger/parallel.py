@@ -18,6 +18,7 @@ import multiprocessing
 import os
 import pickle
 import signal
+import socket
 import threading
 from concurrent import futures
 from typing import Any, Callable, Generic, Iterable, Iterator, TypeVar
@@ -26,7 +27,7 @@ import torch
 
 from metadagger.errors import UserError
 
-__all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "default_workers", "make_executor"]
+__all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "check_executor_options", "default_workers", "make_executor"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -35,6 +36,12 @@ H = TypeVar("H")  # an in-flight handle: a Future or a Ray ObjectRef
 # Items kept in flight per worker: enough to keep every worker busy while the driver writes a
 # result, few enough that an interrupt has little queued work to cancel.
 _IN_FLIGHT_PER_WORKER = 2
+
+# Seconds to wait for a Ray cluster's port to accept a connection: a live head answers in
+# milliseconds, while Ray keeps retrying an unreachable one (Ray Client for 30 s, HOST:PORT longer).
+_CONNECT_TIMEOUT_S = 3.0
+_INSTALL_RAY = 'pip install -c constraints.txt -e ".[ray]"'
+_ADDRESS_HINT = "expected 'ray://HEAD:10001' (Ray Client), 'HEAD:6379' (on a cluster node) or 'auto'"
 
 
 class WorkerError(RuntimeError):
@@ -45,8 +52,14 @@ class WorkerError(RuntimeError):
     """
 
     def __init__(self, item: Any, cause: BaseException) -> None:
-        super().__init__(f"work failed on item {item!r}: {type(cause).__name__}: {cause}")
+        super().__init__(f"work failed on {_describe(item)}: {type(cause).__name__}: {cause}")
         self.item = item
+
+
+def _describe(item: Any) -> str:
+    """How messages name an item: by its seed for per-seed jobs, else by its repr."""
+    seed = getattr(item, "seed", None)
+    return f"item {item!r}" if seed is None else f"seed {seed}"
 
 
 def default_workers() -> int:
@@ -98,8 +111,10 @@ class Executor(abc.ABC, Generic[H]):
             items: the items, consumed lazily; at most ``2 * workers`` are in flight at once.
 
         Raises:
-            UserError: the executor is closed, or ``fn`` cannot be pickled (raised at the call).
-            WorkerError: ``fn`` raised on an item (named in the message); remaining work stops.
+            UserError: the executor is closed, or ``fn`` cannot be pickled (raised at the call);
+                or ``fn`` raised a UserError (its message, prefixed with the item).
+            WorkerError: ``fn`` raised any other exception on an item (named in the message).
+            Either way the remaining work stops.
         """
         if self._closed:
             raise UserError(f"{type(self).__name__} is closed; create a new one with make_executor()")
@@ -124,6 +139,9 @@ class Executor(abc.ABC, Generic[H]):
                     item = pending.pop(handle)
                     try:
                         result = self._result(handle)
+                    except UserError as exc:
+                        # the user's mistake (a corrupt file, a bad shape): their one-line message
+                        raise UserError(f"{_describe(item)}: {exc}") from exc
                     except Exception as exc:
                         raise WorkerError(item, exc) from exc
                     yield result
@@ -243,18 +261,17 @@ class RayExecutor(Executor[Any]):
     """
 
     def __init__(self, *, workers: int | None, address: str | None) -> None:
-        try:
-            import ray
-        except ImportError:
-            raise UserError(
-                "executor 'ray' needs Ray, which is not installed; install it with: pip install 'metadagger[ray]'"
-            ) from None
+        ray = _import_ray()
         self._ray = ray
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
+            _check_reachable(address)
             # num_cpus may only be given when starting a local instance, not when connecting.
             num_cpus = workers if address is None else None
-            ray.init(address=address, num_cpus=num_cpus, include_dashboard=False)
+            try:
+                ray.init(address=address, num_cpus=num_cpus, include_dashboard=False)
+            except ConnectionError as exc:  # e.g. "auto" with no cluster running
+                raise UserError(f"cannot connect to Ray at {address!r} ({exc}); {_ADDRESS_HINT}") from None
         if workers is None:
             workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         super().__init__(workers=workers)
@@ -286,6 +303,48 @@ class RayExecutor(Executor[Any]):
             self._ray.shutdown()
 
 
+def _import_ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise UserError(f"executor 'ray' needs Ray, which is not installed; install it with: {_INSTALL_RAY}") from None
+    return ray
+
+
+def _check_reachable(address: str | None) -> None:
+    """Raise UserError unless ``address`` (``ray://HOST:PORT`` or ``HOST:PORT``) accepts a TCP
+    connection within a few seconds; ``None`` and ``"auto"`` are left to Ray."""
+    if address is None or address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise UserError(f"bad Ray address {address!r}; {_ADDRESS_HINT}")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=_CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise UserError(
+            f"cannot reach a Ray cluster at {address!r} ({exc.strerror or exc}); "
+            f"check that its head is running (ray start --head) and the host and port: {_ADDRESS_HINT}"
+        ) from None
+
+
+def check_executor_options(kind: str, workers: int | None, address: str | None) -> None:
+    """Raise UserError for options no executor of ``kind`` accepts (see :func:`make_executor`).
+
+    For ``"ray"`` it also checks that Ray is installed and that ``address`` answers, so a command
+    fails at once instead of after its first stage.
+    """
+    if kind not in ("local", "ray"):
+        raise UserError(f"unknown executor {kind!r}; expected 'local' or 'ray'")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise UserError(f"workers must be a positive integer, got {workers!r}; pass e.g. --workers 4 or leave it unset")
+    if kind == "local" and address is not None:
+        raise UserError(f"address {address!r} only applies to executor 'ray'; use --executor ray or drop the address")
+    if kind == "ray":
+        _import_ray()
+        _check_reachable(address)
+
+
 def make_executor(kind: str = "local", *, workers: int | None = None, address: str | None = None) -> Executor:
     """Create an executor.
 
@@ -297,14 +356,9 @@ def make_executor(kind: str = "local", *, workers: int | None = None, address: s
             a local Ray instance. Only valid with ``kind="ray"``.
 
     Raises:
-        UserError: unknown kind, bad ``workers``, ``address`` without Ray, or Ray not installed.
+        UserError: see :func:`check_executor_options`; or Ray refuses the connection.
     """
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
-        raise UserError(f"workers must be a positive integer, got {workers!r}; pass e.g. --workers 4 or leave it unset")
+    check_executor_options(kind, workers, address)
     if kind == "local":
-        if address is not None:
-            raise UserError(f"address {address!r} only applies to executor 'ray'; use --executor ray or drop the address")
         return LocalExecutor(workers=workers or default_workers())
-    if kind == "ray":
-        return RayExecutor(workers=workers, address=address)
-    raise UserError(f"unknown executor {kind!r}; expected 'local' or 'ray'")
+    return RayExecutor(workers=workers, address=address)

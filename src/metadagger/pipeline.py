@@ -51,11 +51,12 @@ def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Po
     """pi*, checked to exist, to load and to be made from this run's config."""
     if not layout.groundtruth.is_file():
         raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+    pistar = load_policy(layout.groundtruth)  # a corrupt file is named even when no work is left
     changes = groundtruth_changes(task, config.groundtruth, layout)
     if changes:
         raise UserError(f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
                         f"run `metadagger reproduce` to rebuild it and what depends on it")
-    return load_policy(layout.groundtruth)
+    return pistar
 
 
 def stage_pairs(layout: RunLayout, config: RunConfig, *, rebuild: bool = False, executor: str = "local",
@@ -103,14 +104,19 @@ def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | N
     return [layout.mapper(kind) for kind in kinds]
 
 
-def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequence[str], head: Policy) -> None:
-    """Every mapper of ``kinds`` exists and was made from the run's current pairs and settings."""
+def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequence[str], pistar: Policy) -> None:
+    """Every mapper of ``kinds`` exists, loads, and was made from the run's current pairs and
+    settings (a mapper saved by hand, without a stamp, is taken as it is)."""
     split = None
     for kind in kinds:
-        if not layout.mapper(kind).is_file():
-            raise UserError(f"mapper {kind} not trained yet (no {layout.mapper(kind)}); run `metadagger train-mapper --out {layout.root} --kind all` first")
+        path = layout.mapper(kind)
+        if not path.is_file():
+            raise UserError(f"mapper {kind} not trained yet (no {path}); run `metadagger train-mapper --out {layout.root} --kind all` first")
+        mapper = load_mapper(path)
+        if not mapper.stamp:
+            continue
         split = split or _current_split(layout, config, task)
-        changes = describe_changes(load_mapper(layout.mapper(kind)).stamp, mapper_stamp(split, config.mapper_config(kind), head.head_vector()))
+        changes = describe_changes(mapper.stamp, mapper_stamp(split, config.mapper_config(kind), pistar.head_vector()))
         if changes:
             raise UserError(f"mapper {kind} in {layout.mapper_dir(kind)} was made from other inputs ({'; '.join(changes)}); "
                             f"run `metadagger train-mapper --out {layout.root} --kind {kind} --rebuild` or `metadagger reproduce`")

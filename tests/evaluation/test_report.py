@@ -53,7 +53,7 @@ def test_rebuilding_gives_the_same_report(run):
 
 
 def test_an_empty_folder_is_no_run(tmp_path):
-    with pytest.raises(UserError, match="no run at"):
+    with pytest.raises(UserError, match="nothing has been run in"):
         build_report(RunLayout(tmp_path))
     write_text(RunLayout(tmp_path).config, "task: carracing\npreset: quick\n")
     with pytest.raises(UserError, match="nothing to report"):

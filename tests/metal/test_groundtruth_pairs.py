@@ -20,6 +20,9 @@ from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
 
 TESTS = Path(__file__).resolve().parents[1]
+# Subprocesses and Ray workers import the toy tasks from here; the caller's PYTHONPATH (e.g. a
+# source checkout) is kept, so they import the same metadagger as this process.
+PYTHONPATH = os.pathsep.join([str(TESTS), str(TESTS / "metal"), *filter(None, [os.environ.get("PYTHONPATH")])])
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100, 101), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 PAIRS = PairConfig(
     seeds=tuple(range(200, 206)), dagger_rounds=1, keep="all",
@@ -108,7 +111,7 @@ collect_pairs(SlowCorridorTask(), RunLayout(sys.argv[1]), PAIRS, workers=1, prog
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
 def test_killed_pairs_run_resumes_without_redoing_or_losing_seeds(gt_run, tmp_path, sig):
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), str(TESTS / "metal")])}
+    env = {**os.environ, "PYTHONPATH": PYTHONPATH}
     with_pistar(gt_run, tmp_path)
     cmd = [sys.executable, "-c", _KILLABLE, str(tmp_path)]
     proc = subprocess.Popen(cmd, env=env, start_new_session=True)
@@ -130,7 +133,7 @@ def test_killed_pairs_run_resumes_without_redoing_or_losing_seeds(gt_run, tmp_pa
 def test_ray_executor_pairs_equal_local(gt_run, tmp_path, monkeypatch):
     pytest.importorskip("ray")
     # the local Ray instance's workers inherit this, so they can import the toy task
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), str(TESTS / "metal")]))
+    monkeypatch.setenv("PYTHONPATH", PYTHONPATH)
     seeds = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:3]})
     collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "local"), seeds, workers=2, progress=False)
     collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "ray"), seeds, executor="ray", workers=2, progress=False)

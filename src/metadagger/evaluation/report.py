@@ -31,7 +31,8 @@ def build_report(layout: RunLayout) -> Path:
         UserError: the folder holds no run (no config), or no stage has written anything yet.
     """
     if not layout.config.is_file():
-        raise UserError(f"no run at {layout.root} (missing {layout.config}); pass the --out of a run")
+        raise UserError(f"nothing has been run in {layout.root} (no config.yaml there); "
+                        "pass the --out of a run started with `metadagger groundtruth` or `metadagger reproduce`")
     parts = [line for section in SECTIONS for line in section(layout)]
     if not parts:
         raise UserError(f"nothing to report in {layout.root}: no stage has finished yet; run `metadagger reproduce` or a stage first")

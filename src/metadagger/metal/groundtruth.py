@@ -59,9 +59,10 @@ def groundtruth_stamp(task: Task, config: GroundTruthConfig) -> dict:
 
 
 def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout) -> list[str]:
-    """How the recorded pi* differs from one ``config`` would make (``[]``: the same, or none yet)."""
+    """How the recorded pi* differs from one ``config`` would make (``[]``: the same, none yet, or a
+    pi* put there by hand, without a stamp: downstream stamps still record its fingerprint)."""
     if not layout.groundtruth_stamp.is_file():
-        return ["no stamp: made by an older metadagger"] if layout.groundtruth.is_file() else []
+        return []
     return describe_changes(json.loads(layout.groundtruth_stamp.read_text()), groundtruth_stamp(task, config))
 
 
