@@ -78,28 +78,11 @@ def test_bench_bc_head_only_refit_is_faster_than_the_full_fit():
     assert 0 < big["inference_ms_batch1"] < 1000
 
 
-PAIRS_PRESETS = """\
-presets:
-  tiny:
-    max_episode_steps: 12
-    groundtruth:
-      seeds: 0-1
-      eval_seeds: 100-100
-      dagger_rounds: 1
-      bc: {lr: 3.0e-3, batch_size: 16, epochs: 1}
-    pairs:
-      seeds: 200-203
-      dagger_rounds: 1
-      keep: all
-      bc: {lr: 1.0e-2, batch_size: 10, epochs: 1, head_only: true}
-      dagger_bc: {lr: 1.0e-2, batch_size: 10, epochs: 1, head_only: true}
-"""
-
-
 def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
-    from toy_task import RunCorridorTask
+    from toy_task import TINY_PRESETS, RunCorridorTask
 
     from metadagger.bench import bench_pairs
+    from metadagger.layout import RunLayout
     from metadagger.pipeline import stage_groundtruth
     from metadagger.run import init_run
     from metadagger.tasks import _FACTORIES, register_task
@@ -107,9 +90,9 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
     register_task("corridor-bench", RunCorridorTask)
     try:
         presets = tmp_path / "presets.yaml"
-        presets.write_text(PAIRS_PRESETS)
+        presets.write_text(TINY_PRESETS)
         run = tmp_path / "run"
-        stage_groundtruth(run, init_run(run, "corridor-bench", "tiny", presets), progress=False)
+        stage_groundtruth(RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), progress=False)
 
         result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10)
         assert not (run / "pairs").exists()  # collected into temporary stores only

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from toy_task import CorridorTask, RunCorridorTask
+from toy_task import TINY_PRESETS, CorridorTask, RunCorridorTask
 from typer.testing import CliRunner
 
 from metadagger.cli import app
@@ -149,17 +149,6 @@ def test_reproduce_with_unknown_task_names_the_known_ones(tmp_path):
     assert not (tmp_path / "r" / "config.yaml").exists()
 
 
-PRESETS_YAML = """\
-presets:
-  tiny:
-    max_episode_steps: 12
-    groundtruth:
-      seeds: 0-1
-      eval_seeds: 100-100
-      dagger_rounds: 1
-      bc: {lr: 3.0e-3, batch_size: 16, epochs: 1}
-    evaluate: {seeds: 300-301, methods: [dm], oneshot: false}
-"""
 
 
 @pytest.fixture
@@ -176,7 +165,7 @@ def corridor_plugin(monkeypatch):
 
 def test_a_corrupt_mapper_is_named_before_any_work(tmp_path, corridor_plugin):
     presets = tmp_path / "presets.yaml"
-    presets.write_text(PRESETS_YAML)
+    presets.write_text(TINY_PRESETS)
     run = tmp_path / "run"
     init_run(run, corridor_plugin, "tiny", presets)
     make_policy(RunCorridorTask(max_episode_steps=12), seed=0).save(RunLayout(run).groundtruth)
@@ -193,7 +182,7 @@ def test_a_task_from_an_installed_package_runs_with_a_presets_file(tmp_path, cor
 
     assert corridor_plugin in tasks.available_tasks()
     presets = tmp_path / "presets.yaml"
-    presets.write_text(PRESETS_YAML)
+    presets.write_text(TINY_PRESETS)
     run = tmp_path / "run"
     result = runner.invoke(app, ["groundtruth", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "tiny", "--out", str(run)])
     assert result.exit_code == 0, result.output
@@ -212,7 +201,7 @@ def test_a_task_whose_factory_rejects_the_run_arguments_is_a_user_error(tmp_path
     register_task("corridor-no-kwargs", CorridorTask)
     try:
         presets = tmp_path / "presets.yaml"
-        presets.write_text(PRESETS_YAML)
+        presets.write_text(TINY_PRESETS)
         _fails_cleanly(["groundtruth", "--task", "corridor-no-kwargs", "--presets", str(presets), "--preset", "tiny", "--out", str(tmp_path / "r")],
                        "cannot be built with {'max_episode_steps': 12}")
     finally:

@@ -140,3 +140,23 @@ class RunCorridorTask(CorridorTask):
     def __init__(self, *, max_episode_steps: int = 30):
         super().__init__(discrete=True)
         self.max_episode_steps = max_episode_steps
+
+
+TINY_PRESETS = """\
+presets:
+  tiny:
+    max_episode_steps: 12
+    groundtruth:
+      seeds: 0-1
+      eval_seeds: 100-100
+      dagger_rounds: 1
+      bc: {lr: 3.0e-3, batch_size: 16, epochs: 1}
+    pairs:
+      seeds: 200-203
+      dagger_rounds: 1
+      keep: all
+      bc: {lr: 1.0e-2, batch_size: 10, epochs: 1, head_only: true}
+      dagger_bc: {lr: 1.0e-2, batch_size: 10, epochs: 1, head_only: true}
+    evaluate: {seeds: 300-301, methods: [dm], oneshot: false}
+"""
+"""A presets file for :class:`RunCorridorTask` runs: a two-seed pi*, four pairs, two evaluation seeds."""

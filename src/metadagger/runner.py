@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 from tqdm.auto import tqdm
 
@@ -26,6 +26,9 @@ from metadagger.errors import UserError
 from metadagger.jsonl import append_line, dumps_line, read_lines
 from metadagger.parallel import make_executor
 from metadagger.stamps import describe_changes
+
+if TYPE_CHECKING:
+    from metadagger.tasks.base import Task
 
 Stamp = Mapping[str, Any]
 """What one method's rows are made from (plain JSON data)."""
@@ -77,6 +80,19 @@ class RowLog:
                 if entry is not None and entry["stamp"] == dict(stamp):
                     out += entry["rows"]
         return out
+
+
+@dataclass(frozen=True)
+class SeedJob:
+    """What every per-seed job carries to its worker (picklable; workers share nothing else);
+    protocols add their own fields."""
+
+    task: Task
+    groundtruth: str
+    """pi*'s file."""
+    seed: int
+    methods: tuple[str, ...]
+    """The methods this seed still needs (from :func:`plan`)."""
 
 
 @dataclass(frozen=True)

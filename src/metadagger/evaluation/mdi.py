@@ -51,7 +51,7 @@ from metadagger.mapping.mappers import Mapper, cached_mapper
 from metadagger.mapping.registry import kind_names
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
-from metadagger.runner import RowLog, Stamp, drive, plan
+from metadagger.runner import RowLog, SeedJob, Stamp, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
@@ -132,16 +132,11 @@ class MDIConfig:
 
 
 @dataclass(frozen=True)
-class MDIJob:
-    """One seed's MDI evaluation (picklable; workers share nothing else)."""
+class MDIJob(SeedJob):
+    """One seed's MDI evaluation."""
 
-    task: Task
-    groundtruth: str
     mappers: dict[str, str]
     """Mapper file of every DAgger-MDI method of this job (see :attr:`MDIConfig.kinds`)."""
-    seed: int
-    methods: tuple[str, ...]
-    """The methods this seed still needs."""
     config: MDIConfig
     """With ``bc`` resolved (never None here)."""
 

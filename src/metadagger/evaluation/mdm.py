@@ -25,7 +25,7 @@ from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
 from metadagger.mapping.registry import kind_names
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
-from metadagger.runner import RowLog, Stamp, drive, plan
+from metadagger.runner import RowLog, SeedJob, Stamp, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
@@ -56,16 +56,11 @@ class EvalConfig:
 
 
 @dataclass(frozen=True)
-class EvalJob:
-    """One seed's evaluation (picklable): the methods it still needs."""
+class EvalJob(SeedJob):
+    """One seed's MDM evaluation; its methods are ``bc`` and/or mapper kinds."""
 
-    task: Task
-    groundtruth: str
     mappers: dict[str, str]
     """Mapper file of every kind this job evaluates."""
-    seed: int
-    methods: tuple[str, ...]
-    """``bc`` and/or mapper kinds."""
     bc: BCConfig
     oneshot: bool
 

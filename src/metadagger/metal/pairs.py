@@ -26,7 +26,7 @@ from metadagger.io import write_json
 from metadagger.layout import RunLayout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.metal.store import PairStore
-from metadagger.runner import drive, plan
+from metadagger.runner import SeedJob, drive, plan
 from metadagger.stamps import describe_changes, file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
@@ -67,12 +67,9 @@ class PairConfig:
 
 
 @dataclass(frozen=True)
-class PairJob:
-    """Everything a worker needs for one seed (picklable; workers share nothing else)."""
+class PairJob(SeedJob):
+    """One seed's pair (its one method is ``pair``)."""
 
-    task: Task
-    groundtruth: str
-    seed: int
     config: PairConfig
 
 
@@ -150,7 +147,7 @@ def collect_pairs(
     stamps = {"pair": pair_stamp(task, layout, config)}
     todo = plan(config.seeds, stamps, store, rebuild=rebuild, what="the pair",
                 fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`")
-    jobs = [PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, config=config) for p in todo]
+    jobs = [PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config) for p in todo]
     drive(collect_pair, jobs, log=store, stamps=stamps, executor=executor, workers=workers, address=address,
           progress=progress, desc="pairs")
     current = {s for s, stamp in store.stamps().items() if stamp["pair"] == stamps["pair"]} & set(config.seeds)
