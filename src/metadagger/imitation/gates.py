@@ -1,0 +1,320 @@
+"""Query rules ("gates") of gated DAgger baselines: which visited states get an expert label.
+
+Plain DAgger asks the expert to label every state the learner visited in a round. A gate asks
+only about some of them (each label is one expert query) and is judged by the return it reaches
+for the queries it spends. Every gate answers the same question through
+:meth:`Gate.select`: given this round's trunk features and learner actions, and every state
+labelled so far (:class:`Labelled`), a boolean mask of the states to label.
+
+The gates:
+
+- ``random(p)``: each state independently with probability ``p`` (the matched-budget control).
+- ``ensemble(K, quantile)``: ``K`` bootstrap ridge heads fitted on the labelled states; a state's
+  score is their disagreement there.
+- ``safe(quantile)``: a ridge classifier of "the learner's action differs from the expert's" fitted
+  on the labelled states; a state's score is its predicted mismatch.
+- ``novelty(k, quantile)``: a state's score is its distance to the ``k``-th nearest labelled state.
+
+Score-based gates label a state when its score is strictly above the ``quantile``-quantile of
+this round's scores (:func:`above_quantile`), so about a ``1 - quantile`` share of distinct
+scores is labelled whatever the task's feature scale: one grid of settings serves every task.
+
+Discrete tasks are told apart from continuous ones by the dtype of the labels: int64 class
+indices or float32 action vectors. Gates take no number of classes: a head fitted on the
+labelled states can only predict classes it has seen, so the one-hot width is the largest
+label + 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+from torch import Tensor
+
+from metadagger.errors import UserError
+
+
+@dataclass(frozen=True)
+class Labelled:
+    """Every state labelled so far: the demonstration's and earlier rounds' labelled states.
+
+    On the demonstration's states the learner action is the expert's own label.
+    """
+
+    features: Tensor
+    """Trunk features, float32 [M, F]."""
+    labels: Tensor
+    """Expert labels: int64 class indices [M] or float32 actions [M, d]."""
+    learner_actions: Tensor
+    """The learner's actions at the same states, laid out as ``labels``."""
+
+    def __post_init__(self) -> None:
+        if self.features.dtype != torch.float32 or self.features.ndim != 2 or len(self.features) == 0:
+            raise UserError(f"Labelled.features must be float32 [M, F] with M >= 1, got {self.features.dtype} {tuple(self.features.shape)}")
+        m = len(self.features)
+        if self.labels.dtype == torch.int64:
+            if tuple(self.labels.shape) != (m,):
+                raise UserError(f"Labelled.labels of class indices must be [M] = ({m},), got {tuple(self.labels.shape)}")
+        elif self.labels.dtype != torch.float32 or self.labels.ndim != 2 or len(self.labels) != m:
+            raise UserError(f"Labelled.labels must be int64 [M] or float32 [M, d] with M = {m}, got {self.labels.dtype} {tuple(self.labels.shape)}")
+        if self.learner_actions.dtype != self.labels.dtype or self.learner_actions.shape != self.labels.shape:
+            raise UserError(
+                f"Labelled.learner_actions must be laid out as the labels ({self.labels.dtype} {tuple(self.labels.shape)}), "
+                f"got {self.learner_actions.dtype} {tuple(self.learner_actions.shape)}"
+            )
+
+    @property
+    def discrete(self) -> bool:
+        """Whether the labels are class indices."""
+        return self.labels.dtype == torch.int64
+
+
+def _check_round(features: Tensor, learner_actions: Tensor, labelled: Labelled) -> None:
+    if features.dtype != torch.float32 or features.ndim != 2 or len(features) == 0:
+        raise UserError(f"a gate needs float32 features [N, F] with N >= 1, got {features.dtype} {tuple(features.shape)}")
+    if features.shape[1] != labelled.features.shape[1]:
+        raise UserError(f"this round's features have width {features.shape[1]} but the labelled ones {labelled.features.shape[1]}; use one trunk for both")
+    expected = (len(features),) + tuple(labelled.labels.shape[1:])
+    if learner_actions.dtype != labelled.labels.dtype or tuple(learner_actions.shape) != expected:
+        raise UserError(
+            f"learner actions must be {labelled.labels.dtype} {expected} (one per state, laid out as the labels), "
+            f"got {learner_actions.dtype} {tuple(learner_actions.shape)}"
+        )
+
+
+def _check_quantile(owner: str, quantile: float) -> None:
+    if not 0.0 <= quantile < 1.0:
+        raise UserError(f"{owner}.quantile must be in [0, 1), got {quantile!r}")
+
+
+def above_quantile(scores: Tensor, quantile: float) -> Tensor:
+    """The states whose score is strictly above the ``quantile``-quantile of ``scores``.
+
+    The quantile interpolates linearly between order statistics (:func:`torch.quantile`), so with
+    N distinct scores about ``(1 - quantile) * N`` states pass (the lowest score never does). A
+    score equal to the threshold does not pass: ties at the threshold are all left out, and a
+    round whose scores are all equal labels nothing.
+
+    Args:
+        scores: one score per state, [N].
+        quantile: in [0, 1).
+
+    Returns:
+        A bool mask [N].
+    """
+    threshold = torch.quantile(scores.double(), quantile)
+    return scores.double() > threshold
+
+
+def _ridge(features: Tensor, targets: Tensor, ridge: float) -> Tensor:
+    """Weights [F + 1, T] (bias last) of a ridge regression of ``targets`` [M, T] on ``features`` [M, F]."""
+    x = _with_bias(features)
+    gram = x.T @ x
+    # the penalty scales with the features' mean energy, so one ridge value suits every trunk
+    gram.diagonal().add_(ridge * gram.diagonal().mean())
+    return torch.linalg.solve(gram, x.T @ targets.double())
+
+
+def _with_bias(features: Tensor) -> Tensor:
+    x = features.double()
+    return torch.cat([x, torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
+
+
+def _check_ridge(owner: str, ridge: float) -> None:
+    if not ridge > 0:
+        raise UserError(f"{owner}.ridge must be > 0, got {ridge!r}")
+
+
+class Gate(ABC):
+    """A query rule of gated DAgger: which of a round's visited states get an expert label."""
+
+    setting: ClassVar[str]
+    """The field set by the sweep value of :func:`make_gate`."""
+
+    def select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, *, generator: torch.Generator) -> Tensor:
+        """The states of this round to label.
+
+        Args:
+            features: trunk features of this round's visited states, float32 [N, F].
+            learner_actions: the learner's actions there, int64 [N] or float32 [N, d] as the labels.
+            labelled: every state labelled so far, for gates that fit on it.
+            generator: the source of all randomness.
+
+        Returns:
+            A bool mask [N]: True for a state to label.
+        """
+        _check_round(features, learner_actions, labelled)
+        return self._select(features, learner_actions, labelled, generator)
+
+    @abstractmethod
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor: ...
+
+
+@dataclass(frozen=True)
+class RandomGate(Gate):
+    """Label each state independently with probability ``p``: the matched-budget control."""
+
+    setting: ClassVar[str] = "p"
+    p: float
+    """Probability of labelling a state, in [0, 1]."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.p <= 1.0:
+            raise UserError(f"RandomGate.p must be in [0, 1], got {self.p!r}")
+
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+        return torch.rand(len(features), generator=generator) < self.p
+
+
+class ScoreGate(Gate):
+    """A gate that scores every state and labels those strictly above this round's quantile."""
+
+    setting: ClassVar[str] = "quantile"
+    quantile: float
+
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+        return above_quantile(self.scores(features, learner_actions, labelled, generator), self.quantile)
+
+    @abstractmethod
+    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+        """One score per state [N]; higher means more worth an expert query."""
+
+
+@dataclass(frozen=True)
+class EnsembleGate(ScoreGate):
+    """Label where ``K`` bootstrap ridge heads fitted on the labelled states disagree.
+
+    Each head is a closed-form ridge regression on the features (one F x F solve) of one-hot class
+    targets or of the action vectors, fitted on the labelled rows resampled with replacement.
+    Disagreement is the variance of the heads' outputs summed over output dimensions (continuous),
+    or the entropy of the heads' argmax votes (discrete). K votes take few distinct entropies, and
+    far from the labelled states the heads often agree on an extrapolated class, so equal
+    entropies are ordered by the output variance of the one-hot heads: the discrete score is the
+    rank of the pair (vote entropy, variance), and only states equal in both tie.
+    """
+
+    quantile: float
+    """Scores strictly above this quantile of the round's scores are labelled, in [0, 1)."""
+    K: int = 5
+    """Bootstrap heads, >= 2."""
+    ridge: float = 1e-3
+    """Ridge penalty relative to the features' mean energy, > 0."""
+
+    def __post_init__(self) -> None:
+        _check_quantile("EnsembleGate", self.quantile)
+        if not isinstance(self.K, int) or self.K < 2:
+            raise UserError(f"EnsembleGate.K must be an integer >= 2, got {self.K!r}")
+        _check_ridge("EnsembleGate", self.ridge)
+
+    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+        """Disagreement of the ``K`` bootstrap heads at each state [N]."""
+        targets = labelled.labels
+        if labelled.discrete:
+            targets = torch.nn.functional.one_hot(targets, int(targets.max()) + 1)
+        m, x = len(targets), _with_bias(features)
+        heads = []
+        for _ in range(self.K):
+            rows = torch.randint(m, (m,), generator=generator)
+            heads.append(x @ _ridge(labelled.features[rows], targets[rows], self.ridge))
+        outputs = torch.stack(heads)
+        variance = outputs.var(dim=0, unbiased=False).sum(dim=1)
+        if not labelled.discrete:
+            return variance
+        votes = torch.nn.functional.one_hot(outputs.argmax(dim=2), outputs.shape[2]).double().mean(dim=0)
+        entropy = -(votes * votes.clamp_min(1e-12).log()).sum(dim=1)
+        # rank by (entropy, variance): unique(dim=0) sorts rows lexicographically, equal pairs share a rank
+        return torch.unique(torch.stack([entropy, variance], dim=1), dim=0, return_inverse=True)[1].double()
+
+
+@dataclass(frozen=True)
+class SafeGate(ScoreGate):
+    """Label where a classifier predicts the learner's action differs from the expert's.
+
+    The classifier is a ridge regression on the features of 0/1 mismatch targets of the labelled
+    states (its output estimates the probability of a mismatch; only its ranking matters). A
+    labelled state is a mismatch when the learner's class differs from the label (discrete), or
+    when the L2 distance between learner action and label is strictly above the median distance
+    over the labelled states (continuous). When the labelled states hold only one kind of target
+    (e.g. only the demonstration, where the learner's action is the label) there is nothing to
+    learn from, and every state is labelled, as plain DAgger would.
+    """
+
+    quantile: float
+    """Scores strictly above this quantile of the round's scores are labelled, in [0, 1)."""
+    ridge: float = 0.1
+    """Ridge penalty relative to the features' mean energy, > 0 (stronger than the ensemble's:
+    mismatch targets are noisy, and the classifier should smooth them rather than fit them)."""
+
+    def __post_init__(self) -> None:
+        _check_quantile("SafeGate", self.quantile)
+        _check_ridge("SafeGate", self.ridge)
+
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+        if len(_mismatch(labelled).unique()) < 2:
+            return torch.ones(len(features), dtype=torch.bool)
+        return super()._select(features, learner_actions, labelled, generator)
+
+    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+        """Predicted mismatch of the learner's action at each state [N]."""
+        weights = _ridge(labelled.features, _mismatch(labelled).double().unsqueeze(1), self.ridge)
+        return (_with_bias(features) @ weights).squeeze(1)
+
+
+def _mismatch(labelled: Labelled) -> Tensor:
+    """Whether the learner's action at each labelled state counts as differing from the label [M]."""
+    if labelled.discrete:
+        return labelled.learner_actions != labelled.labels
+    distance = (labelled.learner_actions - labelled.labels).norm(dim=1)
+    return distance > distance.median()
+
+
+@dataclass(frozen=True)
+class NoveltyGate(ScoreGate):
+    """Label states far from everything labelled: score = Euclidean distance to the ``k``-th
+    nearest labelled feature vector."""
+
+    quantile: float
+    """Scores strictly above this quantile of the round's scores are labelled, in [0, 1)."""
+    k: int = 1
+    """Which nearest labelled neighbour measures the distance, >= 1 (at most the labelled count)."""
+
+    def __post_init__(self) -> None:
+        _check_quantile("NoveltyGate", self.quantile)
+        if not isinstance(self.k, int) or self.k < 1:
+            raise UserError(f"NoveltyGate.k must be an integer >= 1, got {self.k!r}")
+
+    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+        """Distance of each state to its ``k``-th nearest labelled state [N]."""
+        if self.k > len(labelled.features):
+            raise UserError(f"NoveltyGate.k = {self.k} needs at least {self.k} labelled states, got {len(labelled.features)}; lower k")
+        return torch.cdist(features, labelled.features).kthvalue(self.k, dim=1).values
+
+
+GATES: dict[str, type[Gate]] = {"random": RandomGate, "ensemble": EnsembleGate, "safe": SafeGate, "novelty": NoveltyGate}
+"""Every gate by name."""
+
+
+def make_gate(name: str, setting: float, **options: Any) -> Gate:
+    """The gate called ``name`` at one value of its sweep.
+
+    Args:
+        name: a key of :data:`GATES`.
+        setting: ``p`` for ``random``, ``quantile`` for the others.
+        **options: the gate's other fields (``K`` and ``ridge`` for ``ensemble``, ``ridge`` for
+            ``safe``, ``k`` for ``novelty``), left at their defaults when not given.
+
+    Returns:
+        The gate.
+    """
+    if name not in GATES:
+        raise UserError(f"unknown gate {name!r}: expected one of {', '.join(GATES)}")
+    cls = GATES[name]
+    allowed = [f.name for f in dataclasses.fields(cls) if f.name != cls.setting]
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise UserError(f"unknown option(s) {', '.join(unknown)} for gate {name!r}: expected {', '.join(allowed) or 'none'}")
+    return cls(**{cls.setting: setting}, **options)

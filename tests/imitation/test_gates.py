@@ -1,0 +1,175 @@
+"""Query rules of gated DAgger on synthetic features: labelled states in one cluster, queries near and far."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from metadagger.errors import UserError
+from metadagger.imitation.gates import GATES, EnsembleGate, Labelled, NoveltyGate, RandomGate, SafeGate, above_quantile, make_gate
+
+F = 32
+N_NEAR = N_FAR = 100
+
+
+def gen(seed: int = 0) -> torch.Generator:
+    return torch.Generator().manual_seed(seed)
+
+
+def actions(labels: torch.Tensor, discrete: bool) -> torch.Tensor:
+    """Class indices as they are, or as 2-d continuous actions (one point per class)."""
+    return labels if discrete else torch.stack([labels.float(), -labels.float()], dim=1)
+
+
+def scene(discrete: bool) -> tuple[torch.Tensor, torch.Tensor, Labelled]:
+    """Labelled states in three tight blobs (one class each); queries: N_NEAR in the blobs, then N_FAR far away."""
+    g = gen(1)
+    centres = torch.randn(3, F, generator=g)
+    classes = torch.arange(60) % 3
+    labels = actions(classes, discrete)
+    labelled = Labelled(centres[classes] + 0.1 * torch.randn(60, F, generator=g), labels, labels.clone())
+    near_classes = torch.arange(N_NEAR) % 3
+    near = centres[near_classes] + 0.1 * torch.randn(N_NEAR, F, generator=g)
+    far = 4 * torch.randn(N_FAR, F, generator=g)
+    learner = actions(torch.cat([near_classes, torch.zeros(N_FAR, dtype=torch.int64)]), discrete)
+    return torch.cat([near, far]), learner, labelled
+
+
+def mismatch_scene(discrete: bool) -> tuple[torch.Tensor, torch.Tensor, Labelled]:
+    """Labelled states in two blobs: in blob A the learner agrees with the expert, in blob B it does not.
+    Queries: N_NEAR states in blob A, then N_FAR in blob B."""
+    g = gen(2)
+    a, b = torch.randn(2, F, generator=g)
+    feats = torch.cat([a + 0.3 * torch.randn(40, F, generator=g), b + 0.3 * torch.randn(20, F, generator=g)])
+    classes = torch.randint(3, (60,), generator=g)
+    learner_classes = torch.cat([classes[:40], (classes[40:] + 1) % 3])
+    labelled = Labelled(feats, actions(classes, discrete), actions(learner_classes, discrete))
+    if not discrete:  # small learner errors in blob A, so the continuous rule is not just "distance > 0"
+        labelled = Labelled(feats, labelled.labels, labelled.learner_actions + 0.05 * torch.randn(60, 2, generator=g))
+    queries = torch.cat([a + 0.3 * torch.randn(N_NEAR, F, generator=g), b + 0.3 * torch.randn(N_FAR, F, generator=g)])
+    return queries, actions(torch.zeros(len(queries), dtype=torch.int64), discrete), labelled
+
+
+both = pytest.mark.parametrize("discrete", [True, False], ids=["discrete", "box"])
+every_gate = pytest.mark.parametrize("name", list(GATES))
+
+
+@both
+@every_gate
+def test_each_gate_returns_a_bool_mask_per_state(name, discrete):
+    features, learner, labelled = mismatch_scene(discrete)
+    mask = make_gate(name, 0.5).select(features, learner, labelled, generator=gen())
+    assert mask.dtype == torch.bool and mask.shape == (len(features),)
+    assert 0 < int(mask.sum()) < len(features)
+
+
+@both
+@every_gate
+def test_gates_are_deterministic_given_the_generator_seed(name, discrete):
+    features, learner, labelled = mismatch_scene(discrete)
+    gate = make_gate(name, 0.3)
+    first = gate.select(features, learner, labelled, generator=gen(7))
+    assert torch.equal(first, gate.select(features, learner, labelled, generator=gen(7)))
+
+
+def test_ensemble_heads_are_drawn_from_the_generator():
+    features, learner, labelled = scene(False)
+    gate = EnsembleGate(quantile=0.5)
+    assert not torch.equal(*(gate.scores(features, learner, labelled, gen(s)) for s in (1, 2)))
+
+
+def test_random_gate_labels_about_p_of_the_states():
+    features, learner, labelled = scene(True)
+    features, learner = features.repeat(10, 1), learner.repeat(10)  # 2000 states
+    for p in (0.1, 0.5, 0.8):
+        share = RandomGate(p=p).select(features, learner, labelled, generator=gen(3)).float().mean().item()
+        assert abs(share - p) < 4 * (p * (1 - p) / len(features)) ** 0.5
+    assert not RandomGate(p=0.0).select(features, learner, labelled, generator=gen()).any()
+    assert RandomGate(p=1.0).select(features, learner, labelled, generator=gen()).all()
+    masks = [RandomGate(p=0.5).select(features, learner, labelled, generator=gen(s)) for s in (1, 2)]
+    assert not torch.equal(*masks)
+
+
+def test_quantile_rule_labels_the_top_share_of_distinct_scores():
+    scores = torch.randperm(2000, generator=gen()).float()
+    for q in (0.0, 0.25, 0.5, 0.9):
+        mask = above_quantile(scores, q)
+        assert abs(int(mask.sum()) - (1 - q) * 2000) <= 1
+        assert scores[mask].min() > scores[~mask].max()
+    # ties at the threshold are left out: all-equal scores label nothing
+    assert not above_quantile(torch.ones(50), 0.5).any()
+    assert torch.equal(above_quantile(torch.tensor([0.0, 1.0, 1.0, 1.0, 2.0]), 0.5), torch.tensor([False, False, False, False, True]))
+
+
+@both
+@pytest.mark.parametrize(
+    "gate", [EnsembleGate(quantile=0.5), NoveltyGate(quantile=0.5), NoveltyGate(quantile=0.5, k=3)], ids=["ensemble", "novelty", "novelty-k3"]
+)
+def test_uncertainty_gates_select_the_states_far_from_the_labelled_data(gate, discrete):
+    features, learner, labelled = scene(discrete)
+    for seed in range(3):
+        mask = gate.select(features, learner, labelled, generator=gen(seed))
+        assert mask[N_NEAR:].all() and not mask[:N_NEAR].any()
+
+
+@both
+def test_ensemble_disagrees_more_off_the_labelled_data(discrete):
+    features, learner, labelled = scene(discrete)
+    scores = EnsembleGate(quantile=0.5, K=8).scores(features, learner, labelled, gen())
+    assert scores[N_NEAR:].min() > scores[:N_NEAR].max()
+
+
+@both
+def test_safe_gate_selects_states_like_the_labelled_mismatches(discrete):
+    features, learner, labelled = mismatch_scene(discrete)
+    mask = SafeGate(quantile=0.5).select(features, learner, labelled, generator=gen())
+    assert mask[N_NEAR:].all() and not mask[:N_NEAR].any()
+
+
+@both
+def test_safe_gate_labels_everything_when_there_is_no_mismatch_to_learn_from(discrete):
+    features, learner, labelled = scene(discrete)  # learner action == label on every labelled state
+    assert SafeGate(quantile=0.9).select(features, learner, labelled, generator=gen()).all()
+
+
+def test_make_gate_maps_the_sweep_value_and_options():
+    assert make_gate("random", 0.2) == RandomGate(p=0.2)
+    assert make_gate("ensemble", 0.8) == EnsembleGate(quantile=0.8, K=5)
+    assert make_gate("ensemble", 0.8, K=3).K == 3
+    assert make_gate("novelty", 0.7, k=4) == NoveltyGate(quantile=0.7, k=4)
+    assert make_gate("safe", 0.6) == SafeGate(quantile=0.6)
+
+
+def test_bad_names_settings_and_options_are_user_errors():
+    with pytest.raises(UserError, match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty"):
+        make_gate("dropout", 0.5)
+    with pytest.raises(UserError, match=r"RandomGate.p must be in \[0, 1\], got 1.5"):
+        make_gate("random", 1.5)
+    for name in ("ensemble", "safe", "novelty"):
+        with pytest.raises(UserError, match=r"quantile must be in \[0, 1\), got 1.0"):
+            make_gate(name, 1.0)
+        with pytest.raises(UserError, match=r"quantile must be in \[0, 1\), got -0.1"):
+            make_gate(name, -0.1)
+    with pytest.raises(UserError, match="EnsembleGate.K must be an integer >= 2, got 1"):
+        make_gate("ensemble", 0.5, K=1)
+    with pytest.raises(UserError, match="NoveltyGate.k must be an integer >= 1, got 0"):
+        make_gate("novelty", 0.5, k=0)
+    with pytest.raises(UserError, match="SafeGate.ridge must be > 0, got 0"):
+        make_gate("safe", 0.5, ridge=0)
+    with pytest.raises(UserError, match="unknown option.* k for gate 'ensemble': expected K, ridge"):
+        make_gate("ensemble", 0.5, k=3)
+
+
+def test_mismatched_inputs_are_user_errors():
+    features, learner, labelled = scene(True)
+    gate = NoveltyGate(quantile=0.5)
+    with pytest.raises(UserError, match="width 8 but the labelled ones 32"):
+        gate.select(features[:, :8], learner, labelled, generator=gen())
+    with pytest.raises(UserError, match=r"learner actions must be torch.int64 \(200,\)"):
+        gate.select(features, learner.float(), labelled, generator=gen())
+    with pytest.raises(UserError, match="k = 61 needs at least 61 labelled states, got 60"):
+        NoveltyGate(quantile=0.5, k=61).select(features, learner, labelled, generator=gen())
+    with pytest.raises(UserError, match="learner_actions must be laid out as the labels"):
+        Labelled(labelled.features, labelled.labels, labelled.labels[:5])
+    with pytest.raises(UserError, match=r"Labelled.labels must be int64 \[M\] or float32 \[M, d\]"):
+        Labelled(labelled.features, labelled.labels.double(), labelled.labels.double())
