@@ -194,6 +194,38 @@ def evaluate(
 
 @app.command()
 @user_errors
+def benchmark(
+    out: Path = OUT,
+    seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's benchmark.seeds)."),
+    methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated: bc, mdm, dagger, dagger-random, "
+                                          "dagger-ensemble, dagger-safe, dagger-novelty, mdi (default: benchmark.methods)."),
+    overrides: list[str] = SET,
+    rebuild: bool = REBUILD,
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
+) -> None:
+    """Success against expert queries: DAgger, gated DAgger baselines and MetaL DAgger on unseen
+    seeds (benchmark/queries.csv, summary.json, queries.png). Only the missing rows are run."""
+    from metadagger.config import parse_seeds
+    from metadagger.layout import RunLayout
+    from metadagger.parallel import check_executor_options
+    from metadagger.pipeline import load_run, stage_benchmark
+
+    check_executor_options(executor, workers, address)
+    layout = RunLayout(out)
+    config = load_run(out, overrides)
+    if config.benchmark is None:
+        raise UserError(f"run {out} has no benchmark section; add one with --set 'benchmark={{seeds: 5000-5009}}' or use a preset that has one")
+    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else None
+    rows = stage_benchmark(layout, config, seeds=parse_seeds(seeds) if seeds else None, methods=chosen, rebuild=rebuild,
+                           executor=executor, workers=workers, address=address)
+    typer.echo(f"benchmark: {len(rows)} rows on {len({r['seed'] for r in rows})} seeds; wrote {layout.benchmark_table}, "
+               f"{layout.benchmark_summary}, {layout.benchmark_figure}")
+
+
+@app.command()
+@user_errors
 def report(out: Path = OUT) -> None:
     """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
     from metadagger.evaluation.report import build_report

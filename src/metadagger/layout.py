@@ -102,6 +102,32 @@ class RunLayout:
         """The folder of the heads one method was evaluated with (``<seed>.safetensors``)."""
         return self.eval_dir / "heads" / method
 
+    # benchmark
+    @property
+    def benchmark_dir(self) -> Path:
+        """Success against expert queries."""
+        return self.root / "benchmark"
+
+    @property
+    def benchmark_log(self) -> Path:
+        """The benchmark's resume log."""
+        return self.benchmark_dir / "rows.jsonl"
+
+    @property
+    def benchmark_table(self) -> Path:
+        """One row per (method, setting, seed)."""
+        return self.benchmark_dir / "queries.csv"
+
+    @property
+    def benchmark_summary(self) -> Path:
+        """Per (method, setting): success with its interval, mean reward and queries."""
+        return self.benchmark_dir / "summary.json"
+
+    @property
+    def benchmark_figure(self) -> Path:
+        """Success against mean expert queries."""
+        return self.benchmark_dir / "queries.png"
+
     # report
     @property
     def report_dir(self) -> Path:

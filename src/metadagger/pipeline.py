@@ -12,11 +12,13 @@ has an ``mdi`` section (Fetch).
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
 from pathlib import Path
 from typing import Sequence
 
 from metadagger.errors import UserError
+from metadagger.evaluation.benchmark import run_benchmark
 from metadagger.evaluation.curves import plot_curves
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import evaluate_run
@@ -34,7 +36,7 @@ from metadagger.stamps import describe_changes
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
 
-STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "report")
+STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "report")
 
 
 def run_task(config: RunConfig) -> Task:
@@ -160,6 +162,39 @@ def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | No
                         progress=progress)
 
 
+def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
+                    methods: Sequence[str] | None = None, rebuild: bool = False, executor: str = "local",
+                    workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
+    """Success against expert queries on the config's unseen seeds (or ``seeds``), for its methods
+    (or ``methods``); [] for a run without a ``benchmark`` section."""
+    bench = config.benchmark
+    if bench is None:
+        return []
+    changes = {"seeds": _unseen(config, seeds)} if seeds is not None else {}
+    if methods is not None:
+        changes["methods"] = tuple(methods)
+    bench = dataclasses.replace(bench, **changes) if changes else bench
+    task = run_task(config)
+    pistar = _current_groundtruth(layout, config, task)
+    kinds = config.evaluate.methods if "mdm" in bench.methods else ()
+    mdi = config.mdi_config if "mdi" in bench.methods else None
+    _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
+    return run_benchmark(task, layout, bench, rounds=config.pairs.dagger_rounds, bc=config.pairs.bc,
+                         dagger_bc=config.pairs.dagger_bc, early_stop=config.pairs.early_stop, kinds=tuple(kinds), mdi=mdi,
+                         meta_queries=_meta_training_queries(layout, config), rebuild=rebuild, executor=executor,
+                         workers=workers, address=address, progress=progress)
+
+
+def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:
+    """Expert queries spent on pi* and on the pairs of ``pairs.seeds`` (each pair's demonstration
+    and DAgger rounds)."""
+    metrics = json.loads(layout.groundtruth_metrics.read_text()) if layout.groundtruth_metrics.is_file() else {}
+    seeds = set(config.pairs.seeds)
+    records = PairStore(layout.pairs_dir).records() if layout.pairs_dir.is_dir() else []
+    return {"pistar": int(metrics.get("expert_queries", 0)),
+            "pairs": sum(int(r["da"]["expert_queries"]) for r in records if r["seed"] in seeds)}
+
+
 def _heading(number: int, stage: str, progress: bool) -> None:
     if progress:
         print(f"[{number}/{len(STAGES)}] {stage}", file=sys.stderr, flush=True)
@@ -184,9 +219,11 @@ def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Pa
     stage_evaluate(layout, config, rebuild=True, **parallel)
     _heading(5, "mdi: DAgger-MDI vs DAgger-BC vs DAgger" if config.mdi else "mdi: not in this preset", progress)
     stage_mdi(layout, config, rebuild=True, **parallel)
-    _heading(6, "report", progress)
+    _heading(6, "benchmark: success against expert queries" if config.benchmark else "benchmark: not in this preset", progress)
+    stage_benchmark(layout, config, rebuild=True, **parallel)
+    _heading(7, "report", progress)
     return build_report(layout)
 
 
-__all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_evaluate", "stage_groundtruth",
+__all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_benchmark", "stage_evaluate", "stage_groundtruth",
            "stage_mappers", "stage_mdi", "stage_pairs"]

@@ -17,6 +17,7 @@ import yaml
 
 from metadagger.config import build, dump_yaml, load_preset, to_dict
 from metadagger.errors import UserError
+from metadagger.evaluation.benchmark import BenchmarkConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.io import write_text
@@ -50,6 +51,8 @@ class RunConfig:
     mdi: MDIConfig | None = None
     """The MDI protocol (paper Table 6) on unseen seeds; None: not run (CarRacing). Its ``bc``
     defaults to ``pairs.bc`` (:attr:`mdi_config`)."""
+    benchmark: BenchmarkConfig | None = None
+    """Success against expert queries (DAgger, gated DAgger, MetaL DAgger) on unseen seeds; None: not run."""
 
     def __post_init__(self) -> None:
         if self.max_episode_steps < 1:
@@ -58,13 +61,15 @@ class RunConfig:
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
-        unseen = set(self.evaluate.seeds) | (set(self.mdi.seeds) if self.mdi else set())
+        unseen = set(self.evaluate.seeds) | (set(self.mdi.seeds) if self.mdi else set()) | (set(self.benchmark.seeds) if self.benchmark else set())
         seen = sorted((gt | set(self.pairs.seeds)) & unseen)
         if seen:
-            raise UserError(f"evaluate.seeds and mdi.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' seeds; pick disjoint ranges")
+            raise UserError(f"evaluate.seeds, mdi.seeds and benchmark.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' seeds; pick disjoint ranges")
         unknown = sorted(set(self.mappers) - set(learned_names()))
         if unknown:
             raise UserError(f"mappers has unknown kind(s) {unknown}; expected one of {', '.join(learned_names())}")
+        if self.benchmark is not None and "mdi" in self.benchmark.methods and self.mdi is None:
+            raise UserError("benchmark.methods has mdi, but the run has no mdi section; drop mdi or add an mdi section")
         if self.mdi is not None and self.mdi.bc is not None and self.mdi.bc != self.pairs.bc:
             raise UserError("mdi.bc differs from pairs.bc, but DAgger-MDI must fit w_BC exactly as the pairs did (the mapper "
                             "learned from those); drop mdi.bc (it defaults to pairs.bc)")
@@ -86,6 +91,8 @@ class RunConfig:
         """The mapper kinds this run uses (``evaluate.methods``, ``mdi.mapper`` and
         ``mdi.controls``), in registry order (:mod:`metadagger.mapping.registry`)."""
         used = set(self.evaluate.methods) | (set(self.mdi.kinds.values()) if self.mdi else set())
+        if self.benchmark is not None and "mdi" in self.benchmark.methods and self.mdi is not None:
+            used.add(self.mdi.mapper)
         return tuple(kind for kind in kind_names() if kind in used)
 
     @property

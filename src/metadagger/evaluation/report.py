@@ -3,8 +3,9 @@
 Sections appear for the stages a run has finished, one module each: the run itself (pi*, pairs,
 mappers: :mod:`~metadagger.evaluation.report_run`), MDM (Tables 1-2, Fig. 4:
 :mod:`~metadagger.evaluation.report_mdm`), one-shot (Tables 3-5:
-:mod:`~metadagger.evaluation.report_oneshot`) and MDI (Table 7, Fig. 5:
-:mod:`~metadagger.evaluation.report_mdi`).
+:mod:`~metadagger.evaluation.report_oneshot`), MDI (Table 7, Fig. 5:
+:mod:`~metadagger.evaluation.report_mdi`) and success against expert queries
+(:mod:`~metadagger.evaluation.report_benchmark`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 import yaml
 
 from metadagger.errors import UserError
+from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.report_mdi import mdi_section
 from metadagger.evaluation.report_mdm import mdm_section
 from metadagger.evaluation.report_oneshot import oneshot_section
@@ -21,7 +23,7 @@ from metadagger.evaluation.report_run import groundtruth_section, mappers_sectio
 from metadagger.io import write_text
 from metadagger.layout import RunLayout
 
-SECTIONS = (groundtruth_section, pairs_section, mappers_section, mdm_section, oneshot_section, mdi_section)
+SECTIONS = (groundtruth_section, pairs_section, mappers_section, mdm_section, oneshot_section, mdi_section, benchmark_section)
 
 
 def build_report(layout: RunLayout) -> Path:

@@ -10,7 +10,10 @@ from metadagger.imitation.metrics import summarize
 from metadagger.mapping.registry import get_kind, kind_names
 
 #: Labels of the methods that are not mapper kinds.
-PROTOCOL_LABELS = {"bc": "BC", "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger"}
+PROTOCOL_LABELS = {"bc": "BC", "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger",
+                   "dagger-bc-init": "DAgger-BC (MDI protocol)", "dagger-xavier": "DAgger from Xavier (MDI protocol)",
+                   "dagger-random": "DAgger, random gate", "dagger-ensemble": "DAgger, ensemble gate",
+                   "dagger-safe": "DAgger, SafeDAgger gate", "dagger-novelty": "DAgger, novelty gate"}
 
 
 def method_label(method: str) -> str:
@@ -18,6 +21,8 @@ def method_label(method: str) -> str:
     (``oneshot-<kind>``), a Table 6 method, or DAgger-MDI initialised by a control."""
     if method in PROTOCOL_LABELS:
         return PROTOCOL_LABELS[method]
+    if method.startswith("mdm-"):
+        return f"MDM {get_kind(method.removeprefix('mdm-')).label}"
     if method.startswith("oneshot-"):
         return f"one-shot {get_kind(method.removeprefix('oneshot-')).label}"
     if method.startswith("dagger-mdi-"):

@@ -1,0 +1,130 @@
+"""Success against expert queries on the toy corridor: exact query counts, every method, resume."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+
+import pytest
+from toy_task import CorridorTask
+
+from metadagger.errors import UserError
+from metadagger.evaluation import benchmark as bench
+from metadagger.evaluation.benchmark import BenchmarkConfig, method_keys, run_benchmark
+from metadagger.evaluation.report_benchmark import benchmark_section
+from metadagger.evaluation.rows import read_csv
+from metadagger.imitation.bc import BCConfig
+from metadagger.imitation.rollouts import collect
+from metadagger.layout import RunLayout
+from metadagger.mapping.mappers import Mapper
+from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
+from metadagger.policies import load_policy
+
+GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
+SEEDS = (300, 301)
+CONFIG = BenchmarkConfig(seeds=SEEDS, grids={"dagger-random": [0.0, 0.5], "dagger-ensemble": [0.5], "dagger-safe": [0.5],
+                                             "dagger-novelty": [0.5]})
+ROUNDS = 2
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory) -> RunLayout:
+    layout = RunLayout(tmp_path_factory.mktemp("bench"))
+    train_groundtruth(CorridorTask(), GT, layout, progress=False)
+    Mapper.pistar_head(load_policy(layout.groundtruth).head_vector()).save(layout.mapper("pistar-head"))
+    return layout
+
+
+def _run(layout: RunLayout, config: BenchmarkConfig = CONFIG, **kwargs) -> list[dict]:
+    return run_benchmark(CorridorTask(), layout, config, rounds=ROUNDS, bc=BC, dagger_bc=BC, early_stop=None,
+                         kinds=("pistar-head",), mdi=None, meta_queries={"pistar": 900, "pairs": 100}, workers=1,
+                         progress=False, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def rows(toy_run) -> list[dict]:
+    return _run(toy_run)
+
+
+def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
+    keys = method_keys(CONFIG, rounds=ROUNDS, kinds=("pistar-head",), mdi=False)
+    assert keys == ["bc@", "mdm-pistar-head@", "dagger@1", "dagger@2", "dagger-random@0", "dagger-random@0.5",
+                    "dagger-ensemble@0.5", "dagger-safe@0.5", "dagger-novelty@0.5"]
+    assert [f"{r['method']}@{r['setting']}" for r in rows] == keys * len(SEEDS)
+    assert tuple(read_csv(toy_run.benchmark_table)[0]) == bench.FIELDS
+
+
+def test_queries_are_counted_exactly(toy_run, rows):
+    task = CorridorTask()
+    demos = {t.seed: t.steps for t in collect(task, SEEDS, policy=None)}
+    table = {(r["method"], str(r["setting"]), r["seed"]): r for r in rows}
+    for seed in SEEDS:
+        # BC and MDM: the demonstration only; a random gate with p = 0 labels nothing more
+        for key in (("bc", "", seed), ("mdm-pistar-head", "", seed), ("dagger-random", "0", seed)):
+            assert table[key]["expert_queries"] == demos[seed]
+        # DAgger labels every state of the rollouts before each refit: BC's, then round 1's policy's
+        steps_before = [table["bc", "", seed]["steps"], table["dagger", "1", seed]["steps"]]
+        assert table["dagger", "1", seed]["expert_queries"] == demos[seed] + steps_before[0]
+        assert table["dagger", "2", seed]["expert_queries"] == demos[seed] + sum(steps_before)
+        for method in ("dagger-random", "dagger-ensemble", "dagger-safe", "dagger-novelty"):
+            gated = table[method, "0.5", seed]["expert_queries"]
+            assert demos[seed] <= gated <= table["dagger", "2", seed]["expert_queries"] + 30  # a gate labels a subset
+
+
+def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch):
+    """Every query is a state the gate selected: count the selections independently."""
+    selected = []
+    real = bench.make_gate
+
+    def counting(name, setting, **options):
+        gate = real(name, setting, **options)
+
+        class Counting:
+            def select(self, *args, **kwargs):
+                mask = gate.select(*args, **kwargs)
+                selected.append(int(mask.sum()))
+                return mask
+        return Counting()
+
+    monkeypatch.setattr(bench, "make_gate", counting)
+    job = bench.BenchmarkJob(task=CorridorTask(), groundtruth=str(toy_run.groundtruth), seed=SEEDS[0],
+                             methods=("dagger-novelty@0.5",), mappers={}, config=CONFIG, rounds=ROUNDS, bc=BC,
+                             dagger_bc=BC, early_stop=None, mdi=None)
+    [row] = bench.benchmark_seed(job)["entries"]["dagger-novelty@0.5"]  # in this process: the patch applies
+    demo = collect(CorridorTask(), SEEDS[:1], policy=None)[0].steps
+    assert len(selected) == ROUNDS and row["expert_queries"] == demo + sum(selected)
+
+
+def test_resume_and_widening_add_only_the_missing_rows(toy_run, rows, tmp_path):
+    layout = RunLayout(tmp_path)
+    shutil.copytree(toy_run.groundtruth_dir, layout.groundtruth_dir)
+    shutil.copytree(toy_run.root / "mappers", layout.root / "mappers")
+    _run(layout, dataclasses.replace(CONFIG, seeds=SEEDS[:1], methods=("bc", "dagger")))
+    before = layout.benchmark_log.read_text()
+    again = _run(layout)
+    assert layout.benchmark_log.read_text().startswith(before)
+    assert again == rows  # the same rows as one full run
+    assert layout.benchmark_table.read_bytes() == toy_run.benchmark_table.read_bytes()
+
+
+def test_summary_figure_and_report_section(toy_run, rows):
+    summary = json.loads(toy_run.benchmark_summary.read_text())
+    assert summary["meta_training_queries"] == {"pistar": 900, "pairs": 100}
+    dagger2 = next(e for e in summary["entries"] if e["method"] == "dagger" and e["setting"] == "2")
+    assert dagger2["seeds"] == len(SEEDS) and 0 <= dagger2["success_ci_low"] <= dagger2["success_rate"] <= dagger2["success_ci_high"]
+    assert toy_run.benchmark_figure.read_bytes()[:4] == b"\x89PNG"
+    text = "\n".join(benchmark_section(toy_run))
+    assert "## Success against expert queries" in text and "figures/queries.png" in text
+    assert "Meta-training spent 1000 expert queries: 900 on pi* and 100 on the pairs." in text
+    assert "Cheapest setting reaching 90% of DAgger's final success" in text
+
+
+def test_config_errors():
+    with pytest.raises(UserError, match="benchmark.methods has unknown method"):
+        BenchmarkConfig(methods=("dagger-magic",))
+    with pytest.raises(UserError, match="benchmark.grids.dagger-ensemble is missing"):
+        BenchmarkConfig(grids={"dagger-random": [0.1]})
+    with pytest.raises(UserError, match="benchmark.grids has unknown"):
+        BenchmarkConfig(grids={**CONFIG.grids, "dagger-x": [0.5]})
