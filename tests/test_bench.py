@@ -12,6 +12,7 @@ import pytest
 
 from metadagger.bench import bench_env, smooth_actions, write_bench
 from metadagger.errors import UserError
+from metadagger.runner import StageOptions
 
 
 def test_smooth_actions_are_seeded_and_in_range():
@@ -92,7 +93,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         presets = tmp_path / "presets.yaml"
         presets.write_text(TINY_PRESETS)
         run = tmp_path / "run"
-        stage_groundtruth(RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), progress=False)
+        stage_groundtruth(RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False))
 
         result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10)
         assert not (run / "pairs").exists()  # collected into temporary stores only

@@ -16,6 +16,7 @@ from metadagger.evaluation.rows import read_csv
 from metadagger.layout import RunLayout
 from metadagger.mapping.registry import kind_names
 from metadagger.pipeline import init_run, reproduce, stage_mdi
+from metadagger.runner import StageOptions
 
 runner = CliRunner()
 
@@ -67,7 +68,7 @@ def _stamps(run: Path) -> dict[Path, int]:
 def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
     pytest.importorskip("gymnasium_robotics")
     run = tmp_path / "run"
-    report = reproduce("fetch", "ci", run, workers=2, progress=False).read_text()
+    report = reproduce("fetch", "ci", run, options=StageOptions(workers=2, progress=False)).read_text()
     # only the kinds the run uses: evaluate.methods [dm, mean-da, pistar-head] and mdi.mapper dm
     assert sorted(p.name for p in (run / "mappers").iterdir()) == ["dm", "mean-da", "pistar-head"]
     rows = read_csv(run / "eval" / "mdi.csv")
@@ -81,7 +82,7 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
 
     # a finished run resumes without redoing any stage, from reproduce and from the CLI
     before = _stamps(run)
-    assert reproduce("fetch", "ci", run, progress=False).read_text() == report
+    assert reproduce("fetch", "ci", run, options=StageOptions(progress=False)).read_text() == report
     again = runner.invoke(app, ["evaluate", "--out", str(run)])
     assert again.exit_code == 0, again.output
     assert "MDM: evaluated 2 seeds" in again.output and f"MDI: evaluated 2 seeds; wrote {run / 'eval' / 'mdi.csv'}" in again.output
@@ -100,8 +101,8 @@ def _artifacts(run: Path) -> dict[str, bytes | list[bytes]]:
 
 def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(tmp_path):
     pytest.importorskip("gymnasium_robotics")
-    first = _artifacts(reproduce("fetch", "ci", tmp_path / "a", workers=2, progress=False).parent.parent)
-    second = _artifacts(reproduce("fetch", "ci", tmp_path / "b", workers=1, progress=False).parent.parent)
+    first = _artifacts(reproduce("fetch", "ci", tmp_path / "a", options=StageOptions(workers=2, progress=False)).parent.parent)
+    second = _artifacts(reproduce("fetch", "ci", tmp_path / "b", options=StageOptions(workers=1, progress=False)).parent.parent)
     assert any(name.startswith("pairs/") and name.endswith(".safetensors") for name in first)
     assert first.keys() == second.keys()
     assert [name for name in first if first[name] != second[name]] == []

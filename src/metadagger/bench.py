@@ -215,6 +215,7 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     from metadagger.layout import RunLayout
     from metadagger.metal.pairs import collect_pairs
     from metadagger.pipeline import load_run, run_task
+    from metadagger.runner import StageOptions
 
     run = Path(run)
     layout = RunLayout(run)
@@ -231,7 +232,7 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
             scratch.groundtruth_dir.mkdir()
             scratch.groundtruth.symlink_to(layout.groundtruth.resolve())
             start = time.perf_counter()
-            summary = collect_pairs(task, scratch, pairs_config, workers=n, progress=False)
+            summary = collect_pairs(task, scratch, pairs_config, StageOptions(workers=n, progress=False))
             timings[str(n)] = time.perf_counter() - start
     run_summary = layout.pairs_summary
     kept_source = json.loads(run_summary.read_text()) if run_summary.is_file() else summary

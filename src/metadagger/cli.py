@@ -8,12 +8,15 @@ from __future__ import annotations
 import functools
 import json
 from pathlib import Path
-from typing import Callable, Optional, TypeVar
+from typing import TYPE_CHECKING, Callable, Optional, TypeVar
 
 import typer
 
 from metadagger.errors import UserError
 from metadagger.mapping.registry import kind_names
+
+if TYPE_CHECKING:
+    from metadagger.runner import StageOptions
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.")
@@ -110,8 +113,10 @@ def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets
     from metadagger.layout import RunLayout
     from metadagger.pipeline import init_run, stage_groundtruth
 
+    from metadagger.runner import StageOptions
+
     layout = RunLayout(out)
-    metrics = stage_groundtruth(layout, init_run(out, task, preset, presets, overrides), rebuild=rebuild)
+    metrics = stage_groundtruth(layout, init_run(out, task, preset, presets, overrides), StageOptions(rebuild=rebuild))
     for name in ("own_seeds", "unseen_seeds"):
         m = metrics[name]
         typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} successes ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
@@ -124,12 +129,11 @@ def pairs(out: Path = OUT, overrides: list[str] = SET, rebuild: bool = REBUILD, 
           workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
     """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
     from metadagger.layout import RunLayout
-    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import load_run, stage_pairs
 
-    check_executor_options(executor, workers, address)
+    options = _options(rebuild, executor, workers, address)  # before any work
     layout = RunLayout(out)
-    summary = stage_pairs(layout, load_run(out, overrides), rebuild=rebuild, executor=executor, workers=workers, address=address)
+    summary = stage_pairs(layout, load_run(out, overrides), options)
     typer.echo(json.dumps(summary, indent=2))
     typer.echo(f"wrote {layout.pairs_dir}")
 
@@ -147,11 +151,22 @@ def train_mapper_cmd(
     from metadagger.pipeline import load_run, stage_mappers
 
     kinds = kind_names() if kind == "all" else (kind,)
-    for path in stage_mappers(RunLayout(out), load_run(out, overrides), kinds, rebuild=rebuild):
+    from metadagger.runner import StageOptions
+
+    for path in stage_mappers(RunLayout(out), load_run(out, overrides), kinds, StageOptions(rebuild=rebuild)):
         typer.echo(f"wrote {path}")
 
 
 PROTOCOLS = ("mdm", "mdi", "all")
+
+
+def _options(rebuild: bool, executor: str, workers: int | None, address: str | None) -> StageOptions:
+    """A stage's options from the command line, its executor options checked before any work."""
+    from metadagger.parallel import check_executor_options
+    from metadagger.runner import StageOptions
+
+    check_executor_options(executor, workers, address)
+    return StageOptions(rebuild=rebuild, executor=executor, workers=workers, address=address)
 
 
 @app.command()
@@ -171,24 +186,22 @@ def evaluate(
     Only the missing (seed, method) rows are evaluated."""
     from metadagger.config import parse_seeds
     from metadagger.layout import RunLayout
-    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import load_run, stage_evaluate, stage_mdi
 
-    check_executor_options(executor, workers, address)
+    options = _options(rebuild, executor, workers, address)
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; expected {', '.join(PROTOCOLS)}")
     layout = RunLayout(out)
     config = load_run(out, overrides)
     if protocol == "mdi" and config.mdi is None:
         raise UserError(f"run {out} (task {config.task}) has no mdi section; use --protocol mdm")
-    options = {"seeds": parse_seeds(seeds) if seeds else None, "rebuild": rebuild, "executor": executor,
-               "workers": workers, "address": address}
+    chosen = parse_seeds(seeds) if seeds else None
     if protocol in ("mdm", "all"):
-        rows = stage_evaluate(layout, config, **options)
+        rows = stage_evaluate(layout, config, seeds=chosen, options=options)
         tables = ("mdm", "oneshot") if config.evaluate.oneshot else ("mdm",)
         typer.echo(f"MDM: evaluated {len({r['seed'] for r in rows})} seeds; wrote {', '.join(str(layout.eval_table(t)) for t in tables)}")
     if protocol in ("mdi", "all") and config.mdi is not None:
-        rows = stage_mdi(layout, config, **options)
+        rows = stage_mdi(layout, config, seeds=chosen, options=options)
         typer.echo(f"MDI: evaluated {len({r['seed'] for r in rows})} seeds; wrote {layout.eval_table('mdi')}")
 
 
@@ -209,17 +222,15 @@ def benchmark(
     seeds (benchmark/queries.csv, summary.json, queries.png). Only the missing rows are run."""
     from metadagger.config import parse_seeds
     from metadagger.layout import RunLayout
-    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import load_run, stage_benchmark
 
-    check_executor_options(executor, workers, address)
+    options = _options(rebuild, executor, workers, address)
     layout = RunLayout(out)
     config = load_run(out, overrides)
     if config.benchmark is None:
         raise UserError(f"run {out} has no benchmark section; add one with --set 'benchmark={{seeds: 5000-5009}}' or use a preset that has one")
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else None
-    rows = stage_benchmark(layout, config, seeds=parse_seeds(seeds) if seeds else None, methods=chosen, rebuild=rebuild,
-                           executor=executor, workers=workers, address=address)
+    rows = stage_benchmark(layout, config, seeds=parse_seeds(seeds) if seeds else None, methods=chosen, options=options)
     typer.echo(f"benchmark: {len(rows)} rows on {len({r['seed'] for r in rows})} seeds; wrote {layout.benchmark_table}, "
                f"{layout.benchmark_summary}, {layout.benchmark_figure}")
 
@@ -248,11 +259,9 @@ def reproduce(
 ) -> None:
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
-    from metadagger.parallel import check_executor_options
     from metadagger.pipeline import reproduce as run_all
 
-    check_executor_options(executor, workers, address)
-    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, executor=executor, workers=workers, address=address)
+    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, options=_options(False, executor, workers, address))
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
 

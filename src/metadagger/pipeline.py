@@ -32,6 +32,7 @@ from metadagger.metal.pairs import collect_pairs, pair_status
 from metadagger.metal.store import PairSplit, PairStore
 from metadagger.policies import Policy, load_policy
 from metadagger.run import RunConfig, init_run, load_run
+from metadagger.runner import StageOptions
 from metadagger.stamps import describe_changes
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
@@ -44,9 +45,9 @@ def run_task(config: RunConfig) -> Task:
     return make_task(config.task, **config.task_kwargs)
 
 
-def stage_groundtruth(layout: RunLayout, config: RunConfig, *, rebuild: bool = False, progress: bool = True) -> dict:
+def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Train pi* (skipped when done and made from this config)."""
-    return train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=rebuild, progress=progress)
+    return train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress)
 
 
 def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Policy:
@@ -61,13 +62,11 @@ def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Po
     return pistar
 
 
-def stage_pairs(layout: RunLayout, config: RunConfig, *, rebuild: bool = False, executor: str = "local",
-                workers: int | None = None, address: str | None = None, progress: bool = True) -> dict:
-    """Collect the pairs of every seed not stored yet (with ``rebuild``, also the stale ones)."""
+def stage_pairs(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
+    """Collect the pairs of every seed not stored yet (with ``options.rebuild``, also the stale ones)."""
     task = run_task(config)
     _current_groundtruth(layout, config, task)
-    return collect_pairs(task, layout, config.pairs, rebuild=rebuild, executor=executor, workers=workers,
-                         address=address, progress=progress)
+    return collect_pairs(task, layout, config.pairs, options)
 
 
 def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSplit:
@@ -90,8 +89,8 @@ def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSpli
     return split
 
 
-def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | None = None, *, rebuild: bool = False,
-                  progress: bool = True) -> list[Path]:
+def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | None = None,
+                  options: StageOptions = StageOptions()) -> list[Path]:
     """Train the mappers of ``kinds`` (default: the kinds the run uses, ``config.mapper_kinds``)
     on the run's current kept pairs; curves.png beside each."""
     kinds = config.mapper_kinds if kinds is None else tuple(kinds)
@@ -101,7 +100,8 @@ def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | N
     head = _current_groundtruth(layout, config, task).head_vector()
     split = _current_split(layout, config, task)
     for kind in kinds:
-        train_mapper(split, config.mapper_config(kind), layout.mapper_dir(kind), pistar_head=head, rebuild=rebuild, progress=progress)
+        train_mapper(split, config.mapper_config(kind), layout.mapper_dir(kind), pistar_head=head, rebuild=options.rebuild,
+                     progress=options.progress)
         plot_curves(layout.mapper_curves(kind), layout.mapper_curves_figure(kind))
     return [layout.mapper(kind) for kind in kinds]
 
@@ -133,22 +133,19 @@ def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
     return tuple(seeds)
 
 
-def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None, rebuild: bool = False,
-                   executor: str = "local", workers: int | None = None, address: str | None = None,
-                   progress: bool = True) -> list[dict]:
+def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
+                   options: StageOptions = StageOptions()) -> list[dict]:
     """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``): the missing
     (seed, method) rows only."""
     eval_config = config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, eval_config.methods, pistar)
-    return evaluate_run(task, layout, eval_config, bc=config.pairs.bc, rebuild=rebuild, executor=executor,
-                        workers=workers, address=address, progress=progress)
+    return evaluate_run(task, layout, eval_config, bc=config.pairs.bc, options=options)
 
 
-def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None, rebuild: bool = False,
-              executor: str = "local", workers: int | None = None, address: str | None = None,
-              progress: bool = True) -> list[dict]:
+def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
+              options: StageOptions = StageOptions()) -> list[dict]:
     """The MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) on the config's unseen seeds (or on
     ``seeds``); [] for a run without an ``mdi`` section."""
     mdi = config.mdi_config
@@ -158,13 +155,11 @@ def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | No
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, tuple(mdi.kinds.values()), pistar)
-    return evaluate_mdi(task, layout, mdi, rebuild=rebuild, executor=executor, workers=workers, address=address,
-                        progress=progress)
+    return evaluate_mdi(task, layout, mdi, options)
 
 
 def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
-                    methods: Sequence[str] | None = None, rebuild: bool = False, executor: str = "local",
-                    workers: int | None = None, address: str | None = None, progress: bool = True) -> list[dict]:
+                    methods: Sequence[str] | None = None, options: StageOptions = StageOptions()) -> list[dict]:
     """Success against expert queries on the config's unseen seeds (or ``seeds``), for its methods
     (or ``methods``); [] for a run without a ``benchmark`` section."""
     bench = config.benchmark
@@ -181,8 +176,7 @@ def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int
     _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
     return run_benchmark(task, layout, bench, rounds=config.pairs.dagger_rounds, bc=config.pairs.bc,
                          dagger_bc=config.pairs.dagger_bc, early_stop=config.pairs.early_stop, kinds=tuple(kinds), mdi=mdi,
-                         meta_queries=_meta_training_queries(layout, config), rebuild=rebuild, executor=executor,
-                         workers=workers, address=address, progress=progress)
+                         meta_queries=_meta_training_queries(layout, config), options=options)
 
 
 def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:
@@ -201,29 +195,30 @@ def _heading(number: int, stage: str, progress: bool) -> None:
 
 
 def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Path | None = None,
-              overrides: Sequence[str] = (), executor: str = "local", workers: int | None = None,
-              address: str | None = None, progress: bool = True) -> Path:
+              overrides: Sequence[str] = (), options: StageOptions = StageOptions()) -> Path:
     """Every stage in order, each resuming where a previous run stopped and rebuilding what a
-    changed input made stale; returns the report path. ``presets_file``: a YAML file of presets to
-    take ``preset`` from instead of the packaged one; ``overrides``: ``section.key=value`` items."""
+    changed input made stale (``options.rebuild`` is always on); returns the report path.
+    ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one;
+    ``overrides``: ``section.key=value`` items."""
     layout = RunLayout(run)
     config = init_run(run, task, preset, presets_file, overrides)
-    parallel = {"executor": executor, "workers": workers, "address": address, "progress": progress}
-    _heading(1, "groundtruth: pi*", progress)
-    stage_groundtruth(layout, config, rebuild=True, progress=progress)
-    _heading(2, "pairs (w_BC, w_DA)", progress)
-    stage_pairs(layout, config, rebuild=True, **parallel)
-    _heading(3, f"mappers: {', '.join(config.mapper_kinds)}", progress)
-    stage_mappers(layout, config, rebuild=True, progress=progress)
-    _heading(4, "evaluate: MDM and one-shot", progress)
-    stage_evaluate(layout, config, rebuild=True, **parallel)
-    _heading(5, "mdi: DAgger-MDI vs DAgger-BC vs DAgger" if config.mdi else "mdi: not in this preset", progress)
-    stage_mdi(layout, config, rebuild=True, **parallel)
-    _heading(6, "benchmark: success against expert queries" if config.benchmark else "benchmark: not in this preset", progress)
-    stage_benchmark(layout, config, rebuild=True, **parallel)
-    _heading(7, "report", progress)
+    options = dataclasses.replace(options, rebuild=True)
+    stages = [
+        ("groundtruth: pi*", lambda: stage_groundtruth(layout, config, options)),
+        ("pairs (w_BC, w_DA)", lambda: stage_pairs(layout, config, options)),
+        (f"mappers: {', '.join(config.mapper_kinds)}", lambda: stage_mappers(layout, config, options=options)),
+        ("evaluate: MDM and one-shot", lambda: stage_evaluate(layout, config, options=options)),
+        ("mdi: DAgger-MDI vs DAgger-BC vs DAgger" if config.mdi else "mdi: not in this preset",
+         lambda: stage_mdi(layout, config, options=options)),
+        ("benchmark: success against expert queries" if config.benchmark else "benchmark: not in this preset",
+         lambda: stage_benchmark(layout, config, options=options)),
+    ]
+    for number, (heading, stage) in enumerate(stages, 1):
+        _heading(number, heading, options.progress)
+        stage()
+    _heading(len(STAGES), "report", options.progress)
     return build_report(layout)
 
 
 __all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_benchmark", "stage_evaluate", "stage_groundtruth",
-           "stage_mappers", "stage_mdi", "stage_pairs"]
+           "stage_mappers", "stage_mdi", "stage_pairs", "StageOptions"]

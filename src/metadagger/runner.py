@@ -83,6 +83,23 @@ class RowLog:
 
 
 @dataclass(frozen=True)
+class StageOptions:
+    """How a stage runs its work: what it does with stale rows, where its per-seed jobs run, and
+    whether it draws progress bars. Every stage takes one."""
+
+    rebuild: bool = False
+    """Redo work made from other inputs (another pi*, mapper or settings) instead of refusing."""
+    executor: str = "local"
+    """``local`` (a process pool) or ``ray`` (:func:`metadagger.parallel.make_executor`)."""
+    workers: int | None = None
+    """Parallel workers; default: this machine's cores, or the Ray cluster's CPUs."""
+    address: str | None = None
+    """Ray cluster address; None starts a local Ray instance (executor ``ray`` only)."""
+    progress: bool = True
+    """Draw progress bars."""
+
+
+@dataclass(frozen=True)
 class SeedJob:
     """What every per-seed job carries to its worker (picklable; workers share nothing else);
     protocols add their own fields."""
@@ -144,14 +161,14 @@ def plan(seeds: Sequence[int], stamps: Mapping[str, Stamp], log: SeedLog, *, reb
 
 
 def drive(work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], *, log: SeedLog, stamps: Mapping[str, Stamp],
-          save: Callable[[dict[str, Any]], None] | None = None, executor: str = "local", workers: int | None = None,
-          address: str | None = None, progress: bool = True, desc: str = "seeds") -> None:
+          save: Callable[[dict[str, Any]], None] | None = None, options: StageOptions = StageOptions(),
+          desc: str = "seeds") -> None:
     """Run ``work`` on every job, in parallel; as each result arrives, ``save`` its artifacts and
     then append it to ``log`` with its methods' stamps."""
     if not jobs:
         return
-    with make_executor(executor, workers=workers, address=address) as pool:
-        for result in tqdm(pool.imap_unordered(work, jobs), total=len(jobs), desc=desc, disable=not progress):
+    with make_executor(options.executor, workers=options.workers, address=options.address) as pool:
+        for result in tqdm(pool.imap_unordered(work, jobs), total=len(jobs), desc=desc, disable=not options.progress):
             if save is not None:
                 save(result)
             log.append(result, stamps)

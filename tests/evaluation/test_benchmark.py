@@ -20,6 +20,7 @@ from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
 from metadagger.policies import load_policy
+from metadagger.runner import StageOptions
 
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
@@ -39,8 +40,8 @@ def toy_run(tmp_path_factory) -> RunLayout:
 
 def _run(layout: RunLayout, config: BenchmarkConfig = CONFIG, **kwargs) -> list[dict]:
     return run_benchmark(CorridorTask(), layout, config, rounds=ROUNDS, bc=BC, dagger_bc=BC, early_stop=None,
-                         kinds=("pistar-head",), mdi=None, meta_queries={"pistar": 900, "pairs": 100}, workers=1,
-                         progress=False, **kwargs)
+                         kinds=("pistar-head",), mdi=None, meta_queries={"pistar": 900, "pairs": 100},
+                         options=StageOptions(workers=1, progress=False, **kwargs))
 
 
 @pytest.fixture(scope="module")

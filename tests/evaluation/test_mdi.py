@@ -23,6 +23,7 @@ from metadagger.mapping.mappers import Mapper
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.policies import load_policy
 from metadagger.run import init_run, load_run
+from metadagger.runner import StageOptions
 
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 # 1-D displacements: the cosine distance per step is 0 (same sign), 1 (one is zero) or 2 (opposite)
@@ -61,7 +62,7 @@ def toy_run(tmp_path_factory) -> tuple[Path, Path]:
 def evaluated(toy_run) -> tuple[Path, list[dict]]:
     run, mapper = toy_run
     rows = evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), CONFIG,
-                        workers=1, progress=False)
+                        StageOptions(workers=1, progress=False))
     return run, rows
 
 
@@ -130,7 +131,7 @@ def test_dagger_round_refits_from_the_configured_start(evaluated, dagger_init, t
     if dagger_init == "one-shot":  # evaluate a copy with the other setting
         copy_run(run, tmp_path)
         run = tmp_path
-        evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), config, workers=1, progress=False)
+        evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), config, StageOptions(workers=1, progress=False))
     r = next(r for r in failed if r["method"] == "dagger")
     seed = r["seed"]
     task = CorridorTask(discrete=False)
@@ -151,10 +152,10 @@ def test_resume_skips_finished_seeds_and_matches_a_full_run(toy_run, evaluated, 
     task = CorridorTask(discrete=False)
     copy_run(run, tmp_path)
     first = MDIConfig(**{**CONFIG.__dict__, "seeds": CONFIG.seeds[:1]})
-    evaluate_mdi(task, RunLayout(tmp_path), first, workers=1, progress=False)
+    evaluate_mdi(task, RunLayout(tmp_path), first, StageOptions(workers=1, progress=False))
     head = head_dir(tmp_path, "dagger", "oneshot") / f"{CONFIG.seeds[0]}.safetensors"
     stamp = head.stat().st_mtime_ns
-    evaluate_mdi(task, RunLayout(tmp_path), CONFIG, workers=1, progress=False)
+    evaluate_mdi(task, RunLayout(tmp_path), CONFIG, StageOptions(workers=1, progress=False))
     assert head.stat().st_mtime_ns == stamp
     assert (tmp_path / "eval" / "mdi.csv").read_bytes() == (evaluated[0] / "eval" / "mdi.csv").read_bytes()
 
@@ -175,7 +176,7 @@ def test_discrete_task_has_no_cosine_distances_and_no_figure(tmp_path):
     mapper = RunLayout(tmp_path).mapper("pistar-head")
     Mapper.pistar_head(load_policy(groundtruth_path(tmp_path)).head_vector()).save(mapper)
     config = MDIConfig(**{**CONFIG.__dict__, "seeds": (300,), "early_stop": None})
-    rows = evaluate_mdi(task, RunLayout(tmp_path), config, workers=1, progress=False)
+    rows = evaluate_mdi(task, RunLayout(tmp_path), config, StageOptions(workers=1, progress=False))
     assert len(rows) == len(METHODS) and all(r["cosine_total"] is None and r["cosine_per_action"] is None for r in rows)
     assert not any(r["one_shot_early_stopped"] for r in rows)
     lines = mdi_section(RunLayout(tmp_path))
@@ -212,13 +213,13 @@ def test_controls_add_rows_and_rerun_seeds_logged_without_them(toy_run, evaluate
     run, mapper = toy_run
     task = CorridorTask(discrete=False)
     copy_run(run, tmp_path)
-    evaluate_mdi(task, RunLayout(tmp_path), CONFIG, workers=1, progress=False)
+    evaluate_mdi(task, RunLayout(tmp_path), CONFIG, StageOptions(workers=1, progress=False))
     head = load_policy(groundtruth_path(run)).head_vector()
     control = RunLayout(tmp_path).mapper("mean-da")
     Mapper.mean_da(torch.stack([head, head])).save(control)  # the mean is pi*'s head, the MDI mapper's output
     config = dataclasses.replace(CONFIG, controls=("mean-da",))
     assert config.methods == METHODS + ("dagger-mdi-mean-da",)
-    rows = evaluate_mdi(task, RunLayout(tmp_path), config, workers=1, progress=False)
+    rows = evaluate_mdi(task, RunLayout(tmp_path), config, StageOptions(workers=1, progress=False))
     assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in config.methods]
     # the three methods' rows do not change; a mean-DA head equal to pi*'s head gives DAgger-MDI's rows
     main = {(r["method"], r["seed"]): r for r in evaluated[1]}
@@ -235,12 +236,12 @@ def test_missing_inputs_are_user_errors(toy_run, tmp_path):
     task = CorridorTask(discrete=False)
     shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
     with pytest.raises(UserError, match="train-mapper"):  # no mapper in this run
-        evaluate_mdi(task, RunLayout(tmp_path), CONFIG, progress=False)
+        evaluate_mdi(task, RunLayout(tmp_path), CONFIG, StageOptions(progress=False))
     with pytest.raises(UserError, match="early_stop"):
-        evaluate_mdi(CorridorTask(discrete=True), RunLayout(run), CONFIG, progress=False)
+        evaluate_mdi(CorridorTask(discrete=True), RunLayout(run), CONFIG, StageOptions(progress=False))
     Mapper.pistar_head(torch.zeros(7)).save(RunLayout(tmp_path).mapper("pistar-head"))
     with pytest.raises(UserError, match="length 7"):
-        evaluate_mdi(task, RunLayout(tmp_path), CONFIG, progress=False)
+        evaluate_mdi(task, RunLayout(tmp_path), CONFIG, StageOptions(progress=False))
 
 
 def test_rows_of_a_changed_mapper_are_refused_then_rebuilt(toy_run, evaluated, tmp_path):
@@ -248,12 +249,12 @@ def test_rows_of_a_changed_mapper_are_refused_then_rebuilt(toy_run, evaluated, t
     copy_run(run, tmp_path)
     layout = RunLayout(tmp_path)
     task = CorridorTask(discrete=False)
-    evaluate_mdi(task, layout, CONFIG, workers=1, progress=False)
+    evaluate_mdi(task, layout, CONFIG, StageOptions(workers=1, progress=False))
     Mapper.pistar_head(torch.zeros_like(load_policy(layout.groundtruth).head_vector())).save(layout.mapper("pistar-head"))
     with pytest.raises(UserError, match="'dagger-mdi'.*mapper: changed.*--rebuild"):
-        evaluate_mdi(task, layout, CONFIG, workers=1, progress=False)
+        evaluate_mdi(task, layout, CONFIG, StageOptions(workers=1, progress=False))
     before = {(r["method"], r["seed"]): r for r in read_csv(layout.eval_table("mdi"))}
-    rows = evaluate_mdi(task, layout, CONFIG, rebuild=True, workers=1, progress=False)
+    rows = evaluate_mdi(task, layout, CONFIG, StageOptions(rebuild=True, workers=1, progress=False))
     # only DAgger-MDI's rows depend on the mapper: the others are reused as they were
     for r in rows:
         if r["method"] != "dagger-mdi":

@@ -20,6 +20,7 @@ from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.policies import load_policy
+from metadagger.runner import StageOptions
 
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
@@ -44,8 +45,8 @@ def _copy(layout: RunLayout, to: Path) -> RunLayout:
 
 
 def _evaluate(layout: RunLayout, seeds, methods, **kwargs) -> list[dict]:
-    return evaluate_run(CorridorTask(), layout, EvalConfig(seeds=tuple(seeds), methods=tuple(methods)), bc=BC, workers=1,
-                        progress=False, **kwargs)
+    return evaluate_run(CorridorTask(), layout, EvalConfig(seeds=tuple(seeds), methods=tuple(methods)), bc=BC,
+                        options=StageOptions(workers=1, progress=False, **kwargs))
 
 
 def test_rows_heads_and_one_shot(toy_run, tmp_path):

@@ -18,6 +18,7 @@ from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
 from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
+from metadagger.runner import StageOptions
 
 TESTS = Path(__file__).resolve().parents[1]
 # Subprocesses and Ray workers import the toy tasks from here; the caller's PYTHONPATH (e.g. a
@@ -79,7 +80,7 @@ def test_keep_rules():
 def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     for run in (a, b):
-        summary = collect_pairs(CorridorTask(), with_pistar(gt_run, run), PAIRS, workers=2, progress=False)
+        summary = collect_pairs(CorridorTask(), with_pistar(gt_run, run), PAIRS, StageOptions(workers=2, progress=False))
     assert summary["seeds"] == len(PAIRS.seeds) and summary["kept"] == len(PAIRS.seeds)
     assert sum(summary["outcomes"].values()) == len(PAIRS.seeds)
     for seed in PAIRS.seeds:
@@ -92,9 +93,9 @@ def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_
 def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
     first = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:2]})
     layout = with_pistar(gt_run, tmp_path)
-    collect_pairs(CorridorTask(), layout, first, workers=1, progress=False)
+    collect_pairs(CorridorTask(), layout, first, StageOptions(workers=1, progress=False))
     stamps = {s: (tmp_path / "pairs" / f"{s}.safetensors").stat().st_mtime_ns for s in first.seeds}
-    collect_pairs(CorridorTask(), layout, PAIRS, workers=1, progress=False)
+    collect_pairs(CorridorTask(), layout, PAIRS, StageOptions(workers=1, progress=False))
     assert {s: (tmp_path / "pairs" / f"{s}.safetensors").stat().st_mtime_ns for s in first.seeds} == stamps
     assert PairStore(tmp_path / "pairs").done_seeds() == set(PAIRS.seeds)
 
@@ -104,8 +105,9 @@ import sys
 from slow_task import SlowCorridorTask
 from metadagger.layout import RunLayout
 from metadagger.metal.pairs import collect_pairs
+from metadagger.runner import StageOptions
 from test_groundtruth_pairs import PAIRS
-collect_pairs(SlowCorridorTask(), RunLayout(sys.argv[1]), PAIRS, workers=1, progress=False)
+collect_pairs(SlowCorridorTask(), RunLayout(sys.argv[1]), PAIRS, StageOptions(workers=1, progress=False))
 """
 
 
@@ -135,7 +137,7 @@ def test_ray_executor_pairs_equal_local(gt_run, tmp_path, monkeypatch):
     # the local Ray instance's workers inherit this, so they can import the toy task
     monkeypatch.setenv("PYTHONPATH", PYTHONPATH)
     seeds = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:3]})
-    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "local"), seeds, workers=2, progress=False)
-    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "ray"), seeds, executor="ray", workers=2, progress=False)
+    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "local"), seeds, StageOptions(workers=2, progress=False))
+    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "ray"), seeds, StageOptions(executor="ray", workers=2, progress=False))
     for seed in seeds.seeds:
         assert (tmp_path / "local" / "pairs" / f"{seed}.safetensors").read_bytes() == (tmp_path / "ray" / "pairs" / f"{seed}.safetensors").read_bytes()

@@ -46,7 +46,7 @@ from metadagger.mapping.mappers import cached_mapper
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.plotting import plt, save_figure
 from metadagger.policies import Policy
-from metadagger.runner import RowLog, SeedJob, Stamp, drive, plan
+from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
@@ -268,11 +268,7 @@ def run_benchmark(
     kinds: tuple[str, ...],
     mdi: MDIConfig | None,
     meta_queries: dict[str, int],
-    rebuild: bool = False,
-    executor: str = "local",
-    workers: int | None = None,
-    address: str | None = None,
-    progress: bool = True,
+    options: StageOptions = StageOptions(),
 ) -> list[dict[str, Any]]:
     """Run the missing rows of the benchmark; write ``queries.csv``, ``summary.json`` and the figure.
 
@@ -285,15 +281,15 @@ def run_benchmark(
         kinds: the mapper kinds MDM runs with.
         mdi: the run's MDI protocol (``bc`` resolved), or None.
         meta_queries: expert queries spent on meta-training (``pistar``, ``pairs``), for the report.
-        rebuild: redo rows made from other inputs (else they are an error).
-        executor, workers, address, progress: as for every stage.
+        options: rebuild (redo rows made from other inputs; else they are an error), executor,
+            workers, progress: as for every stage.
     """
     with_mdi = mdi is not None and "mdi" in config.methods
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
     stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi.mapper if with_mdi else None)
     log = RowLog(layout.benchmark_log)
-    todo = plan(config.seeds, stamps, log, rebuild=rebuild, what="the benchmark",
+    todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="the benchmark",
                 fix=f"run `metadagger benchmark --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`")
     mappers = {kind: str(layout.mapper(kind)) for kind in kinds}
     if with_mdi:
@@ -301,8 +297,7 @@ def run_benchmark(
     jobs = [BenchmarkJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, mappers=mappers,
                          config=config, rounds=rounds, bc=bc, dagger_bc=dagger_bc, early_stop=early_stop,
                          mdi=mdi if with_mdi else None) for p in todo]
-    drive(benchmark_seed, jobs, log=log, stamps=stamps, executor=executor, workers=workers, address=address,
-          progress=progress, desc="benchmark")
+    drive(benchmark_seed, jobs, log=log, stamps=stamps, options=options, desc="benchmark")
     rows = log.rows(config.seeds, stamps)
     write_csv(layout.benchmark_table, rows, fields=FIELDS)
     summary = summarize_benchmark(rows, meta_queries)

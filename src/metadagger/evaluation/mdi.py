@@ -51,7 +51,7 @@ from metadagger.mapping.mappers import Mapper, cached_mapper
 from metadagger.mapping.registry import kind_names
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
-from metadagger.runner import RowLog, SeedJob, Stamp, drive, plan
+from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
@@ -264,12 +264,7 @@ def evaluate_mdi(
     task: Task,
     layout: RunLayout,
     config: MDIConfig,
-    *,
-    rebuild: bool = False,
-    executor: str = "local",
-    workers: int | None = None,
-    address: str | None = None,
-    progress: bool = True,
+    options: StageOptions = StageOptions(),
 ) -> list[dict[str, Any]]:
     """Run the MDI protocol on the missing (seed, method) rows of ``config``.
 
@@ -278,11 +273,8 @@ def evaluate_mdi(
         layout: the run folder; results go to ``eval/mdi.csv``, ``eval/mdi_rows.jsonl`` (the resume
             log) and ``eval/heads/mdi-<method>-<shot>/``; pi* and the mappers are read from it.
         config: seeds, fits (``bc`` resolved), early stop, initialisers.
-        rebuild: redo rows made from another pi*, mapper or settings (else they are an error).
-        executor: ``"local"`` or ``"ray"`` (see :func:`metadagger.parallel.make_executor`).
-        workers: parallel workers (default: all cores / the cluster's CPUs).
-        address: Ray cluster address.
-        progress: show a progress bar.
+        options: rebuild (redo rows made from another pi*, mapper or settings; else they are an
+            error), executor, workers, progress.
 
     Returns:
         The rows (:data:`MDI_FIELDS`) of every seed of ``config``, by seed then in
@@ -293,7 +285,7 @@ def evaluate_mdi(
     _check_inputs(task, layout, config)
     stamps = mdi_stamps(task, layout, config)
     log = RowLog(layout.eval_log("mdi"))
-    todo = plan(config.seeds, stamps, log, rebuild=rebuild, what="MDI evaluation",
+    todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="MDI evaluation",
                 fix=f"run `metadagger evaluate --out {layout.root} --protocol mdi --rebuild` to redo it, or `metadagger reproduce`")
     jobs = [MDIJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config,
                    mappers={m: str(layout.mapper(config.kinds[m])) for m in p.methods if m in config.kinds}) for p in todo]
@@ -302,8 +294,7 @@ def evaluate_mdi(
         for (method, shot), head in result["heads"].items():
             save_tensors(layout.heads(head_folder(method, shot)) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
 
-    drive(evaluate_mdi_seed, jobs, log=log, stamps=stamps, save=save, executor=executor, workers=workers,
-          address=address, progress=progress, desc="mdi")
+    drive(evaluate_mdi_seed, jobs, log=log, stamps=stamps, save=save, options=options, desc="mdi")
     rows = log.rows(config.seeds, stamps)
     write_csv(layout.eval_table("mdi"), rows, fields=MDI_FIELDS)
     return rows

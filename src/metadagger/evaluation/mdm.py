@@ -25,7 +25,7 @@ from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
 from metadagger.mapping.registry import kind_names
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
-from metadagger.runner import RowLog, SeedJob, Stamp, drive, plan
+from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
@@ -116,23 +116,19 @@ def evaluate_run(
     config: EvalConfig,
     *,
     bc: BCConfig,
-    rebuild: bool = False,
-    executor: str = "local",
-    workers: int | None = None,
-    address: str | None = None,
-    progress: bool = True,
+    options: StageOptions = StageOptions(),
 ) -> list[dict[str, Any]]:
     """Evaluate the missing (seed, method) rows of ``config``; write ``eval/mdm.csv`` (BC +
     mappers) and, when ``config.oneshot``, ``eval/oneshot.csv``; return the rows of ``config``.
 
-    Rows made from another pi*, mapper or settings are redone with ``rebuild``, else an error.
+    Rows made from another pi*, mapper or settings are redone with ``options.rebuild``, else an error.
     """
     missing = [m for m in config.methods if not layout.mapper(m).is_file()]
     if missing:
         raise UserError(f"mappers not trained yet: {', '.join(missing)}; run `metadagger train-mapper --out {layout.root} --kind all` first")
     stamps = mdm_stamps(task, layout, config, bc)
     log = RowLog(layout.eval_log("mdm"))
-    todo = plan(config.seeds, stamps, log, rebuild=rebuild, what="MDM evaluation",
+    todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="MDM evaluation",
                 fix=f"run `metadagger evaluate --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`")
     mappers = {m: str(layout.mapper(m)) for m in config.methods}
     jobs = [EvalJob(task=task, groundtruth=str(layout.groundtruth), mappers=mappers, seed=p.seed, methods=p.methods,
@@ -142,8 +138,7 @@ def evaluate_run(
         for method, head in result["heads"].items():
             save_tensors(layout.heads(method) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
 
-    drive(evaluate_seed, jobs, log=log, stamps=stamps, save=save, executor=executor, workers=workers,
-          address=address, progress=progress, desc="evaluate")
+    drive(evaluate_seed, jobs, log=log, stamps=stamps, save=save, options=options, desc="evaluate")
     rows = log.rows(config.seeds, stamps)
     write_csv(layout.eval_table("mdm"), [r for r in rows if not r["method"].startswith(ONESHOT_PREFIX)])
     if config.oneshot:

@@ -26,7 +26,7 @@ from metadagger.io import write_json
 from metadagger.layout import RunLayout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.metal.store import PairStore
-from metadagger.runner import SeedJob, drive, plan
+from metadagger.runner import SeedJob, StageOptions, drive, plan
 from metadagger.stamps import describe_changes, file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
@@ -132,24 +132,18 @@ def collect_pairs(
     task: Task,
     layout: RunLayout,
     config: PairConfig,
-    *,
-    rebuild: bool = False,
-    executor: str = "local",
-    workers: int | None = None,
-    address: str | None = None,
-    progress: bool = True,
+    options: StageOptions = StageOptions(),
 ) -> dict[str, Any]:
-    """Collect the pairs of every seed not stored yet (and, with ``rebuild``, of every seed whose
+    """Collect the pairs of every seed not stored yet (and, with ``options.rebuild``, of every seed whose
     pair was made from another pi* or other settings), then write and return the outcome summary."""
     if not layout.groundtruth.is_file():
         raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
     store = PairStore(layout.pairs_dir)
     stamps = {"pair": pair_stamp(task, layout, config)}
-    todo = plan(config.seeds, stamps, store, rebuild=rebuild, what="the pair",
+    todo = plan(config.seeds, stamps, store, rebuild=options.rebuild, what="the pair",
                 fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`")
     jobs = [PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config) for p in todo]
-    drive(collect_pair, jobs, log=store, stamps=stamps, executor=executor, workers=workers, address=address,
-          progress=progress, desc="pairs")
+    drive(collect_pair, jobs, log=store, stamps=stamps, options=options, desc="pairs")
     current = {s for s, stamp in store.stamps().items() if stamp["pair"] == stamps["pair"]} & set(config.seeds)
     summary = summarize_pairs([r for r in store.records() if r["seed"] in current] if current else [])
     write_json(layout.pairs_summary, summary)
