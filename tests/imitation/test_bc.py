@@ -9,7 +9,7 @@ from toy_task import TOY_ARCH
 from torch.nn.utils import parameters_to_vector
 
 from metadagger.errors import UserError
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
 from metadagger.imitation.data import Dataset
 from metadagger.policies import make_policy
 
@@ -99,8 +99,37 @@ def test_fit_rejects_labels_of_the_other_kind(policy, demo):
         ({"batch_size": 0}, "batch_size must be an integer >= 1"),
         ({"epochs": 1.5}, "epochs must be an integer >= 1"),
         ({"weight_decay": -1.0}, "weight_decay must be >= 0"),
+        ({"augment_shift": -1}, "augment_shift must be an integer >= 0"),
+        ({"augment_shift": 1.5}, "augment_shift must be an integer >= 0"),
+        ({"augment_shift": 2, "head_only": True}, "augment_shift needs a whole-policy fit"),
     ],
 )
 def test_config_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
         BCConfig(**kwargs)
+
+
+def test_random_shift_repeats_edge_pixels():
+    images = torch.arange(2 * 6 * 5 * 3, dtype=torch.int32).reshape(2, 6, 5, 3).to(torch.uint8)
+    generator = torch.Generator().manual_seed(3)
+    shifted = random_shift(images, 2, generator)
+    assert shifted.shape == images.shape and shifted.dtype == torch.uint8
+    offsets = torch.randint(-2, 3, (2, 2), generator=torch.Generator().manual_seed(3))
+    for i, (dy, dx) in enumerate(offsets.tolist()):
+        rows = [min(max(r + dy, 0), 5) for r in range(6)]
+        cols = [min(max(c + dx, 0), 4) for c in range(5)]
+        assert torch.equal(shifted[i], images[i][rows][:, cols])
+    assert random_shift(images, 0, generator) is images
+
+
+def test_augmented_fit_is_deterministic_and_off_leaves_the_fit_unchanged(task, demo):
+    def fit(**kwargs):
+        policy = make_policy(task, seed=4, **TOY_ARCH)
+        loss = fit_bc(policy, demo, BCConfig(lr=3e-3, epochs=3, seed=11, **kwargs))["loss"]
+        return loss, policy.head_vector(), trunk_vector(policy)
+
+    plain, off = fit(), fit(augment_shift=0)
+    assert plain[0] == off[0] and torch.equal(plain[1], off[1]) and torch.equal(plain[2], off[2])
+    first, second = fit(augment_shift=2), fit(augment_shift=2)
+    assert first[0] == second[0] and torch.equal(first[1], second[1]) and torch.equal(first[2], second[2])
+    assert not torch.equal(first[2], plain[2])

@@ -39,7 +39,14 @@ class BCConfig:
     head_only: bool = False
     """Fit layer n only, on cached trunk features; the trunk is left unchanged."""
     seed: int = 0
-    """Seed of the shuffling order."""
+    """Seed of the shuffling order (and of the augmentation's shifts)."""
+    augment_shift: int = 0
+    """Image augmentation of whole-policy fits: every sample of every batch is shifted by up to
+    this many pixels in x and y (each offset uniform in ``[-augment_shift, augment_shift]``), the
+    uncovered border filled by repeating the edge pixels, as DrQ does (Kostrikov et al. 2020: pad
+    and random crop). Offsets come from the fit's seeded generator, so fits stay deterministic.
+    0 (the default) turns it off and leaves the fit exactly as without it. Head-only fits train
+    on cached trunk features, which cannot be augmented, so they need 0."""
 
     def __post_init__(self) -> None:
         if not self.lr > 0:
@@ -52,6 +59,25 @@ class BCConfig:
             raise UserError(f"BCConfig.weight_decay must be >= 0, got {self.weight_decay}")
         if not isinstance(self.seed, int):
             raise UserError(f"BCConfig.seed must be an integer, got {self.seed!r}")
+        if not isinstance(self.augment_shift, int) or isinstance(self.augment_shift, bool) or self.augment_shift < 0:
+            raise UserError(f"BCConfig.augment_shift must be an integer >= 0, got {self.augment_shift!r}")
+        if self.augment_shift and self.head_only:
+            raise UserError("BCConfig.augment_shift needs a whole-policy fit: head-only fits use cached trunk features; set augment_shift=0 or head_only=false")
+
+
+def random_shift(obs: torch.Tensor, max_shift: int, generator: torch.Generator) -> torch.Tensor:
+    """Images (N, H, W, C) each shifted by its own offsets in ``[-max_shift, max_shift]`` (x and y),
+    border pixels repeated (edge padding then a random crop to the original size).
+
+    The offsets are drawn from ``generator``; the dtype (uint8 images) is kept.
+    """
+    if max_shift == 0:
+        return obs
+    n, height, width = obs.shape[:3]
+    offsets = torch.randint(-max_shift, max_shift + 1, (n, 2), generator=generator)
+    rows = (torch.arange(height)[None, :] + offsets[:, :1]).clamp_(0, height - 1)
+    cols = (torch.arange(width)[None, :] + offsets[:, 1:]).clamp_(0, width - 1)
+    return obs[torch.arange(n)[:, None, None], rows[:, :, None], cols[:, None, :]]
 
 
 class FeatureCache:
@@ -132,7 +158,8 @@ def fit_bc(
     Args:
         policy: the policy to train (its network is updated in place).
         data: observations and expert labels.
-        config: optimiser settings; ``config.head_only`` fits layer n on cached trunk features.
+        config: optimiser settings; ``config.head_only`` fits layer n on cached trunk features;
+            ``config.augment_shift`` shifts the images of whole-policy fits at random.
         progress: show a progress bar over epochs.
         cache: features to reuse across calls (head-only fits only); a fresh one if None.
 
@@ -166,7 +193,10 @@ def fit_bc(
         order = torch.randperm(n, generator=generator)
         for start in range(0, n, config.batch_size):
             batch = order[start : start + config.batch_size]
-            loss = loss_fn(model(inputs[batch]), targets[batch])
+            x = inputs[batch]
+            if config.augment_shift:
+                x = random_shift(x, config.augment_shift, generator)
+            loss = loss_fn(model(x), targets[batch])
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
