@@ -140,8 +140,12 @@ def test_a_ray_address_without_a_port_is_a_user_error() -> None:
 
 _DRIVER = textwrap.dedent(
     """
-    import os, sys, time
+    import os, signal, sys, time
     from metadagger.parallel import make_executor
+
+    # A shell's background job starts with SIGINT ignored, and Python then raises no
+    # KeyboardInterrupt; restore its handler so the test does not depend on how it was launched.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def work(item):
         # The worker's pid, for the test to check it is gone; one write() so lines never interleave.

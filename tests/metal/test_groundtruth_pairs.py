@@ -101,7 +101,9 @@ def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
 
 
 _KILLABLE = """
-import sys
+import signal, sys
+# a shell's background job starts with SIGINT ignored: restore Python's handler (see test_parallel)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from slow_task import SlowCorridorTask
 from metadagger.layout import RunLayout
 from metadagger.metal.pairs import collect_pairs
