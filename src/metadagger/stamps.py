@@ -8,7 +8,6 @@ differ (``pairs.dagger_rounds: 3 -> 4``, ``groundtruth: changed``).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import hashlib
 import json
@@ -48,11 +47,10 @@ def canonical(data: Any) -> str:
     return json.dumps(to_dict(data), sort_keys=True, separators=(",", ":"))
 
 
-def stamp_of(obj: Any, *, drop: tuple[str, ...] = ()) -> dict[str, Any]:
+def stamp_of(config: Any, *, drop: tuple[str, ...] = ()) -> dict[str, Any]:
     """A config dataclass as a stamp: its fields as plain data, without ``drop`` (the fields that
     only widen the work, such as seed lists and method lists)."""
-    data = to_dict(obj) if dataclasses.is_dataclass(obj) else dict(obj)
-    return {k: v for k, v in data.items() if k not in drop}
+    return {k: v for k, v in to_dict(config).items() if k not in drop}
 
 
 def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: str = "") -> list[str]:

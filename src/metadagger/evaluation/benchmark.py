@@ -171,8 +171,7 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
         for key in (k for k in job.methods if k.startswith(MDM_PREFIX)):
             kind = key.split("@")[0].removeprefix(MDM_PREFIX)
             entries[key] = [_row(key, seed, run(cached_mapper(job.mappers[kind])(w_bc)), len(data))]
-        dagger_keys = [k for k in job.methods if k.startswith("dagger@")]
-        if dagger_keys:
+        if any(k.startswith("dagger@") for k in job.methods):
             for r, (traj, queries) in enumerate(_gated_rounds(policy, w_bc, first, demo, None, job, dagger_bc, cache, run), 1):
                 if f"dagger@{r}" in wanted:
                     entries[f"dagger@{r}"] = [_row(f"dagger@{r}", seed, traj, queries)]

@@ -31,7 +31,7 @@ from metadagger.layout import CURVES_FILE, MAPPER_FILE
 from metadagger.mapping.mappers import ARCH_FIELDS, Mapper, Standardizer, build_networks, load_mapper
 from metadagger.mapping.registry import Route, get_kind, kind_names
 from metadagger.metal.store import PairSplit
-from metadagger.stamps import data_fingerprint, describe_changes
+from metadagger.stamps import data_fingerprint, describe_changes, stamp_of
 
 __all__ = ["CURVE_COLUMNS", "MapperConfig", "evaluate_mapping", "paper_config", "train_mapper"]
 
@@ -170,7 +170,7 @@ def mapper_stamp(split: PairSplit, config: MapperConfig, pistar_head: np.ndarray
     parts += [t.contiguous().numpy().tobytes() for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val)]
     if pistar_head is not None and config.kind == "pistar-head":
         parts.append(torch.as_tensor(pistar_head, dtype=torch.float32).numpy().tobytes())
-    return {"config": json.loads(json.dumps(dataclasses.asdict(config))), "pairs_fingerprint": data_fingerprint(*parts)}
+    return {"config": stamp_of(config), "pairs_fingerprint": data_fingerprint(*parts)}
 
 
 def _train(
