@@ -20,11 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol, Sequence
 
-from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
 from metadagger.jsonl import append_line, dumps_line, read_lines
 from metadagger.parallel import make_executor
+from metadagger.progress import progress_bar
 from metadagger.stamps import describe_changes
 
 if TYPE_CHECKING:
@@ -168,7 +168,7 @@ def drive(work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], *, log: Se
     if not jobs:
         return
     with make_executor(options.executor, workers=options.workers, address=options.address) as pool:
-        for result in tqdm(pool.imap_unordered(work, jobs), total=len(jobs), desc=desc, disable=not options.progress):
+        for result in progress_bar(pool.imap_unordered(work, jobs), total=len(jobs), desc=desc, enabled=options.progress):
             if save is not None:
                 save(result)
             log.append(result, stamps)

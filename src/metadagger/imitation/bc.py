@@ -17,11 +17,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
-from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
 from metadagger.imitation.data import Dataset
 from metadagger.policies import Policy, load_policy
+from metadagger.progress import progress_bar
 
 
 @dataclass(frozen=True)
@@ -187,7 +187,7 @@ def fit_bc(
     generator = torch.Generator().manual_seed(config.seed)
     losses: list[float] = []
     n = len(data)
-    bar = tqdm(range(config.epochs), desc="bc", disable=not progress, leave=False)
+    bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
     for _ in bar:
         total = 0.0
         order = torch.randperm(n, generator=generator)

@@ -7,13 +7,13 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import EarlyStop, collect
 from metadagger.policies import Policy
+from metadagger.progress import progress_bar
 from metadagger.tasks.base import Task
 
 
@@ -100,7 +100,7 @@ def run_dagger(
     dataset = initial
     queries = len(initial)
     history: list[dict[str, Any]] = []
-    for round_idx in tqdm(range(1, config.rounds + 1), desc="dagger", disable=not progress, leave=False):
+    for round_idx in progress_bar(range(1, config.rounds + 1), desc="dagger", enabled=progress, leave=False):
         trajectories = collect(task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory)
         dataset = dataset.concat(*(t.to_dataset() for t in trajectories))
         queries += sum(t.expert_queries for t in trajectories)

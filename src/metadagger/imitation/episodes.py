@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from tqdm.auto import tqdm
 
 from metadagger.imitation.rollouts import rollout
 from metadagger.policies import Policy
+from metadagger.progress import progress_bar
 from metadagger.tasks.base import Task
 
 
@@ -23,7 +23,7 @@ def evaluate_policy(
     env = task.make_env()
     rows = []
     try:
-        for seed in tqdm(seeds, desc=label, disable=not progress, leave=False):
+        for seed in progress_bar(seeds, desc=label, enabled=progress, leave=False):
             traj = rollout(env, seed=seed, policy=policy)
             rows.append({"seed": int(seed), "success": bool(traj.success), "reward": float(traj.reward), "steps": int(traj.steps)})
     finally:

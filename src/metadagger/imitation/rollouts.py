@@ -7,10 +7,10 @@ from typing import Any, Callable, Iterable, Protocol
 
 import gymnasium as gym
 import numpy as np
-from tqdm.auto import tqdm
 
 from metadagger.imitation.data import Dataset
 from metadagger.policies import Policy
+from metadagger.progress import progress_bar
 from metadagger.tasks.base import Task
 
 
@@ -146,7 +146,7 @@ def collect(
     try:
         return [
             rollout(env, seed=seed, policy=policy, max_steps=max_steps, early_stop=early_stop)
-            for seed in tqdm(seeds, desc=f"{task.name} rollouts", disable=not progress, leave=False)
+            for seed in progress_bar(seeds, desc=f"{task.name} rollouts", enabled=progress, leave=False)
         ]
     finally:
         env.close()

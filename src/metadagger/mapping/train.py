@@ -23,7 +23,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
-from tqdm.auto import tqdm
 
 from metadagger.errors import UserError
 from metadagger.io import write_text
@@ -31,6 +30,7 @@ from metadagger.layout import CURVES_FILE, MAPPER_FILE
 from metadagger.mapping.mappers import ARCH_FIELDS, Mapper, Standardizer, build_networks, load_mapper
 from metadagger.mapping.registry import Route, get_kind, kind_names
 from metadagger.metal.store import PairSplit
+from metadagger.progress import progress_bar
 from metadagger.stamps import data_fingerprint, describe_changes, stamp_of
 
 __all__ = ["CURVE_COLUMNS", "MapperConfig", "evaluate_mapping", "paper_config", "train_mapper"]
@@ -252,7 +252,7 @@ def _fit(
     # fused: one kernel for all parameters; the per-tensor loop made the Adam step ~3x the step cost.
     optimizer = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay, fused=True)
     rows = []
-    bar = tqdm(range(1, epochs + 1), desc=f"mapping/{name}", disable=not progress, leave=False)
+    bar = progress_bar(range(1, epochs + 1), desc=f"mapping/{name}", enabled=progress, leave=False)
     for epoch in bar:
         net.train()
         total = torch.zeros(())
