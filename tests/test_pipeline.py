@@ -29,10 +29,10 @@ def test_reproduce_ci_preset_writes_every_artifact_and_resumes(tmp_path):
     assert (run / "groundtruth" / "policy.safetensors").is_file()
     summary = json.loads((run / "pairs" / "summary.json").read_text())
     assert summary["seeds"] == 4
-    for kind in ("dm", "sam", "tam", "mean-da", "pistar-head"):
+    for kind in ("dm", "sam", "tam", "ridge", "mean-da", "pistar-head"):
         assert (run / "mappers" / kind / "mapper.safetensors").is_file()
     rows = read_csv(run / "eval" / "mdm.csv")
-    assert {r["method"] for r in rows} == {"bc", "dm", "sam", "tam", "mean-da", "pistar-head"}
+    assert {r["method"] for r in rows} == {"bc", "dm", "sam", "tam", "ridge", "mean-da", "pistar-head"}
     assert {r["seed"] for r in rows} == {5000, 5001}
     for r in rows:
         assert (run / "eval" / "heads" / r["method"] / f"{r['seed']}.safetensors").is_file()
@@ -69,8 +69,8 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
     pytest.importorskip("gymnasium_robotics")
     run = tmp_path / "run"
     report = reproduce("fetch", "ci", run, options=StageOptions(workers=2, progress=False)).read_text()
-    # only the kinds the run uses: evaluate.methods [dm, mean-da, pistar-head] and mdi.mapper dm
-    assert sorted(p.name for p in (run / "mappers").iterdir()) == ["dm", "mean-da", "pistar-head"]
+    # only the kinds the run uses: evaluate.methods [dm, ridge, mean-da, pistar-head] and mdi.mapper dm
+    assert sorted(p.name for p in (run / "mappers").iterdir()) == ["dm", "mean-da", "pistar-head", "ridge"]
     rows = read_csv(run / "eval" / "mdi.csv")
     methods = MDI_METHODS + ("dagger-mdi-mean-da", "dagger-mdi-pistar-head")  # mdi.controls
     assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in (5000, 5001) for m in methods]
@@ -110,7 +110,7 @@ def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(tmp_path)
 
 def test_mapper_kinds_follow_the_run_config(tmp_path):
     assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == kind_names()
-    assert init_run(tmp_path / "fetch", "fetch", "ci").mapper_kinds == ("dm", "mean-da", "pistar-head")
+    assert init_run(tmp_path / "fetch", "fetch", "ci").mapper_kinds == ("dm", "ridge", "mean-da", "pistar-head")
 
 
 def test_stage_mdi_skips_runs_without_mdi_and_checks_seeds(tmp_path):

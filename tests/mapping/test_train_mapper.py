@@ -18,7 +18,7 @@ from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, evaluate_mapping, paper_config, train_mapper
 
 KINDS = kind_names()
-STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
+STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ def _curves(out_dir):
         return list(csv.DictReader(f))
 
 
-@pytest.mark.parametrize("kind", ["dm", "sam", "tam"])
+@pytest.mark.parametrize("kind", ["dm", "sam", "tam", "ridge"])
 def test_learned_kinds_beat_mean_da_on_held_out_pairs(trained, split, kind):
     mean_da = split.w_da_train.mean(0)
     scores = evaluate_mapping(trained[kind][0], split.w_bc_val, split.w_da_val, mean_da=mean_da)

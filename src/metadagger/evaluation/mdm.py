@@ -39,9 +39,9 @@ class EvalConfig:
 
     seeds: tuple[int, ...] = tuple(range(5000, 5020))
     """Unseen seeds (never used for pi* or pairs); the paper uses 20."""
-    methods: tuple[str, ...] = ("dm", "sam", "tam", "mean-da", "pistar-head")
+    methods: tuple[str, ...] = ("dm", "sam", "tam", "ridge", "mean-da", "pistar-head")
     """Mapper kinds evaluated beside BC (:mod:`metadagger.mapping.registry`): the paper's dm, sam,
-    tam and the controls mean-da and pistar-head."""
+    tam, the ridge baseline and the controls mean-da and pistar-head."""
     oneshot: bool = True
     """Also run one-shot learning for every mapper that fails on a seed (Tables 3-5)."""
 

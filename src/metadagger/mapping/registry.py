@@ -1,7 +1,7 @@
 """The mapper kinds: each declared once, here, and read by training, evaluation, reports and the CLI.
 
-A kind is either *learned* (networks fitted on the training pairs, reached through a
-:class:`Route`) or a *control* (a constant head that ignores w_BC, computed from the training
+A kind is either *learned* (networks fitted on the training pairs, by Adam or in closed form,
+reached through a :class:`Route`) or a *control* (a constant head that ignores w_BC, computed from the training
 pairs or pi*). Adding a kind takes a module with its builder (see :mod:`metadagger.mapping.networks`)
 and one :func:`register_kind` line; docs/mapping.md shows an example.
 """
@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from metadagger.errors import UserError
-from metadagger.mapping import networks
+from metadagger.mapping import networks, ridge
 
 
 class Route(NamedTuple):
@@ -35,6 +35,9 @@ Builder = Callable[..., dict[str, nn.Module]]
 """``builder(dim, **architecture fields, generator=...) -> {network name: module}``."""
 Constant = Callable[[torch.Tensor, torch.Tensor | None], torch.Tensor]
 """``constant(w_da_train [N, d], pistar_head [d] or None) -> head [d]`` of a control."""
+ClosedForm = Callable[[nn.Module, torch.Tensor, torch.Tensor], dict]
+"""``closed_form(core, x_train, y_train) -> what it chose``: sets the route's core network in place
+from the standardised training rows, instead of Adam epochs."""
 
 
 @dataclass(frozen=True)
@@ -55,10 +58,14 @@ class MapperKind:
     """Controls: the head they always return."""
     paper_epochs: int | None = None
     """Training epochs of the paper's Table 8 (learned kinds)."""
+    closed_form: ClosedForm | None = None
+    """Learned kinds fitted in closed form (no autoencoder): how the core is set."""
 
     def __post_init__(self) -> None:
         if (self.route is None) != (self.build is None) or (self.build is None) == (self.constant is None):
             raise ValueError(f"mapper kind {self.name!r} needs either route and build (learned) or constant (control)")
+        if self.closed_form is not None and (self.route is None or self.route.encoder or self.route.decoder):
+            raise ValueError(f"mapper kind {self.name!r}: a closed-form fit needs a route without autoencoders")
 
     @property
     def learned(self) -> bool:
@@ -129,5 +136,7 @@ register_kind(MapperKind("sam", "SAM", "single autoencoder of w_BC and w_DA, h b
                          route=Route("all", "sigma_all", "h", "sigma_all", "all"), build=networks.build_sam, paper_epochs=1000))
 register_kind(MapperKind("tam", "TAM", "twin autoencoders of w_BC and of w_DA, h between their codes (3.3.2)",
                          route=Route("bc", "sigma_bc", "h", "sigma_da", "da"), build=networks.build_tam, paper_epochs=1000))
+register_kind(MapperKind("ridge", "Ridge", "ridge regression of the update w_DA - w_BC on w_BC, λ by cross-validation",
+                         route=Route("all", None, "ridge", None, "all"), build=ridge.build_ridge, closed_form=ridge.fit_ridge))
 register_kind(MapperKind("mean-da", "mean-DA (control)", "control: always the training pairs' mean w_DA", constant=_mean_da))
 register_kind(MapperKind("pistar-head", "pi*-head (control)", "control: always pi*'s own head", constant=_pistar_head))

@@ -50,7 +50,8 @@ class MapperConfig:
     """
 
     kind: str = "sam"
-    """One of ``dm``, ``sam``, ``tam``, ``mean-da``, ``pistar-head``."""
+    """A kind of :mod:`metadagger.mapping.registry`: ``dm``, ``sam``, ``tam``, ``ridge``, ``mean-da``,
+    ``pistar-head``."""
     hidden: tuple[int, ...] = (256, 256)
     """Hidden widths of the mapping MLP (DM's network, or h for SAM/TAM)."""
     latent: int = 64
@@ -204,6 +205,12 @@ def _train(
     y_tr, y_va = scalers[route.out_scaler].transform(da_tr), scalers[route.out_scaler].transform(da_va)
     fit = dict(lr=config.lr, batch_size=config.batch_size, generator=generator, progress=progress)
     rows: list[dict[str, Any]] = []
+    if spec.closed_form is not None:
+        mapper.config["fit"] = spec.closed_form(networks[route.core], x_tr, y_tr)
+        networks[route.core].eval()
+        with torch.no_grad():
+            losses = _mse(networks[route.core](x_tr), y_tr), _mse(networks[route.core](x_va), y_va)
+        return mapper, [_row(route.core, 0, *losses, *weight_mse(mapper))]
     data = (x_tr, y_tr, x_va, y_va)
     if route.encoder is not None:
         data = _fit_autoencoders(networks, route, data, rows, epochs=config.ae_epochs, weight_decay=config.ae_weight_decay, **fit)
