@@ -3,6 +3,7 @@ overrides, and inputs that changed under a finished run (nothing stale is reused
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -110,3 +111,27 @@ def test_config_show_prints_the_resolved_config():
 ])
 def test_bad_overrides_are_one_line(override, needle):
     _refused(["config", "show", "--task", "carracing", "--preset", "ci", "--set", override], needle)
+
+
+def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(finished, run)
+    layout = RunLayout(run)
+    _ok(["diagnose", "--out", run, "--workers", "1"])
+    summary = json.loads(layout.diagnostics_summary.read_text())
+    assert set(summary["methods"]) == {"bc", "dm", "sam", "tam", "ridge", "mean-da", "pistar-head"}
+    for errors in summary["methods"].values():
+        assert 0.0 <= errors["function"]["mean"] <= 1.0 and errors["weight"]["mean"] >= 0.0
+    assert summary["noise_ceiling"]["heads_per_seed"] == 3 and summary["noise_ceiling"]["function"] is not None
+    assert {r["kind"] for r in summary["scaling"]} == {"dm", "sam", "tam", "ridge"}
+    log = [json.loads(line) for line in layout.diagnostics_log.read_text().splitlines()]
+    assert all(row["reproduced"] for line in log for row in line["entries"].get("states", {}).get("rows", []))
+    before = layout.diagnostics_log.read_bytes()
+    _ok(["diagnose", "--out", run, "--workers", "1"])  # nothing left to re-run
+    assert layout.diagnostics_log.read_bytes() == before
+    _ok(["report", "--out", run])
+    assert "## Does a mapper learn anything?" in layout.report.read_text()
+
+
+def test_diagnose_refuses_bad_settings_in_one_line(finished):
+    _refused(["diagnose", "--out", finished, "--set", "diagnose.scaling=[0, 1]"], "diagnose.scaling")

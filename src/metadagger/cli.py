@@ -237,6 +237,28 @@ def benchmark(
 
 @app.command()
 @user_errors
+def diagnose(
+    out: Path = OUT,
+    overrides: list[str] = SET,
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
+) -> None:
+    """Does a mapper learn anything? Function- and weight-space errors of every kind and control
+    on the validation pairs, the noise ceiling, memorisation and the data-scaling curve
+    (diagnostics/mapping.json, scaling.png; a section of the report)."""
+    from metadagger.layout import RunLayout
+    from metadagger.pipeline import load_run, stage_diagnose
+
+    options = _options(False, executor, workers, address)
+    layout = RunLayout(out)
+    summary = stage_diagnose(layout, load_run(out, overrides), options=options)
+    typer.echo(f"diagnostics: {len(summary['methods']) - 1} kinds and controls on {summary['val_pairs']} validation pairs; "
+               f"wrote {layout.diagnostics_summary}, {layout.diagnostics_figure}")
+
+
+@app.command()
+@user_errors
 def report(out: Path = OUT) -> None:
     """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
     from metadagger.evaluation.report import build_report

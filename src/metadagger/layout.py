@@ -128,6 +128,36 @@ class RunLayout:
         """Success against mean expert queries."""
         return self.benchmark_dir / "queries.png"
 
+    # mapping diagnostics
+    @property
+    def diagnostics_dir(self) -> Path:
+        """Does a mapper learn anything? (``metadagger diagnose``)."""
+        return self.root / "diagnostics"
+
+    @property
+    def diagnostics_log(self) -> Path:
+        """The resume log of the per-seed diagnostics jobs (state samples, refits)."""
+        return self.diagnostics_dir / "seeds.jsonl"
+
+    def diagnostics_seed(self, what: str, seed: int) -> Path:
+        """One seed's tensors: ``states`` (its DAgger states' trunk features) or ``noise`` (its
+        w_DA from other fit seeds)."""
+        return self.diagnostics_dir / what / f"{seed}.safetensors"
+
+    def diagnostics_scaling(self, kind: str, fraction: float) -> Path:
+        """The mapper folder of ``kind`` trained on a share of the training pairs."""
+        return self.diagnostics_dir / "scaling" / kind / f"{fraction:g}"
+
+    @property
+    def diagnostics_summary(self) -> Path:
+        """Every diagnostic number of every kind and control."""
+        return self.diagnostics_dir / "mapping.json"
+
+    @property
+    def diagnostics_figure(self) -> Path:
+        """The data-scaling curve."""
+        return self.diagnostics_dir / "scaling.png"
+
     # report
     @property
     def report_dir(self) -> Path:

@@ -20,6 +20,7 @@ from typing import Sequence
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark import run_benchmark
 from metadagger.evaluation.curves import plot_curves
+from metadagger.evaluation.diagnose import diagnose_mappers
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
@@ -177,6 +178,20 @@ def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int
     return run_benchmark(task, layout, bench, rounds=config.pairs.dagger_rounds, bc=config.pairs.bc,
                          dagger_bc=config.pairs.dagger_bc, early_stop=config.pairs.early_stop, kinds=tuple(kinds), mdi=mdi,
                          meta_queries=_meta_training_queries(layout, config), options=options)
+
+
+def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOptions = StageOptions()) -> dict:
+    """The mapping diagnostics of every kind and control of ``evaluate.methods`` on the run's
+    validation pairs (:mod:`metadagger.evaluation.diagnose`)."""
+    task = run_task(config)
+    pistar = _current_groundtruth(layout, config, task)
+    kinds = tuple(config.evaluate.methods)
+    _check_mappers(layout, config, task, kinds, pistar)
+    split = _current_split(layout, config, task)
+    learned = {kind: config.mapper_config(kind) for kind in kinds if get_kind(kind).learned}
+    return diagnose_mappers(task, layout, split, {kind: load_mapper(layout.mapper(kind)) for kind in kinds}, config.pairs,
+                            config.diagnose, scaling_configs=learned, split_seed=config.split_seed,
+                            outputs=pistar.net.head.out_features, discrete=pistar.discrete, options=options)
 
 
 def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:

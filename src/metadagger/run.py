@@ -18,6 +18,7 @@ import yaml
 from metadagger.config import build, dump_yaml, load_preset, to_dict
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark import BenchmarkConfig
+from metadagger.evaluation.diagnose import DiagnoseConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.io import write_text
@@ -53,6 +54,8 @@ class RunConfig:
     defaults to ``pairs.bc`` (:attr:`mdi_config`)."""
     benchmark: BenchmarkConfig | None = None
     """Success against expert queries (DAgger, gated DAgger, MetaL DAgger) on unseen seeds; None: not run."""
+    diagnose: DiagnoseConfig = field(default_factory=DiagnoseConfig)
+    """The mapping diagnostics (``metadagger diagnose``): state samples, noise ceiling, scaling shares."""
 
     def __post_init__(self) -> None:
         if self.max_episode_steps < 1:

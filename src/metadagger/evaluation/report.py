@@ -16,6 +16,7 @@ import yaml
 
 from metadagger.errors import UserError
 from metadagger.evaluation.report_benchmark import benchmark_section
+from metadagger.evaluation.report_diagnostics import diagnostics_section
 from metadagger.evaluation.report_mdi import mdi_section
 from metadagger.evaluation.report_mdm import mdm_section
 from metadagger.evaluation.report_oneshot import oneshot_section
@@ -23,7 +24,8 @@ from metadagger.evaluation.report_run import groundtruth_section, mappers_sectio
 from metadagger.io import write_text
 from metadagger.layout import RunLayout
 
-SECTIONS = (groundtruth_section, pairs_section, mappers_section, mdm_section, oneshot_section, mdi_section, benchmark_section)
+SECTIONS = (groundtruth_section, pairs_section, mappers_section, diagnostics_section, mdm_section, oneshot_section, mdi_section,
+            benchmark_section)
 
 
 def build_report(layout: RunLayout) -> Path:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
@@ -82,25 +83,43 @@ def is_kept(rule: str, bc_success: bool, da_success: bool) -> bool:
     return True
 
 
-def collect_pair(job: PairJob) -> dict[str, Any]:
-    """Make one seed's pair; returns ``seed``, ``w_bc``, ``w_da`` (float32 arrays) and ``record``."""
-    task, config = job.task, job.config
-    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.seed)
+@dataclass(frozen=True)
+class PairRun:
+    """One run of a seed's pair procedure."""
+
+    w_bc: np.ndarray
+    """The head after BC on the demonstration."""
+    w_da: np.ndarray
+    """The head after the DAgger rounds."""
+    record: dict[str, Any]
+    """``bc`` and ``da`` outcomes, ``kept`` and ``outcome`` (as stored with the pair)."""
+    dagger_features: torch.Tensor
+    """Trunk features of the states the learner visited in the DAgger rounds, in visiting order."""
+
+
+def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit_seed: int | None = None) -> PairRun:
+    """The pair procedure on ``seed``: BC on its demonstration, then DAgger, both rolled out.
+
+    ``fit_seed`` seeds the fits' shuffling (default: ``seed``, as the pairs do); another value
+    gives the same procedure with other fits, on the same demonstration, expert and env seeds.
+    """
+    fit_seed = seed if fit_seed is None else fit_seed
+    policy = head_from_groundtruth(cached_groundtruth(groundtruth), seed)
     env = task.make_env()
     try:
-        demo = rollout(env, seed=job.seed, policy=None)
+        demo = rollout(env, seed=seed, policy=None)
         data = demo.to_dataset()
         cache = FeatureCache(policy)
-        fit_bc(policy, data, dataclasses.replace(config.bc, seed=job.seed), cache=cache)
+        fit_bc(policy, data, dataclasses.replace(config.bc, seed=fit_seed), cache=cache)
         w_bc = policy.head_vector().numpy().copy()
         early_stop = None if config.early_stop is None else functools.partial(CosineEarlyStop, threshold=config.early_stop)
         dagger = run_dagger(
-            policy, task, [job.seed], initial=data, cache=cache, early_stop_factory=early_stop,
-            config=DAggerConfig(rounds=config.dagger_rounds, bc=dataclasses.replace(config.dagger_bc, seed=job.seed)),
+            policy, task, [seed], initial=data, cache=cache, early_stop_factory=early_stop,
+            config=DAggerConfig(rounds=config.dagger_rounds, bc=dataclasses.replace(config.dagger_bc, seed=fit_seed)),
         )
         # round 1 rolled out the BC policy: its outcome is BC's (rollouts are deterministic)
         first = dagger.rounds[0]
-        da_traj = rollout(env, seed=job.seed, policy=policy, early_stop=None if early_stop is None else early_stop())
+        da_traj = rollout(env, seed=seed, policy=policy, early_stop=None if early_stop is None else early_stop())
     finally:
         env.close()
     bc = {"success": first["dagger/success_rate"] == 1.0, "reward": first["dagger/mean_reward"],
@@ -109,7 +128,14 @@ def collect_pair(job: PairJob) -> dict[str, Any]:
           "expert_queries": int(dagger.rounds[-1]["dagger/expert_queries"])}
     record = {"bc": bc, "da": da, "kept": is_kept(config.keep, bc["success"], da["success"]),
               "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
-    return {"seed": job.seed, "w_bc": w_bc, "w_da": policy.head_vector().numpy().copy(), "record": record}
+    return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), record=record,
+                   dagger_features=cache.features(dagger.dataset.obs[len(data):]))
+
+
+def collect_pair(job: PairJob) -> dict[str, Any]:
+    """Make one seed's pair; returns ``seed``, ``w_bc``, ``w_da`` (float32 arrays) and ``record``."""
+    pair = run_pair(job.task, job.groundtruth, job.seed, job.config)
+    return {"seed": job.seed, "w_bc": pair.w_bc, "w_da": pair.w_da, "record": pair.record}
 
 
 def pair_stamp(task: Task, layout: RunLayout, config: PairConfig) -> dict[str, Any]:

@@ -1,0 +1,56 @@
+"""The report section of the mapping diagnostics (``metadagger diagnose``), built from
+``diagnostics/mapping.json`` alone."""
+
+from __future__ import annotations
+
+import json
+import math
+
+from metadagger.evaluation.diagnose import plot_scaling
+from metadagger.evaluation.tables import markdown_table, method_label, method_order
+from metadagger.layout import RunLayout
+
+FIGURE = "diagnostics_scaling.png"
+
+
+def _cell(stat: dict | None, digits: str = ".3g") -> str:
+    return "-" if not stat else f"{stat['mean']:{digits}} ± {stat['sd']:{digits}}"
+
+
+def _times(value: float) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.2f}x"
+
+
+def diagnostics_section(layout: RunLayout) -> list[str]:
+    """Function- and weight-space errors beside the noise ceiling, memorisation, data scaling."""
+    if not layout.diagnostics_summary.is_file():
+        return []
+    s = json.loads(layout.diagnostics_summary.read_text())
+    function = "action mismatch rate" if s["discrete"] else "mean squared action error"
+    ceiling = s["noise_ceiling"]
+    lines = ["## Does a mapper learn anything?", "",
+             f"On the {s['val_pairs']} validation pairs (mappers trained on {s['train_pairs']}): the function-space error is the "
+             f"{function} of the predicted head against the seed's w_DA on {s['states_per_seed']} of that seed's DAgger states; "
+             "the weight-space error is the MSE of the heads" + (" after removing the softmax's free shift" if s["discrete"] else "")
+             + ". The noise ceiling is the same distance between w_DA heads of one seed that differ only by their fits' seeds "
+             f"({ceiling['heads_per_seed']} heads on each of {len(ceiling['seeds'])} validation seeds): no mapper can beat it. "
+             "Memorisation: distance of a prediction to the nearest training w_DA over its distance to its own w_DA "
+             "(near 0: it returns a training example). Mean ± sd over the validation pairs.", ""]
+    cells = [("noise ceiling", _cell(ceiling["function"]), "1.00x", _cell(ceiling["weight"]), "1.00x", "-")]
+    for name in method_order(s["methods"]):
+        e = s["methods"][name]
+        label = "BC (w_BC, no mapping)" if name == "bc" else method_label(name)
+        cells.append((label, _cell(e["function"]), _times(e["function_over_ceiling"]), _cell(e["weight"]),
+                      _times(e["weight_over_ceiling"]), f"{e['memorisation_median']:.2f}"))
+    lines += markdown_table(("method", "function-space error", "x ceiling", "weight-space error", "x ceiling",
+                             "memorisation (median)"), cells)
+    if s["scaling"]:
+        lines += ["", "### Data scaling (validation function-space error, nested shares of the training pairs)", ""]
+        fractions = sorted({r["fraction"] for r in s["scaling"]})
+        kinds = list(dict.fromkeys(r["kind"] for r in s["scaling"]))
+        by = {(r["kind"], r["fraction"]): r for r in s["scaling"]}
+        header = ("kind", *(f"{f:.0%} ({by[(kinds[0], f)]['train_pairs']} pairs)" for f in fractions))
+        lines += markdown_table(header, [(method_label(k), *(f"{by[(k, f)]['function']:.3g}" for f in fractions)) for k in kinds])
+        plot_scaling(s["scaling"], s["methods"], layout.figures / FIGURE)
+        lines += ["", f"![data scaling](figures/{FIGURE})"]
+    return lines + [""]

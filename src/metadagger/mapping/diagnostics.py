@@ -1,0 +1,79 @@
+"""Does a mapper learn anything? The yardsticks of the mapping diagnostics (DESIGN.md).
+
+Heads are flat vectors of layer n (weight ``[outputs, features]`` then bias ``[outputs]``).
+
+- :func:`canonical_heads`: a discrete head's rows minus their mean over classes (and the bias
+  minus its mean): adding one vector to every row of a softmax head changes no action, so that
+  shift is removed before any weight-space number.
+- :func:`function_error`: on trunk features of a seed's DAgger states, the share of states where
+  two heads choose different classes, or the mean squared difference of their actions.
+- :func:`memorisation`: how much nearer a prediction is to some training w_DA than to its own.
+- :func:`pairwise_spread`: the mean distance between heads that differ only by their fits' seeds
+  (the noise ceiling).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import torch
+
+__all__ = ["canonical_heads", "function_error", "head_outputs", "memorisation", "pairwise_spread", "weight_error"]
+
+
+def _split(heads: torch.Tensor, outputs: int) -> tuple[torch.Tensor, torch.Tensor]:
+    if heads.shape[-1] % outputs or heads.shape[-1] <= outputs:
+        raise ValueError(f"a head of length {heads.shape[-1]} is not a layer with {outputs} outputs (weights then biases)")
+    features = heads.shape[-1] // outputs - 1
+    weight = heads[..., : outputs * features].reshape(*heads.shape[:-1], outputs, features)
+    return weight, heads[..., outputs * features :]
+
+
+def canonical_heads(heads: torch.Tensor, outputs: int) -> torch.Tensor:
+    """Discrete heads ``[..., d]`` with the softmax's free shift removed (each weight column and
+    the bias centred over the ``outputs`` classes)."""
+    weight, bias = _split(heads, outputs)
+    weight = weight - weight.mean(dim=-2, keepdim=True)
+    bias = bias - bias.mean(dim=-1, keepdim=True)
+    return torch.cat([weight.flatten(-2), bias], dim=-1)
+
+
+def weight_error(predicted: torch.Tensor, truth: torch.Tensor, *, outputs: int, discrete: bool) -> torch.Tensor:
+    """Per row, the mean squared difference of two heads ``[N, d]`` (canonical if ``discrete``)."""
+    if discrete:
+        predicted, truth = canonical_heads(predicted, outputs), canonical_heads(truth, outputs)
+    return (predicted - truth).pow(2).mean(dim=-1)
+
+
+def head_outputs(head: torch.Tensor, features: torch.Tensor, outputs: int) -> torch.Tensor:
+    """Layer n's outputs ``[S, outputs]`` on trunk ``features`` ``[S, F]``."""
+    weight, bias = _split(head, outputs)
+    return features @ weight.T + bias
+
+
+def function_error(predicted: torch.Tensor, truth: torch.Tensor, features: torch.Tensor, *, outputs: int,
+                   discrete: bool) -> float:
+    """On ``features`` ``[S, F]``: the share of states where two heads choose different classes
+    (``discrete``), or the mean squared difference of their actions."""
+    a, b = head_outputs(predicted, features, outputs), head_outputs(truth, features, outputs)
+    if discrete:
+        return float((a.argmax(dim=-1) != b.argmax(dim=-1)).to(torch.float64).mean())
+    return float((a - b).pow(2).mean())
+
+
+def memorisation(predicted: torch.Tensor, truth: torch.Tensor, train_targets: torch.Tensor) -> torch.Tensor:
+    """Per validation row: distance to the nearest training w_DA over distance to its own w_DA
+    (near 0: the prediction is a training example; rows ``[N, d]``, ``[N, d]``, ``[M, d]``)."""
+    nearest = torch.cdist(predicted.to(torch.float64), train_targets.to(torch.float64)).min(dim=1).values
+    own = (predicted - truth).to(torch.float64).norm(dim=1)
+    return nearest / own.clamp_min(1e-12)
+
+
+def pairwise_spread(heads: torch.Tensor, features: torch.Tensor, *, outputs: int, discrete: bool) -> tuple[float, float]:
+    """Mean over pairs of ``heads`` ``[M, d]`` (M >= 2) of their weight-space and function-space errors."""
+    if len(heads) < 2:
+        raise ValueError(f"a spread needs at least 2 heads, got {len(heads)}")
+    pairs = list(itertools.combinations(range(len(heads)), 2))
+    weight = sum(float(weight_error(heads[i : i + 1], heads[j : j + 1], outputs=outputs, discrete=discrete)) for i, j in pairs)
+    function = sum(function_error(heads[i], heads[j], features, outputs=outputs, discrete=discrete) for i, j in pairs)
+    return weight / len(pairs), function / len(pairs)
