@@ -86,7 +86,7 @@ def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished
     assert layout.mapper("mean-da").read_bytes() != before["mean-da"]
     # and the evaluation was redone with the new mappers: every row matches their stamps
     log = (layout.eval_dir / "rows.jsonl").read_text()
-    assert len(read_csv(layout.eval_table("mdm"))) == 2 * 6 and log.count("\n") > 2
+    assert len(read_csv(layout.eval_table("mdm"))) == 2 * 7 and log.count("\n") > 2  # bc + 6 kinds on 2 seeds
 
 
 def test_groundtruth_with_another_config_is_refused(finished, tmp_path):
