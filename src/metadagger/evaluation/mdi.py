@@ -292,7 +292,8 @@ def evaluate_mdi(
 
     def save(result: dict[str, Any]) -> None:
         for (method, shot), head in result["heads"].items():
-            save_tensors(layout.heads(head_folder(method, shot)) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
+            head = torch.from_numpy(np.array(head))  # a copy: arrays from Ray workers are read-only
+            save_tensors(layout.heads(head_folder(method, shot)) / f"{result['seed']}.safetensors", {"head": head})
 
     drive(evaluate_mdi_seed, jobs, log=log, stamps=stamps, save=save, options=options, desc="mdi")
     rows = log.rows(config.seeds, stamps)

@@ -136,7 +136,8 @@ def evaluate_run(
 
     def save(result: dict[str, Any]) -> None:
         for method, head in result["heads"].items():
-            save_tensors(layout.heads(method) / f"{result['seed']}.safetensors", {"head": torch.from_numpy(head)})
+            head = torch.from_numpy(np.array(head))  # a copy: arrays from Ray workers are read-only
+            save_tensors(layout.heads(method) / f"{result['seed']}.safetensors", {"head": head})
 
     drive(evaluate_seed, jobs, log=log, stamps=stamps, save=save, options=options, desc="evaluate")
     rows = log.rows(config.seeds, stamps)
