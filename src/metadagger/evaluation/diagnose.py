@@ -84,7 +84,7 @@ def diagnose_seed(job: DiagnoseJob) -> dict[str, Any]:
     """Re-run the seed's pair (and, for ``noise``, its refits); returns rows and tensors."""
     out: dict[str, Any] = {"seed": job.seed, "entries": {}, "tensors": {}}
     if "states" in job.methods:
-        pair = run_pair(job.task, job.groundtruth, job.seed, job.pairs)
+        pair = run_pair(job.task, job.groundtruth, job.seed, job.pairs, with_states=True)
         n = len(pair.dagger_features)
         keep = np.unique(np.linspace(0, n - 1, min(job.config.states, n)).round().astype(int)) if n else np.zeros(0, dtype=int)
         out["tensors"]["states"] = {"features": pair.dagger_features[torch.from_numpy(keep)].contiguous(),
@@ -169,14 +169,13 @@ def noise_ceiling(layout: RunLayout, split: PairSplit, config: DiagnoseConfig, *
             "function": _mean_sd(torch.tensor(functions)) if seeds else None}
 
 
-def scaling_curve(layout: RunLayout, split: PairSplit, kinds: tuple[str, ...], configs: dict[str, MapperConfig],
-                  fractions: tuple[float, ...], features: list[torch.Tensor], *, seed: int, outputs: int, discrete: bool,
-                  progress: bool) -> list[dict[str, Any]]:
-    """Each learned kind trained on nested shares of the training pairs (one order from ``seed``):
-    its mean function- and weight-space error on the validation pairs."""
+def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, MapperConfig], fractions: tuple[float, ...],
+                  features: list[torch.Tensor], *, seed: int, outputs: int, discrete: bool, progress: bool) -> list[dict[str, Any]]:
+    """Each learned kind of ``configs`` trained on nested shares of the training pairs (one order
+    from ``seed``): its mean function- and weight-space error on the validation pairs."""
     order = np.random.default_rng(seed).permutation(len(split.train_seeds))
     rows = []
-    for kind in kinds:
+    for kind in configs:
         for fraction in sorted(fractions):
             count = max(2, int(round(fraction * len(order))))
             take = torch.from_numpy(np.sort(order[:count]))
@@ -219,7 +218,7 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
         for space in ("weight", "function"):
             floor = ceiling[space]["mean"] if ceiling[space] else math.nan
             errors[f"{space}_over_ceiling"] = errors[space]["mean"] / floor if floor and floor > 0 else math.nan
-    scaling = scaling_curve(layout, split, tuple(scaling_configs), scaling_configs, config.scaling, features, seed=split_seed,
+    scaling = scaling_curve(layout, split, scaling_configs, config.scaling, features, seed=split_seed,
                             outputs=outputs, discrete=discrete, progress=options.progress)
     summary = {"task": task.name, "discrete": discrete, "train_pairs": len(split.train_seeds), "val_pairs": len(split.val_seeds),
                "states_per_seed": config.states, "noise_ceiling": ceiling, "methods": methods, "scaling": scaling,

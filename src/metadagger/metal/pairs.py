@@ -93,15 +93,19 @@ class PairRun:
     """The head after the DAgger rounds."""
     record: dict[str, Any]
     """``bc`` and ``da`` outcomes, ``kept`` and ``outcome`` (as stored with the pair)."""
-    dagger_features: torch.Tensor
-    """Trunk features of the states the learner visited in the DAgger rounds, in visiting order."""
+    dagger_features: torch.Tensor | None
+    """With ``with_states``: trunk features of the states the learner visited in the DAgger
+    rounds, in visiting order."""
 
 
-def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit_seed: int | None = None) -> PairRun:
+def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit_seed: int | None = None,
+             with_states: bool = False) -> PairRun:
     """The pair procedure on ``seed``: BC on its demonstration, then DAgger, both rolled out.
 
     ``fit_seed`` seeds the fits' shuffling (default: ``seed``, as the pairs do); another value
     gives the same procedure with other fits, on the same demonstration, expert and env seeds.
+    ``with_states`` also returns the DAgger states' trunk features (the diagnostics need them;
+    collecting pairs does not).
     """
     fit_seed = seed if fit_seed is None else fit_seed
     policy = head_from_groundtruth(cached_groundtruth(groundtruth), seed)
@@ -128,8 +132,8 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
           "expert_queries": int(dagger.rounds[-1]["dagger/expert_queries"])}
     record = {"bc": bc, "da": da, "kept": is_kept(config.keep, bc["success"], da["success"]),
               "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
-    return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), record=record,
-                   dagger_features=cache.features(dagger.dataset.obs[len(data):]))
+    states = cache.features(dagger.dataset.obs[len(data):]) if with_states else None
+    return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), record=record, dagger_features=states)
 
 
 def collect_pair(job: PairJob) -> dict[str, Any]:
