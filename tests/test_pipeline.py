@@ -60,6 +60,28 @@ def test_demo_ci_preset(tmp_path):
         assert (tmp_path / "demo" / name).is_file()
 
 
+def test_demo_clones_from_a_minari_dataset(tmp_path, monkeypatch):
+    minari = pytest.importorskip("minari")
+    import gymnasium as gym
+    import numpy as np
+    from minari.data_collector import EpisodeBuffer
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "datasets"))
+    rng = np.random.default_rng(0)
+    obs = rng.integers(0, 256, (8, 96, 96, 3), dtype=np.uint8)
+    image = gym.spaces.Box(0, 255, (96, 96, 3), np.uint8)
+    for name, classes in (("test/steer-v0", 20), ("test/three-v0", 3)):
+        buffer = EpisodeBuffer(id=0, seed=0, observations=obs, actions=rng.integers(0, classes, 7), rewards=[0.0] * 7,
+                               terminations=[False] * 6 + [True], truncations=[False] * 7)
+        minari.create_dataset_from_buffers(name, [buffer], observation_space=image, action_space=gym.spaces.Discrete(classes))
+    result = runner.invoke(app, ["demo", "--task", "carracing", "--preset", "ci", "--out", str(tmp_path), "--demos", "test/steer-v0"])
+    assert result.exit_code == 0, result.output
+    bc_row = next(line for line in result.output.splitlines() if line.startswith("| BC |"))
+    assert bc_row.rstrip(" |").endswith("| 7")  # the dataset's 7 labelled states are BC's expert queries
+    result = runner.invoke(app, ["demo", "--task", "carracing", "--preset", "ci", "--out", str(tmp_path), "--demos", "test/three-v0"])
+    assert result.exit_code == 2 and "action space Discrete(3), but the task's learner has Discrete(20)" in result.output
+
+
 def _stamps(run: Path) -> dict[Path, int]:
     """Modification times of the files a stage writes only when it does work."""
     return {p: p.stat().st_mtime_ns for pattern in ("*.safetensors", "*.jsonl") for p in run.rglob(pattern)}

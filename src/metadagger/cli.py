@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Callable, Optional, TypeVar
 import typer
 
 from metadagger.errors import UserError
-from metadagger.mapping.registry import kind_names
+from metadagger.mapping.registry import kind_names, trained_names
 
 if TYPE_CHECKING:
     from metadagger.runner import StageOptions
@@ -65,11 +65,13 @@ def demo(
     out: Path = typer.Option(Path("runs/demo"), "--out", help="Run folder to write to."),
     rounds: Optional[int] = typer.Option(None, "--rounds", help="Override the preset's DAgger rounds."),
     epochs: Optional[int] = typer.Option(None, "--epochs", help="Override the preset's BC epochs per fit."),
+    demos: Optional[str] = typer.Option(None, "--demos", help="Clone from this Minari dataset (its spaces must match the "
+                                        "task's learner) instead of the expert's demonstrations of the train seeds."),
 ) -> None:
     """BC from expert demos, then DAgger rounds; both evaluated on unseen seeds."""
     from metadagger.demo import demo_config, run_demo
 
-    config = demo_config(task, preset, rounds=rounds, epochs=epochs)
+    config = demo_config(task, preset, rounds=rounds, epochs=epochs, demos=demos)
     result = run_demo(config, out)
     typer.echo(result.table)
     typer.echo(f"wrote {result.folder}")
@@ -155,6 +157,43 @@ def train_mapper_cmd(
 
     for path in stage_mappers(RunLayout(out), load_run(out, overrides), kinds, StageOptions(rebuild=rebuild)):
         typer.echo(f"wrote {path}")
+
+
+@app.command()
+@user_errors
+def tune(
+    out: Path = OUT,
+    kind: str = typer.Option(..., "--kind", help=f"The mapper kind to tune: {', '.join(trained_names())} (the kinds "
+                             "trained by Adam; ridge and the controls have nothing to tune)."),
+    trials: int = typer.Option(30, "--trials", help="Completed trials the study should hold in all; a resumed study runs "
+                               "only the missing ones."),
+    seed: int = typer.Option(0, "--seed", help="Seeds the sampler (a trial's own seed is mappers.<kind>.seed)."),
+    apply: bool = typer.Option(False, "--apply", help="Write the best settings into the run's config.yaml (mappers.<kind>), "
+                               "for train-mapper --rebuild and reproduce."),
+    overrides: list[str] = SET,
+    rebuild: bool = typer.Option(False, "--rebuild", help="Delete the kind's study and start a new one (a study resumes "
+                                 "only with the pairs, split and untuned settings it was made from)."),
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
+) -> None:
+    """Search a mapper's hyperparameters with Optuna: trials train on the run's training pairs and
+    are scored on its validation pairs (never on evaluation seeds); the study in tune/<kind>.db
+    resumes, the best trial goes to tune/<kind>.yaml (docs/tuning.md)."""
+    from metadagger.layout import RunLayout
+    from metadagger.pipeline import load_run, stage_tune
+
+    options = _options(rebuild, executor, workers, address)
+    layout = RunLayout(out)
+    result = stage_tune(layout, load_run(out, overrides), kind, trials=trials, seed=seed, apply=apply, options=options)
+    baseline = "" if result.baseline_value is None else f" (trial 0, the run's settings: {result.baseline_value:.6g})"
+    typer.echo(f"{kind}: best of {result.completed} trials is trial {result.best_trial}, validation MSE "
+               f"{result.best_value:.6g}{baseline}; {result.ran} trials ran now")
+    typer.echo(f"wrote {result.summary} (study: {result.study})")
+    if apply:
+        typer.echo(f"applied to {layout.config}; retrain with: metadagger train-mapper --out {out} --kind {kind} --rebuild")
+    else:
+        typer.echo(f"use it with train-mapper --kind {kind} --rebuild, or reproduce: --set '{result.set_item}'")
 
 
 PROTOCOLS = ("mdm", "mdi", "all")
@@ -259,6 +298,36 @@ def diagnose(
 
 @app.command()
 @user_errors
+def export(
+    out: Path = OUT,
+    what: str = typer.Option(..., "--what", help="demos (the expert's), dagger (the pairs' per-seed DAgger rollouts) or "
+                             "pairs-data (both: everything each pair was fit on)."),
+    fmt: str = typer.Option("minari", "--format", help="minari (the only format)."),
+    name: str = typer.Option(..., "--name", help="Minari dataset id, e.g. metadagger/carracing-demos-v0."),
+    seeds: Optional[str] = typer.Option(None, "--seeds", help="Seeds to export (default: the run's pairs.seeds)."),
+    overrides: list[str] = SET,
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
+) -> None:
+    """Write a run's episodes as a Minari dataset: observations, the learner's action, the expert's
+    label, whether it was queried, the DAgger round and the seed (docs/minari.md)."""
+    from metadagger.config import parse_seeds
+    from metadagger.metal.export import check_export
+    from metadagger.layout import RunLayout
+    from metadagger.pipeline import load_run, stage_export
+
+    check_export(what, fmt, name)
+    options = _options(False, executor, workers, address)
+    summary = stage_export(RunLayout(out), load_run(out, overrides), what=what, name=name,
+                           seeds=parse_seeds(seeds) if seeds else None, options=options)
+    checked = f", {summary['checked']} re-run pairs equal to the stored ones" if what != "demos" else ""
+    typer.echo(f"export: {summary['episodes']} episodes, {summary['steps']} steps{checked}; wrote Minari dataset {name} "
+               f"({summary['dataset']}); read it with minari.load_dataset({name!r})")
+
+
+@app.command()
+@user_errors
 def report(out: Path = OUT) -> None:
     """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
     from metadagger.evaluation.report import build_report
@@ -278,14 +347,22 @@ def reproduce(
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
+    log: Optional[str] = typer.Option(None, "--log", help="tensorboard: also write every stage's curves and evaluations as "
+                                      "TensorBoard scalars under OUT/tb (needs the tensorboard extra); none: off. Sets the "
+                                      "run's log key (default: the run's, none for a new run)."),
 ) -> None:
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
-    from metadagger.pipeline import reproduce as run_all
+    from metadagger.layout import RunLayout
+    from metadagger.pipeline import load_run, reproduce as run_all
 
+    overrides = [*overrides, f"log={log}"] if log is not None else overrides
     path = run_all(task, preset, out, presets_file=presets, overrides=overrides, options=_options(False, executor, workers, address))
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
+    if load_run(out).log == "tensorboard":
+        tb = RunLayout(out).tb_dir
+        typer.echo(f"wrote TensorBoard scalars to {tb}; view them with `tensorboard --logdir {tb}`")
 
 
 @bench_app.command("env")

@@ -17,11 +17,13 @@ from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
+from metadagger.imitation.minari_io import read_demonstrations
 from metadagger.imitation.rollouts import collect
 from metadagger.io import write_json, write_text
 from metadagger.layout import RunLayout
 from metadagger.policies import make_policy
 from metadagger.tasks import make_task
+from metadagger.tasks.base import Task
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,9 @@ class DemoConfig:
     """Step limit of every episode."""
     seed: int = 0
     """Seed of the policy's initial weights."""
+    demos: str | None = None
+    """A Minari dataset id to clone from instead of the expert's demonstrations of ``train_seeds``
+    (any dataset whose spaces match the task's learner; DAgger still rolls out ``train_seeds``)."""
 
     def __post_init__(self) -> None:
         if not self.train_seeds or not self.eval_seeds:
@@ -55,9 +60,12 @@ class DemoConfig:
             raise UserError(f"DemoConfig.max_episode_steps must be >= 1, got {self.max_episode_steps}")
 
 
-def demo_config(task: str, preset: str, *, rounds: int | None = None, epochs: int | None = None) -> DemoConfig:
+def demo_config(task: str, preset: str, *, rounds: int | None = None, epochs: int | None = None,
+                demos: str | None = None) -> DemoConfig:
     """The demo section of a task's preset, with optional overrides (validated like the preset)."""
     data = {"task": task, **load_preset(task, preset).get("demo", {})}
+    if demos is not None:
+        data["demos"] = demos
     if rounds is not None:
         data["dagger_rounds"] = rounds
     if epochs is not None:
@@ -79,8 +87,7 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
     write_text(folder / "config.yaml", dump_yaml(config))
     task = make_task(config.task, max_episode_steps=config.max_episode_steps)
 
-    demos = collect(task, config.train_seeds, policy=None, progress=progress)
-    data = Dataset.concat(*[t.to_dataset() for t in demos])
+    data = _demonstrations(task, config, progress=progress)
     demo_queries = len(data)
 
     policy = make_policy(task, seed=config.seed)
@@ -109,6 +116,18 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
     write_csv(folder / "rounds.csv", curve, fields=tuple(curve[0]))
     _plot(curve, folder / "success_vs_round.png", task=config.task)
     return DemoResult(folder=folder, table=table, rounds=curve)
+
+
+def _demonstrations(task: Task, config: DemoConfig, *, progress: bool) -> Dataset:
+    """The expert's demonstrations of ``train_seeds``, or the rows of the Minari dataset ``demos``."""
+    if config.demos is None:
+        demos = collect(task, config.train_seeds, policy=None, progress=progress)
+        return Dataset.concat(*[t.to_dataset() for t in demos])
+    env = task.make_env()
+    try:
+        return read_demonstrations(config.demos, observation_space=env.observation_space, action_space=env.action_space)
+    finally:
+        env.close()
 
 
 def _table(bc: dict, bc_queries: int, da: dict, da_queries: int, n_eval: int) -> str:

@@ -84,6 +84,21 @@ class RunLayout:
         """Learning curves of mapper ``kind`` (paper Fig. 8)."""
         return self.mapper_dir(kind) / "curves.png"
 
+    # mapper hyperparameter search
+    @property
+    def tune_dir(self) -> Path:
+        """The Optuna studies of ``metadagger tune``."""
+        return self.root / "tune"
+
+    def tune_study(self, kind: str) -> Path:
+        """The study of mapper ``kind`` (SQLite; a killed study resumes from it)."""
+        return self.tune_dir / f"{kind}.db"
+
+    def tune_summary(self, kind: str) -> Path:
+        """The best trial of ``kind``'s study, its ``mappers.<kind>`` settings and what the study
+        was made from (YAML)."""
+        return self.tune_dir / f"{kind}.yaml"
+
     # evaluation
     @property
     def eval_dir(self) -> Path:
@@ -173,6 +188,21 @@ class RunLayout:
     def figures(self) -> Path:
         """The report's figures."""
         return self.report_dir / "figures"
+
+    # TensorBoard
+    @property
+    def tb_dir(self) -> Path:
+        """TensorBoard event files (``log: tensorboard``); view with ``tensorboard --logdir RUN/tb``."""
+        return self.root / "tb"
+
+    def tb_run(self, namespace: str) -> Path:
+        """The event files of one namespace, e.g. ``groundtruth`` or ``mapper/dm``."""
+        return self.tb_dir / namespace
+
+    def tb_staging(self, token: str) -> Path:
+        """A temporary folder a namespace's event files are written into before they replace it
+        (outside ``tb/``, so a TensorBoard watching it never reads a half-written namespace)."""
+        return self.root / f".tb-{token}"
 
     # demo
     @property

@@ -6,7 +6,8 @@ complete and made from today's config (their stamps, :mod:`metadagger.stamps`), 
 whose artifacts exist. Run alone, a stage whose inputs changed refuses with one line naming what
 changed; with ``rebuild`` (what ``reproduce`` passes) it redoes the stale work instead, so a
 changed input rebuilds exactly what depends on it. The mdi stage runs only for runs whose config
-has an ``mdi`` section (Fetch).
+has an ``mdi`` section (Fetch). With ``log: tensorboard`` each stage then rewrites its TensorBoard
+scalars from its artifacts (:mod:`metadagger.evaluation.tensorboard`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Mapping, Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark import run_benchmark
@@ -24,10 +25,14 @@ from metadagger.evaluation.diagnose import diagnose_mappers
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
+from metadagger.evaluation.tensorboard import (Scalar, benchmark_scalars, groundtruth_scalars, mapper_scalars, pairs_scalars,
+                                               table_scalars, write_tensorboard)
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import mapper_stamp, train_mapper
+from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
+from metadagger.metal.export import export_run
 from metadagger.metal.groundtruth import groundtruth_changes, train_groundtruth
 from metadagger.metal.pairs import collect_pairs, pair_status
 from metadagger.metal.store import PairSplit, PairStore
@@ -46,9 +51,18 @@ def run_task(config: RunConfig) -> Task:
     return make_task(config.task, **config.task_kwargs)
 
 
+def _log(layout: RunLayout, config: RunConfig, runs: Callable[[], Mapping[str, list[Scalar]]]) -> None:
+    """With ``log: tensorboard``, replace the TensorBoard namespaces of ``runs()`` (namespace ->
+    scalars, read from the stage's artifacts) under ``RUN/tb/``."""
+    if config.log == "tensorboard":
+        write_tensorboard(layout, runs())
+
+
 def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Train pi* (skipped when done and made from this config)."""
-    return train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress)
+    metrics = train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress)
+    _log(layout, config, lambda: {"groundtruth": groundtruth_scalars(layout)})
+    return metrics
 
 
 def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Policy:
@@ -67,7 +81,9 @@ def stage_pairs(layout: RunLayout, config: RunConfig, options: StageOptions = St
     """Collect the pairs of every seed not stored yet (with ``options.rebuild``, also the stale ones)."""
     task = run_task(config)
     _current_groundtruth(layout, config, task)
-    return collect_pairs(task, layout, config.pairs, options)
+    summary = collect_pairs(task, layout, config.pairs, options)
+    _log(layout, config, lambda: {"pairs": pairs_scalars(layout, config.pairs.seeds)})
+    return summary
 
 
 def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSplit:
@@ -104,7 +120,25 @@ def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | N
         train_mapper(split, config.mapper_config(kind), layout.mapper_dir(kind), pistar_head=head, rebuild=options.rebuild,
                      progress=options.progress)
         plot_curves(layout.mapper_curves(kind), layout.mapper_curves_figure(kind))
+    _log(layout, config, lambda: {f"mapper/{kind}": mapper_scalars(layout, kind) for kind in kinds})
     return [layout.mapper(kind) for kind in kinds]
+
+
+def stage_tune(layout: RunLayout, config: RunConfig, kind: str, *, trials: int, seed: int = 0, apply: bool = False,
+               options: StageOptions = StageOptions()) -> TuneResult:
+    """Search mapper ``kind``'s hyperparameters (:mod:`metadagger.mapping.tune`): trials train on
+    the run's training pairs and are scored on its validation pairs, never on evaluation seeds.
+    The study resumes from ``tune/<kind>.db`` (``options.rebuild`` starts a new one); ``apply``
+    writes the best settings into the run's ``mappers`` section, for train-mapper and reproduce."""
+    check_tunable(kind)  # before any work
+    task = run_task(config)
+    _current_groundtruth(layout, config, task)
+    split = _current_split(layout, config, task)
+    result = tune_mapper(split, config.mapper_config(kind), study=layout.tune_study(kind), summary=layout.tune_summary(kind),
+                         trials=trials, seed=seed, base_overrides=config.mappers.get(kind) or {}, options=options)
+    if apply:
+        load_run(layout.root, [result.set_item])  # validated and written back like any --set
+    return result
 
 
 def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequence[str], pistar: Policy) -> None:
@@ -142,7 +176,10 @@ def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int]
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, eval_config.methods, pistar)
-    return evaluate_run(task, layout, eval_config, bc=config.pairs.bc, options=options)
+    rows = evaluate_run(task, layout, eval_config, bc=config.pairs.bc, options=options)
+    tables = ("mdm", "oneshot") if eval_config.oneshot else ("mdm",)
+    _log(layout, config, lambda: {f"eval/{table}": table_scalars(layout.eval_table(table)) for table in tables})
+    return rows
 
 
 def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
@@ -156,7 +193,9 @@ def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | No
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, tuple(mdi.kinds.values()), pistar)
-    return evaluate_mdi(task, layout, mdi, options)
+    rows = evaluate_mdi(task, layout, mdi, options)
+    _log(layout, config, lambda: {"eval/mdi": table_scalars(layout.eval_table("mdi"))})
+    return rows
 
 
 def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
@@ -175,9 +214,11 @@ def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int
     kinds = config.evaluate.methods if "mdm" in bench.methods else ()
     mdi = config.mdi_config if "mdi" in bench.methods else None
     _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
-    return run_benchmark(task, layout, bench, rounds=config.pairs.dagger_rounds, bc=config.pairs.bc,
+    rows = run_benchmark(task, layout, bench, rounds=config.pairs.dagger_rounds, bc=config.pairs.bc,
                          dagger_bc=config.pairs.dagger_bc, early_stop=config.pairs.early_stop, kinds=tuple(kinds), mdi=mdi,
                          meta_queries=_meta_training_queries(layout, config), options=options)
+    _log(layout, config, lambda: {"benchmark": benchmark_scalars(layout)})
+    return rows
 
 
 def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOptions = StageOptions()) -> dict:
@@ -192,6 +233,17 @@ def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOption
     return diagnose_mappers(task, layout, split, {kind: load_mapper(layout.mapper(kind)) for kind in kinds}, config.pairs,
                             config.diagnose, scaling_configs=learned, split_seed=config.split_seed,
                             outputs=pistar.net.head.out_features, discrete=pistar.discrete, options=options)
+
+
+def stage_export(layout: RunLayout, config: RunConfig, *, what: str, name: str, seeds: Sequence[int] | None = None,
+                 options: StageOptions = StageOptions()) -> dict:
+    """The run's ``what`` episodes (demos, dagger, pairs-data) of ``seeds`` (default: the pair
+    seeds) as the Minari dataset ``name`` (:mod:`metadagger.metal.export`)."""
+    task = run_task(config)
+    if what != "demos":
+        _current_groundtruth(layout, config, task)
+    return export_run(task, layout, config.pairs, what=what, name=name,
+                      seeds=sorted(set(config.pairs.seeds if seeds is None else seeds)), options=options)
 
 
 def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:
@@ -236,4 +288,4 @@ def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Pa
 
 
 __all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_benchmark", "stage_evaluate", "stage_groundtruth",
-           "stage_mappers", "stage_mdi", "stage_pairs", "StageOptions"]
+           "stage_mappers", "stage_mdi", "stage_pairs", "stage_tune", "StageOptions"]

@@ -21,12 +21,16 @@ from metadagger.evaluation.benchmark import BenchmarkConfig
 from metadagger.evaluation.diagnose import DiagnoseConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
+from metadagger.evaluation.tensorboard import require_tensorboard
 from metadagger.io import write_text
 from metadagger.layout import RunLayout
 from metadagger.mapping.registry import kind_names, learned_names
 from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig
 from metadagger.metal.pairs import PairConfig
+
+LOGS = ("none", "tensorboard")
+"""Values of :attr:`RunConfig.log`."""
 
 
 @dataclass(frozen=True)
@@ -56,8 +60,15 @@ class RunConfig:
     """Success against expert queries (DAgger, gated DAgger, MetaL DAgger) on unseen seeds; None: not run."""
     diagnose: DiagnoseConfig = field(default_factory=DiagnoseConfig)
     """The mapping diagnostics (``metadagger diagnose``): state samples, noise ceiling, scaling shares."""
+    log: str = "none"
+    """``tensorboard``: each stage also writes its training curves and evaluations as TensorBoard
+    scalars under ``RUN/tb/``, from its artifacts (docs/tensorboard.md; the ``tensorboard`` extra); ``none``: off."""
 
     def __post_init__(self) -> None:
+        if self.log not in LOGS:
+            raise UserError(f"log must be one of {', '.join(LOGS)}, got {self.log!r}")
+        if self.log == "tensorboard":
+            require_tensorboard()  # a missing extra fails now, not after the first stage
         if self.max_episode_steps < 1:
             raise UserError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
         gt = set(self.groundtruth.seeds) | set(self.groundtruth.eval_seeds)

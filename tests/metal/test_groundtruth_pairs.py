@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -56,6 +57,11 @@ def test_groundtruth_writes_policy_metrics_and_round_checkpoints(gt_run):
     assert (gt_run / "groundtruth" / "metrics.json").is_file()
     assert sorted(p.name for p in (gt_run / "groundtruth" / "rounds").iterdir()) == ["round_0.safetensors", "round_1.safetensors"]
     assert load_policy(groundtruth_path(gt_run)).head_size == 32 * 3 + 3
+    # every fit's loss per epoch, for the TensorBoard curves; the last is the round's final loss
+    metrics = json.loads((gt_run / "groundtruth" / "metrics.json").read_text())
+    assert len(metrics["bc_epoch_losses"]) == GT.bc.epochs
+    assert [len(r["dagger/epoch_losses"]) for r in metrics["rounds"]] == [GT.bc.epochs] * GT.dagger_rounds
+    assert all(r["dagger/epoch_losses"][-1] == r["dagger/final_loss"] for r in metrics["rounds"])
 
 
 def test_groundtruth_resumes_from_round_checkpoints(gt_run, tmp_path):
@@ -67,6 +73,7 @@ def test_groundtruth_resumes_from_round_checkpoints(gt_run, tmp_path):
     (tmp_path / "groundtruth" / "stamp.json").write_bytes((gt_run / "groundtruth" / "stamp.json").read_bytes())
     metrics = train_groundtruth(CorridorTask(), GT, RunLayout(tmp_path), progress=False)
     assert all(r["dagger/final_loss"] is None for r in metrics["rounds"])  # nothing refitted
+    assert metrics["bc_epoch_losses"] is None and all(r["dagger/epoch_losses"] is None for r in metrics["rounds"])
     assert groundtruth_path(tmp_path).read_bytes() == groundtruth_path(gt_run).read_bytes()
 
 

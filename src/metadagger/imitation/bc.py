@@ -214,17 +214,17 @@ def fit_or_resume(
     *,
     cache: FeatureCache | None = None,
     progress: bool = False,
-) -> float | None:
+) -> list[float] | None:
     """:func:`fit_bc`, then save the policy at ``checkpoint``; if that checkpoint already exists
     (a killed run being resumed) load its weights instead of fitting.
 
     Returns:
-        The last epoch's loss, or None when the weights were loaded.
+        The mean training loss of every epoch, or None when the weights were loaded.
     """
     if checkpoint is not None and Path(checkpoint).is_file():
         policy.net.load_state_dict(load_policy(checkpoint).net.state_dict())
         return None
-    loss = fit_bc(policy, data, config, progress=progress, cache=cache)["loss"][-1]
+    losses = fit_bc(policy, data, config, progress=progress, cache=cache)["loss"]
     if checkpoint is not None:
         policy.save(checkpoint)
-    return loss
+    return losses

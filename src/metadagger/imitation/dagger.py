@@ -11,7 +11,7 @@ import numpy as np
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
 from metadagger.imitation.data import Dataset
-from metadagger.imitation.rollouts import EarlyStop, collect
+from metadagger.imitation.rollouts import EarlyStop, Trajectory, collect
 from metadagger.policies import Policy
 from metadagger.progress import progress_bar
 from metadagger.tasks.base import Task
@@ -61,6 +61,7 @@ def run_dagger(
     early_stop_factory: Callable[[], EarlyStop] | None = None,
     cache: FeatureCache | None = None,
     checkpoints: str | Path | None = None,
+    on_rollouts: Callable[[int, list[Trajectory]], None] | None = None,
 ) -> DAggerResult:
     """Improve ``policy`` in place with DAgger on ``task``.
 
@@ -83,14 +84,16 @@ def run_dagger(
         checkpoints: folder for ``round_<k>.safetensors`` (the policy after round k's refit). A
             round whose checkpoint exists loads it instead of refitting, so a killed run resumes:
             its rollouts are re-done (deterministic) to rebuild the aggregated dataset, the
-            expensive fits are not. ``final_loss`` is None for a resumed round.
+            expensive fits are not. ``final_loss`` and ``epoch_losses`` are None for a resumed round.
+        on_rollouts: called as ``on_rollouts(round_idx, trajectories)`` with each round's rollouts
+            before its refit (e.g. to export the episodes).
 
     Returns:
         Per-round metrics, keys namespaced ``dagger/``: ``round`` (1-based), ``success_rate``,
         ``mean_reward`` and ``mean_steps`` of that round's rollouts (so of the policy *before*
         the round's refit: round 1 measures the initial policy), ``expert_queries`` (cumulative,
-        including ``initial``), ``dataset_size`` and ``final_loss`` of the refit; and the
-        aggregated dataset.
+        including ``initial``), ``dataset_size``, and ``final_loss`` and ``epoch_losses`` (the
+        mean training loss of every epoch) of the refit; and the aggregated dataset.
     """
     seeds = list(seeds)
     if not seeds:
@@ -102,13 +105,15 @@ def run_dagger(
     history: list[dict[str, Any]] = []
     for round_idx in progress_bar(range(1, config.rounds + 1), desc="dagger", enabled=progress, leave=False):
         trajectories = collect(task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory)
+        if on_rollouts is not None:
+            on_rollouts(round_idx, trajectories)
         dataset = dataset.concat(*(t.to_dataset() for t in trajectories))
         queries += sum(t.expert_queries for t in trajectories)
         if config.reset_each_round and not _has_checkpoint(checkpoints, round_idx):
             # a frozen trunk (e.g. pi*'s layers 1..n-1) is never re-initialised
             trunk_frozen = not any(p.requires_grad for p in policy.net.trunk.parameters())
             policy.net.init_weights(config.bc.seed, head_only=config.bc.head_only or trunk_frozen)
-        final_loss = fit_or_resume(policy, dataset, config.bc, _checkpoint(checkpoints, round_idx), cache=cache)
+        losses = fit_or_resume(policy, dataset, config.bc, _checkpoint(checkpoints, round_idx), cache=cache)
         metrics = {
             "dagger/round": round_idx,
             "dagger/success_rate": float(np.mean([t.success for t in trajectories])),
@@ -116,7 +121,8 @@ def run_dagger(
             "dagger/mean_steps": float(np.mean([t.steps for t in trajectories])),
             "dagger/expert_queries": queries,
             "dagger/dataset_size": len(dataset),
-            "dagger/final_loss": final_loss,
+            "dagger/final_loss": None if losses is None else losses[-1],
+            "dagger/epoch_losses": losses,
         }
         history.append(metrics)
         if on_round is not None:

@@ -37,6 +37,10 @@ class Trajectory:
         success: the task's success rule at the end; False if an early stop fired.
         expert_queries: expert labels kept for training (= T).
         seed: the ``reset`` seed.
+        step_rewards: (T,) float32 env reward of each step (``reward`` is their sum).
+        final_obs: the observation after the last step (never acted on).
+        final_label: the expert's label of ``final_obs`` (computed by the env, never trained on).
+        terminated: whether the env terminated (False: truncated, capped or early-stopped).
         early_stopped: whether an :class:`EarlyStop` ended the episode.
     """
 
@@ -48,6 +52,10 @@ class Trajectory:
     success: bool
     expert_queries: int
     seed: int
+    step_rewards: np.ndarray
+    final_obs: np.ndarray
+    final_label: Any
+    terminated: bool
     early_stopped: bool = False
 
     def to_dataset(self) -> Dataset:
@@ -87,8 +95,8 @@ def rollout(
     obs, info = env.reset(seed=seed)
     if early_stop is not None:
         early_stop.reset()
-    observations, labels, actions = [], [], []
-    reward, success, stopped = 0.0, False, False
+    observations, labels, actions, rewards = [], [], [], []
+    success, stopped, terminated = False, False, False
     while True:
         label = info["expert_label"]
         action = label if policy is None else policy(obs)
@@ -97,7 +105,7 @@ def rollout(
         labels.append(label)
         actions.append(action)
         obs, step_reward, terminated, truncated, info = env.step(action)
-        reward += float(step_reward)
+        rewards.append(float(step_reward))
         # the action was executed, so the step counts even when the early stop then fires
         stopped = early_stop is not None and early_stop.update(action, label)
         if stopped:
@@ -112,11 +120,15 @@ def rollout(
         obs=np.stack(observations),
         expert_labels=_stack(labels, discrete),
         learner_actions=_stack(actions, discrete),
-        reward=reward,
+        reward=float(sum(rewards)),
         steps=steps,
         success=success,
         expert_queries=steps,
         seed=int(seed),
+        step_rewards=np.asarray(rewards, dtype=np.float32),
+        final_obs=np.array(obs, dtype=np.uint8, copy=True),
+        final_label=info["expert_label"],
+        terminated=bool(terminated) and not stopped,
         early_stopped=stopped,
     )
 

@@ -111,6 +111,12 @@ def learned_names() -> tuple[str, ...]:
     return tuple(k.name for k in _KINDS.values() if k.learned)
 
 
+def trained_names() -> tuple[str, ...]:
+    """The learned kinds trained by Adam (not fitted in closed form): those with hyperparameters
+    to tune (:mod:`metadagger.mapping.tune`)."""
+    return tuple(k.name for k in _KINDS.values() if k.learned and k.closed_form is None)
+
+
 def control_names() -> tuple[str, ...]:
     """The controls."""
     return tuple(k.name for k in _KINDS.values() if not k.learned)

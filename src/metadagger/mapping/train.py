@@ -33,7 +33,7 @@ from metadagger.metal.store import PairSplit
 from metadagger.progress import progress_bar
 from metadagger.stamps import data_fingerprint, describe_changes, stamp_of
 
-__all__ = ["CURVE_COLUMNS", "MapperConfig", "evaluate_mapping", "paper_config", "train_mapper"]
+__all__ = ["CURVE_COLUMNS", "MapperConfig", "evaluate_mapping", "fit_mapper", "paper_config", "train_mapper"]
 
 CURVE_COLUMNS = ("model", "epoch", "train_loss", "val_loss", "train_mse_weights", "val_mse_weights")
 """``curves.csv`` columns. ``*_loss``: the model's own MSE (standardised weights, or latent codes
@@ -142,8 +142,6 @@ def train_mapper(
     """
     out_dir = Path(out_dir)
     path = out_dir / MAPPER_FILE
-    dim = split.w_bc_train.shape[1]
-    config_data = json.loads(json.dumps(dataclasses.asdict(config)))
     stamp = mapper_stamp(split, config, pistar_head)
     if path.exists():
         existing = load_mapper(path)
@@ -153,15 +151,38 @@ def train_mapper(
         if not rebuild:
             raise UserError(f"{path} holds a mapper made from other inputs ({'; '.join(changes)}); "
                             "pass --rebuild to retrain it, or run `metadagger reproduce`")
-    if get_kind(config.kind).learned and len(split.train_seeds) < 2:
-        raise UserError(f"a {config.kind} mapper needs at least 2 training pairs, got {len(split.train_seeds)}; collect more seeds or lower val_fraction")
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(config.seed)  # Dropout draws from torch's global generator
-        mapper, rows = _train(split, config, config_data, pistar_head, progress)
+    mapper, rows = fit_mapper(split, config, pistar_head=pistar_head, progress=progress)
     mapper.stamp = stamp
     _write_curves(out_dir / CURVES_FILE, rows)
     mapper.save(path)  # last: its presence means every artifact of this stage is complete
     return mapper
+
+
+def fit_mapper(
+    split: PairSplit,
+    config: MapperConfig,
+    *,
+    pistar_head: np.ndarray | torch.Tensor | None = None,
+    progress: bool = True,
+) -> tuple[Mapper, list[dict[str, Any]]]:
+    """Train a mapper of ``config.kind`` in memory, writing nothing: the work of
+    :func:`train_mapper`, and of each trial of :mod:`metadagger.mapping.tune`.
+
+    Args:
+        split, config, pistar_head, progress: as for :func:`train_mapper`.
+
+    Returns:
+        The mapper in eval mode (without a stamp) and its curve rows (:data:`CURVE_COLUMNS`).
+
+    Raises:
+        UserError: too few training pairs, or a missing or mis-sized ``pistar_head``.
+    """
+    if get_kind(config.kind).learned and len(split.train_seeds) < 2:
+        raise UserError(f"a {config.kind} mapper needs at least 2 training pairs, got {len(split.train_seeds)}; collect more seeds or lower val_fraction")
+    config_data = json.loads(json.dumps(dataclasses.asdict(config)))
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(config.seed)  # Dropout draws from torch's global generator
+        return _train(split, config, config_data, pistar_head, progress)
 
 
 def mapper_stamp(split: PairSplit, config: MapperConfig, pistar_head: np.ndarray | torch.Tensor | None = None) -> dict[str, Any]:

@@ -68,7 +68,10 @@ def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout
 
 def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, *, rebuild: bool = False,
                       progress: bool = True) -> dict:
-    """Train pi* (or reuse a finished one made from the same config) and return its metrics.
+    """Train pi* (or reuse a finished one made from the same config) and return its metrics:
+    ``own_seeds`` and ``unseen_seeds`` (:func:`~metadagger.imitation.metrics.summarize`), ``rounds``
+    (:func:`~metadagger.imitation.dagger.run_dagger`'s records), ``bc_epoch_losses`` (the BC fit's
+    loss per epoch; None when resumed from its checkpoint) and ``expert_queries``.
 
     Raises:
         UserError: the run's pi* (finished or not) was made from another config and ``rebuild``
@@ -87,7 +90,7 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     demos = collect(task, config.seeds, policy=None, progress=progress)
     data = Dataset.concat(*(t.to_dataset() for t in demos))
     policy = make_policy(task, seed=config.seed)
-    fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress)
+    bc_losses = fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress)
     history = []
     if config.dagger_rounds:
         result = run_dagger(
@@ -98,7 +101,8 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
         history = result.rounds
     own = summarize(evaluate_policy(task, policy, config.seeds, label="pi* on its seeds", progress=progress))
     unseen = summarize(evaluate_policy(task, policy, config.eval_seeds, label="pi* on unseen seeds", progress=progress))
-    metrics = {"own_seeds": own, "unseen_seeds": unseen, "rounds": history, "expert_queries": history[-1]["dagger/expert_queries"] if history else len(data)}
+    metrics = {"own_seeds": own, "unseen_seeds": unseen, "rounds": history, "bc_epoch_losses": bc_losses,
+               "expert_queries": history[-1]["dagger/expert_queries"] if history else len(data)}
     policy.save(layout.groundtruth)
     write_json(layout.groundtruth_metrics, metrics)
     return metrics

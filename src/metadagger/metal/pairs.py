@@ -13,7 +13,7 @@ import dataclasses
 import functools
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -22,7 +22,7 @@ from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
-from metadagger.imitation.rollouts import rollout
+from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import write_json
 from metadagger.layout import RunLayout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
@@ -99,19 +99,22 @@ class PairRun:
 
 
 def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit_seed: int | None = None,
-             with_states: bool = False) -> PairRun:
+             with_states: bool = False, on_episode: Callable[[int, Trajectory], None] | None = None) -> PairRun:
     """The pair procedure on ``seed``: BC on its demonstration, then DAgger, both rolled out.
 
     ``fit_seed`` seeds the fits' shuffling (default: ``seed``, as the pairs do); another value
     gives the same procedure with other fits, on the same demonstration, expert and env seeds.
     ``with_states`` also returns the DAgger states' trunk features (the diagnostics need them;
-    collecting pairs does not).
+    collecting pairs does not). ``on_episode(round, trajectory)`` receives every episode the pair
+    is fit on: the demonstration (round 0), then each DAgger round's rollout.
     """
     fit_seed = seed if fit_seed is None else fit_seed
     policy = head_from_groundtruth(cached_groundtruth(groundtruth), seed)
     env = task.make_env()
     try:
         demo = rollout(env, seed=seed, policy=None)
+        if on_episode is not None:
+            on_episode(0, demo)
         data = demo.to_dataset()
         cache = FeatureCache(policy)
         fit_bc(policy, data, dataclasses.replace(config.bc, seed=fit_seed), cache=cache)
@@ -119,6 +122,7 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
         early_stop = None if config.early_stop is None else functools.partial(CosineEarlyStop, threshold=config.early_stop)
         dagger = run_dagger(
             policy, task, [seed], initial=data, cache=cache, early_stop_factory=early_stop,
+            on_rollouts=None if on_episode is None else functools.partial(_each_episode, on_episode),
             config=DAggerConfig(rounds=config.dagger_rounds, bc=dataclasses.replace(config.dagger_bc, seed=fit_seed)),
         )
         # round 1 rolled out the BC policy: its outcome is BC's (rollouts are deterministic)
@@ -134,6 +138,11 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
               "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
     states = cache.features(dagger.dataset.obs[len(data):]) if with_states else None
     return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), record=record, dagger_features=states)
+
+
+def _each_episode(on_episode: Callable[[int, Trajectory], None], round_idx: int, trajectories: list[Trajectory]) -> None:
+    for trajectory in trajectories:
+        on_episode(round_idx, trajectory)
 
 
 def collect_pair(job: PairJob) -> dict[str, Any]:

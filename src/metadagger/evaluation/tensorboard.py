@@ -1,0 +1,184 @@
+"""TensorBoard scalars of a run, written from its artifacts on disk (``log: tensorboard``).
+
+Each namespace is one TensorBoard run, a folder ``RUN/tb/<namespace>/`` built from one stage's
+files alone, like the report; every tag starts with its namespace:
+
+- ``groundtruth``: pi*'s fits, DAgger rounds and final success (``groundtruth/metrics.json``);
+- ``pairs``: every seed's BC and DAgger outcomes and the outcome counts (``pairs/``);
+- ``mapper/<kind>``: the learning curves of every model of a mapper, autoencoders included
+  (``mappers/<kind>/curves.csv``);
+- ``eval/mdm``, ``eval/oneshot``, ``eval/mdi``: one scalar per (method, seed) and each method's
+  means (``eval/*.csv``);
+- ``benchmark``: the same for ``benchmark/queries.csv``, and success against mean expert queries
+  (``benchmark/summary.json``).
+
+A stage rewrites its namespaces when it finishes: the event files are written into a temporary
+folder that then replaces the namespace's folder, so a resumed or re-run stage never adds points
+to the earlier ones. tensorboard is imported here only, on first use (the ``tensorboard`` extra).
+docs/tensorboard.md lists every tag.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import uuid
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from metadagger.errors import UserError
+from metadagger.evaluation.rows import read_csv
+from metadagger.layout import RunLayout
+from metadagger.metal.store import OUTCOME_KEYS, PairStore
+
+Scalar = tuple[str, Any, int]
+"""One point: its tag below the namespace, its value, its step. A value that is not a number (an
+empty CSV cell, None) is left out when written; booleans are written as 0 and 1."""
+
+INSTALL = 'pip install -c constraints.txt -e ".[tensorboard]"'
+"""How to install the optional dependency."""
+
+_ROW_KEYS = ("method", "setting", "seed")
+"""Columns of an evaluation table that name a row rather than measure it."""
+
+
+def require_tensorboard() -> type:
+    """torch's ``SummaryWriter`` (importing tensorboard).
+
+    Raises:
+        UserError: tensorboard is not installed; the line names the command that installs it.
+    """
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError as exc:
+        raise UserError(f"log: tensorboard needs the tensorboard package ({exc}); install it with `{INSTALL}` "
+                        "or set log: none") from None
+    return SummaryWriter
+
+
+def groundtruth_scalars(layout: RunLayout) -> list[Scalar]:
+    """pi*'s training and outcome.
+
+    ``loss`` per epoch of its fits, one after another (fit k, 0 being BC, covers steps
+    ``k*E+1 .. (k+1)*E`` for E epochs per fit; a fit resumed from its checkpoint, or made before
+    pi*'s metrics recorded epoch losses, has none);
+    ``dagger/<key>`` of every DAgger round's record at step = round; ``own_seeds/<key>``,
+    ``unseen_seeds/<key>`` and ``expert_queries`` of the final pi* at step = its rounds.
+    """
+    metrics = json.loads(layout.groundtruth_metrics.read_text())
+    rounds = metrics["rounds"]
+    fits = [metrics.get("bc_epoch_losses"), *(r.get("dagger/epoch_losses") for r in rounds)]
+    out = [("loss", loss, k * len(losses) + epoch) for k, losses in enumerate(fits) if losses
+           for epoch, loss in enumerate(losses, 1)]
+    for record in rounds:
+        out += [(key, value, record["dagger/round"]) for key, value in record.items() if key != "dagger/round"]
+    out += [(f"{name}/{key}", value, len(rounds)) for name in ("own_seeds", "unseen_seeds") for key, value in metrics[name].items()]
+    return out + [("expert_queries", metrics["expert_queries"], len(rounds))]
+
+
+def pairs_scalars(layout: RunLayout, seeds: Iterable[int]) -> list[Scalar]:
+    """The pairs of ``seeds``: ``bc/<key>`` and ``da/<key>`` (success, reward, steps,
+    expert_queries) and ``kept`` at step = seed; ``summary/...``: every number of
+    ``pairs/summary.json`` (outcome counts and shares, kept pairs, mean rewards) at step 0."""
+    wanted = set(seeds)
+    out = []
+    for record in (r for r in PairStore(layout.pairs_dir).records() if r["seed"] in wanted):
+        out += [(f"{outcome}/{key}", record[outcome][key], record["seed"]) for outcome in ("bc", "da") for key in OUTCOME_KEYS]
+        out.append(("kept", record["kept"], record["seed"]))
+    return out + [(f"summary/{tag}", value, 0) for tag, value in _leaves(json.loads(layout.pairs_summary.read_text()))]
+
+
+def mapper_scalars(layout: RunLayout, kind: str) -> list[Scalar]:
+    """Mapper ``kind``'s learning curves at step = epoch: ``<model>/train_loss`` and
+    ``<model>/val_loss`` of every network it trains (autoencoders, then h; or DM's MLP) and
+    ``train_mse_weights`` / ``val_mse_weights`` of the whole mapping (a control's at step 0)."""
+    out = []
+    for row in read_csv(layout.mapper_curves(kind)):
+        out += [(f"{row['model']}/{key}", row[key], row["epoch"]) for key in ("train_loss", "val_loss")]
+        out += [(key, row[key], row["epoch"]) for key in ("train_mse_weights", "val_mse_weights")]
+    return out
+
+
+def table_scalars(path: Path) -> list[Scalar]:
+    """An evaluation table (``eval/*.csv``, ``benchmark/queries.csv``): every measured column of a
+    row as ``<method>/<column>`` at step = seed (``<method>@<setting>/...`` where the table has
+    settings), and its mean over the seeds where present as ``<method>/mean/<column>`` at step 0
+    (``mean/success``: the success rate)."""
+    out = []
+    values: dict[str, list[float]] = {}
+    for row in read_csv(path):
+        group = row["method"] if row.get("setting", "") == "" else f"{row['method']}@{row['setting']}"
+        for key, value in row.items():
+            number = _number(value)
+            if key not in _ROW_KEYS and number is not None:
+                out.append((f"{group}/{key}", number, row["seed"]))
+                values.setdefault(f"{group}/mean/{key}", []).append(number)
+    return out + [(tag, sum(v) / len(v), 0) for tag, v in values.items()]
+
+
+def benchmark_scalars(layout: RunLayout) -> list[Scalar]:
+    """:func:`table_scalars` of ``benchmark/queries.csv``; ``<method>/success_vs_queries``: the
+    success rate of each of the method's settings at step = its mean expert queries per seed
+    (rounded), so TensorBoard draws success against queries; ``meta_training_queries/<what>``."""
+    summary = json.loads(layout.benchmark_summary.read_text())
+    out = table_scalars(layout.benchmark_table)
+    out += [(f"{e['method']}/success_vs_queries", e["success_rate"], round(e["mean_queries"])) for e in summary["entries"]]
+    return out + [(f"meta_training_queries/{what}", n, 0) for what, n in summary["meta_training_queries"].items()]
+
+
+def write_tensorboard(layout: RunLayout, runs: Mapping[str, Sequence[Scalar]]) -> list[Path]:
+    """Replace the event files of every namespace of ``runs`` (e.g. ``{"mapper/dm": [...]}``) with
+    its scalars, each tag prefixed by its namespace; returns the namespaces' folders.
+
+    Raises:
+        UserError: tensorboard is not installed.
+    """
+    writer_class = require_tensorboard()
+    folders = []
+    for namespace, scalars in runs.items():
+        staging = layout.tb_staging(uuid.uuid4().hex)
+        staging.mkdir(parents=True)
+        try:
+            writer = writer_class(log_dir=str(staging))
+            try:
+                for tag, value, step in scalars:
+                    number = _number(value)
+                    if number is not None:
+                        writer.add_scalar(f"{namespace}/{tag}", number, int(step))
+            finally:
+                writer.close()
+            _replace_folder(staging, layout.tb_run(namespace))
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+        folders.append(layout.tb_run(namespace))
+    return folders
+
+
+def _replace_folder(new: Path, target: Path) -> None:
+    """Put folder ``new`` at ``target``, removing what was there."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if not target.exists():
+        new.rename(target)
+        return
+    old = new.with_name(new.name + ".old")
+    target.rename(old)
+    new.rename(target)
+    shutil.rmtree(old)
+
+
+def _leaves(data: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """Every (``a/b/c``, value) of a nested mapping."""
+    out = []
+    for key, value in data.items():
+        tag = f"{prefix}{key}"
+        out += _leaves(value, tag + "/") if isinstance(value, Mapping) else [(tag, value)]
+    return out
+
+
+def _number(value: Any) -> float | None:
+    """``value`` as a float when it is a finite number or a boolean, else None."""
+    if isinstance(value, (bool, int, float)) and math.isfinite(value):
+        return float(value)
+    return None

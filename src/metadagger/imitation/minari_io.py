@@ -1,0 +1,185 @@
+"""Episodes to and from Minari datasets, Farama's standard for offline data.
+
+A written dataset holds, per episode, the observations (``T + 1``, the last one never acted on),
+the action the learner took, the env's rewards, terminations and truncations, and per observation
+in ``infos``: the expert's label (``expert_label``), whether it was queried (``queried``: labels
+kept for training; the final observation's label is computed by the env but never trained on), the
+DAgger round (``round``: 0 is the expert's demonstration) and the env seed (``seed``).
+Images are stored losslessly (no JPEG), so a dataset read back equals what was written.
+
+Reading takes any Minari dataset whose spaces match the task's learner: with ``expert_label`` in
+its infos, the queried states and their labels; otherwise each observation with the action taken
+(a dataset of expert demonstrations).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+import gymnasium as gym
+import numpy as np
+
+from metadagger.errors import UserError
+from metadagger.imitation.data import Dataset
+from metadagger.imitation.rollouts import Trajectory
+
+INSTALL_MINARI = 'pip install -c constraints.txt -e ".[minari]"'
+INFO_KEYS = ("expert_label", "queried", "round", "seed")
+
+
+@dataclass(frozen=True)
+class RecordedEpisode:
+    """One episode and where it came from."""
+
+    trajectory: Trajectory
+    round: int
+    """0: the expert's demonstration; k: the rollout of DAgger round k."""
+    queried: np.ndarray | None = None
+    """(T,) bool: which states' labels were kept for training; None: every state's."""
+
+
+def _minari() -> Any:
+    try:
+        import minari
+    except ImportError:
+        raise UserError(f"Minari is not installed; install it with `{INSTALL_MINARI}`") from None
+    return minari
+
+
+def datasets_root() -> Path:
+    """Where Minari keeps local datasets (``MINARI_DATASETS_PATH``, default ``~/.minari/datasets``)."""
+    return Path(os.environ.get("MINARI_DATASETS_PATH", Path.home() / ".minari" / "datasets"))
+
+
+def check_new_dataset_name(name: str) -> None:
+    """Raise a :class:`UserError` unless ``name`` is a valid Minari id that no local dataset uses."""
+    from minari.dataset.minari_dataset import parse_dataset_id
+
+    _minari()
+    try:
+        parse_dataset_id(name)
+    except (ValueError, TypeError):  # TypeError: Minari 0.5 fails so on a name without -v<version>
+        raise UserError(f"--name {name!r} is not a Minari dataset id; expected (namespace/)name-v<version>, "
+                        "e.g. metadagger/carracing-demos-v0") from None
+    if (datasets_root() / name).exists():
+        raise UserError(f"a Minari dataset named {name!r} already exists in {datasets_root()}; pick another --name "
+                        f"(or bump its version) or delete it with `minari delete {name}`")
+
+
+def _labels(values: list[Any] | np.ndarray, discrete: bool) -> np.ndarray:
+    if discrete:
+        return np.asarray(values, dtype=np.int64).reshape(len(values))
+    return np.asarray(values, dtype=np.float32).reshape(len(values), -1)
+
+
+def episode_buffer(episode: RecordedEpisode, index: int) -> Any:
+    """The Minari ``EpisodeBuffer`` of ``episode`` (its id ``index``)."""
+    from minari.data_collector import EpisodeBuffer
+
+    traj = episode.trajectory
+    steps = traj.steps
+    discrete = traj.expert_labels.dtype == np.int64
+    queried = np.ones(steps, dtype=bool) if episode.queried is None else np.asarray(episode.queried, dtype=bool)
+    if queried.shape != (steps,):
+        raise ValueError(f"queried has shape {queried.shape}, expected ({steps},) for an episode of {steps} steps")
+    infos = {
+        "expert_label": np.concatenate([traj.expert_labels, _labels([traj.final_label], discrete)]),
+        "queried": np.append(queried, False),
+        "round": np.full(steps + 1, episode.round, dtype=np.int64),
+        "seed": np.full(steps + 1, traj.seed, dtype=np.int64),
+    }
+    last = steps - 1
+    return EpisodeBuffer(
+        id=index, seed=traj.seed,
+        observations=np.concatenate([traj.obs, traj.final_obs[None]]),
+        actions=traj.learner_actions,
+        rewards=[float(r) for r in traj.step_rewards],
+        terminations=[i == last and traj.terminated for i in range(steps)],
+        truncations=[i == last and not traj.terminated for i in range(steps)],
+        infos=infos,
+    )
+
+
+def write_dataset(name: str, chunks: Iterable[list[RecordedEpisode]], *, observation_space: gym.Space,
+                  action_space: gym.Space, description: str, algorithm: str) -> Path:
+    """Write the episodes of ``chunks`` (in order) as the Minari dataset ``name``.
+
+    The dataset is built in a staging folder beside the datasets and renamed into place when the
+    last chunk is written, so a killed export leaves no half-written dataset under ``name``.
+
+    Returns:
+        The dataset's folder.
+    """
+    minari = _minari()
+    from minari.dataset.minari_storage import MinariStorage
+    from minari.namespace import create_namespace, list_local_namespaces
+
+    check_new_dataset_name(name)
+    root = datasets_root()
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / name
+    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=root))
+    try:
+        storage = MinariStorage.new(staging / "data", observation_space=observation_space,
+                                    action_space=action_space, data_format="hdf5", jpeg_encoding=False)
+        storage.update_metadata({"dataset_id": name, "algorithm_name": algorithm, "description": description,
+                                 "author": {"metadagger"}, "minari_version": minari.__version__})
+        index = 0
+        for chunk in chunks:
+            storage.update_episodes([episode_buffer(e, index + i) for i, e in enumerate(chunk)])
+            index += len(chunk)
+        namespace = name.rsplit("/", 1)[0] if "/" in name else None
+        if namespace is not None and namespace not in list_local_namespaces():
+            create_namespace(namespace)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staging, final)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return final
+
+
+def _same_space(a: gym.Space, b: gym.Space) -> bool:
+    if isinstance(a, gym.spaces.Discrete) and isinstance(b, gym.spaces.Discrete):
+        return int(a.n) == int(b.n)
+    if isinstance(a, gym.spaces.Box) and isinstance(b, gym.spaces.Box):
+        return a.shape == b.shape and a.dtype == b.dtype
+    return False
+
+
+def read_demonstrations(name: str, *, observation_space: gym.Space, action_space: gym.Space) -> Dataset:
+    """The (observation, expert label) rows of the Minari dataset ``name``.
+
+    Raises:
+        UserError: the dataset is missing, or its spaces differ from the learner's.
+    """
+    minari = _minari()
+    try:
+        dataset = minari.load_dataset(name)
+    except (FileNotFoundError, ValueError) as err:
+        raise UserError(f"cannot load Minari dataset {name!r} from {datasets_root()} ({err}); list the local ones with "
+                        "`minari list local` or set MINARI_DATASETS_PATH") from None
+    for what, theirs, ours in (("observation", dataset.observation_space, observation_space),
+                               ("action", dataset.action_space, action_space)):
+        if not _same_space(theirs, ours):
+            raise UserError(f"Minari dataset {name!r} has {what} space {theirs}, but the task's learner has {ours}; "
+                            "use a dataset of a task with the same spaces")
+    discrete = isinstance(action_space, gym.spaces.Discrete)
+    obs, labels = [], []
+    for episode in dataset.iterate_episodes():
+        infos = episode.infos or {}
+        if "expert_label" in infos:
+            keep = np.asarray(infos["queried"], dtype=bool)[:-1] if "queried" in infos else slice(None)
+            obs.append(np.asarray(episode.observations[:-1])[keep])
+            labels.append(_labels(np.asarray(infos["expert_label"])[:-1][keep], discrete))
+        else:
+            obs.append(np.asarray(episode.observations[:-1]))
+            labels.append(_labels(np.asarray(episode.actions), discrete))
+    if not obs:
+        raise UserError(f"Minari dataset {name!r} has no episodes; export or collect some first")
+    return Dataset(obs=np.concatenate(obs).astype(np.uint8, copy=False), labels=np.concatenate(labels))

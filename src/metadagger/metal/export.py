@@ -1,0 +1,145 @@
+"""A run's episodes as a Minari dataset (``metadagger export``).
+
+``demos``: the expert's demonstration of each seed. ``dagger``: the learner's rollouts of the
+per-seed DAgger rounds the pairs were made from; ``pairs-data``: those and the demonstrations,
+everything each pair was fit on. The pair procedure is re-run per seed in parallel (it is
+deterministic) and its heads are checked bit for bit against the stored pair, so the exported
+episodes are exactly the data the stored pairs came from. Episodes are written in seed order
+(demonstration first, then rounds), so the same run and seeds give the same dataset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from metadagger.errors import UserError
+from metadagger.imitation.minari_io import RecordedEpisode, check_new_dataset_name, write_dataset
+from metadagger.imitation.rollouts import rollout
+from metadagger.layout import RunLayout
+from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
+from metadagger.metal.store import PairStore
+from metadagger.parallel import make_executor
+from metadagger.progress import progress_bar
+from metadagger.runner import SeedJob, StageOptions
+from metadagger.tasks.base import Task
+
+EXPORTS = ("demos", "dagger", "pairs-data")
+FORMATS = ("minari",)
+
+
+@dataclass(frozen=True)
+class ExportJob(SeedJob):
+    """One seed's episodes to export."""
+
+    config: PairConfig
+    what: str
+
+
+def seed_episodes(job: ExportJob) -> dict[str, Any]:
+    """The episodes of one seed (see the module docstring); with the pair's heads unless ``demos``."""
+    if job.what == "demos":
+        env = job.task.make_env()
+        try:
+            return {"seed": job.seed, "episodes": [RecordedEpisode(rollout(env, seed=job.seed, policy=None), round=0)]}
+        finally:
+            env.close()
+    episodes: list[RecordedEpisode] = []
+    pair = run_pair(job.task, job.groundtruth, job.seed, job.config,
+                    on_episode=lambda round_idx, trajectory: episodes.append(RecordedEpisode(trajectory, round=round_idx)))
+    if job.what == "dagger":
+        episodes = [e for e in episodes if e.round > 0]
+    return {"seed": job.seed, "episodes": episodes, "w_bc": pair.w_bc, "w_da": pair.w_da}
+
+
+def check_export(what: str, fmt: str, name: str) -> None:
+    """Raise a :class:`UserError` for an unknown ``what`` or format, or a taken or malformed name."""
+    if what not in EXPORTS:
+        raise UserError(f"--what {what!r} is not an export; expected one of {', '.join(EXPORTS)}")
+    if fmt not in FORMATS:
+        raise UserError(f"--format {fmt!r} is not supported; expected one of {', '.join(FORMATS)}")
+    check_new_dataset_name(name)
+
+
+def export_run(task: Task, layout: RunLayout, config: PairConfig, *, what: str, name: str, seeds: Sequence[int],
+               options: StageOptions = StageOptions()) -> dict[str, Any]:
+    """Write the run's ``what`` episodes of ``seeds`` as the Minari dataset ``name``.
+
+    Returns:
+        ``dataset`` (its folder), ``episodes``, ``steps`` and ``checked`` (seeds whose re-run pair
+        equalled the stored one bit for bit).
+
+    Raises:
+        UserError: bad ``what`` or name, no seeds, or no pi* (every export but ``demos`` needs it).
+        RuntimeError: a re-run pair differs from the stored one (the run's code or inputs changed).
+    """
+    check_export(what, "minari", name)
+    if not seeds:
+        raise UserError("no seeds to export; pass --seeds or give the run pair seeds")
+    if what != "demos" and not layout.groundtruth.is_file():
+        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+    stored = _stored_pairs(task, layout, config, seeds) if what != "demos" else {}
+    jobs = [ExportJob(task=task, groundtruth=str(layout.groundtruth), seed=s, methods=(what,), config=config, what=what)
+            for s in seeds]
+    counts = {"episodes": 0, "steps": 0, "checked": 0}
+
+    def chunks(results: Iterable[dict[str, Any]]) -> Iterator[list[RecordedEpisode]]:
+        for result in results:
+            if result["seed"] in stored:
+                _check_pair(result, *stored[result["seed"]])
+                counts["checked"] += 1
+            counts["episodes"] += len(result["episodes"])
+            counts["steps"] += sum(e.trajectory.steps for e in result["episodes"])
+            yield result["episodes"]
+
+    env = task.make_env()
+    spaces = {"observation_space": env.observation_space, "action_space": env.action_space}
+    env.close()
+    with make_executor(options.executor, workers=options.workers, address=options.address) as pool:
+        results = progress_bar(_in_order(pool.imap_unordered(seed_episodes, jobs), [j.seed for j in jobs]),
+                               total=len(jobs), desc=f"export {what}", enabled=options.progress)
+        folder = write_dataset(name, chunks(results), **spaces, algorithm=f"metadagger {what}",
+                               description=f"{task.name}: {_DESCRIPTIONS[what]} of seeds {seeds[0]}..{seeds[-1]} "
+                                           f"({len(seeds)} seeds), from run {layout.root}")
+    return {"dataset": str(folder), **counts}
+
+
+_DESCRIPTIONS = {
+    "demos": "the expert's demonstrations",
+    "dagger": "the learner's per-seed DAgger rollouts (infos: expert_label, queried, round, seed)",
+    "pairs-data": "each pair's demonstration (round 0) and per-seed DAgger rollouts (infos: expert_label, queried, round, seed)",
+}
+
+
+def _stored_pairs(task: Task, layout: RunLayout, config: PairConfig, seeds: Sequence[int]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """The stored pairs among ``seeds`` made from today's pi* and settings."""
+    if not layout.pairs_dir.is_dir():
+        return {}
+    stamp = pair_stamp(task, layout, config)
+    store = PairStore(layout.pairs_dir)
+    current = [s for s, stamps in store.stamps().items() if stamps["pair"] == stamp and s in set(seeds)]
+    if not current:
+        return {}
+    w_bc, w_da = store.load(current)
+    return {s: (w_bc[i].numpy(), w_da[i].numpy()) for i, s in enumerate(current)}
+
+
+def _check_pair(result: dict[str, Any], w_bc: np.ndarray, w_da: np.ndarray) -> None:
+    if not (np.array_equal(result["w_bc"], w_bc) and np.array_equal(result["w_da"], w_da)):
+        raise RuntimeError(f"seed {result['seed']}: the re-run pair differs from the stored one, so the episodes would not be "
+                           "the data it was fit on; the code changed since the pairs were collected")
+
+
+def _in_order(results: Iterable[dict[str, Any]], seeds: Sequence[int]) -> Iterator[dict[str, Any]]:
+    """``results`` (arriving in any order) in the order of ``seeds``, each yielded once the seeds
+    before it have arrived."""
+    waiting: dict[int, dict[str, Any]] = {}
+    order = iter(seeds)
+    expected = next(order, None)
+    for result in results:
+        waiting[result["seed"]] = result
+        while expected in waiting:
+            yield waiting.pop(expected)
+            expected = next(order, None)
