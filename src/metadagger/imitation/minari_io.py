@@ -64,8 +64,8 @@ def check_new_dataset_name(name: str) -> None:
     try:
         parse_dataset_id(name)
     except (ValueError, TypeError):  # TypeError: Minari 0.5 fails so on a name without -v<version>
-        raise UserError(f"--name {name!r} is not a Minari dataset id; expected (namespace/)name-v<version>, "
-                        "e.g. metadagger/carracing-demos-v0") from None
+        raise UserError(f"--name {name!r} is not a Minari dataset id; expected (namespace/)name-v<version> with a "
+                        "namespace of 2 or more characters, e.g. metadagger/carracing-demos-v0") from None
     if (datasets_root() / name).exists():
         raise UserError(f"a Minari dataset named {name!r} already exists in {datasets_root()}; pick another --name "
                         f"(or bump its version) or delete it with `minari delete {name}`")
