@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Callable
@@ -54,6 +55,29 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+    return path
+
+
+def atomic_folder(path: str | Path, write: Callable[[Path], None], *, staging_in: str | Path | None = None) -> Path:
+    """Call ``write(tmp_folder)`` then put that folder at ``path``, replacing what was there.
+
+    ``staging_in`` holds the temporary folder (default: ``path``'s parent; it must be on the same
+    filesystem); a failure or a kill leaves ``path`` as it was and no half-written folder under it.
+    """
+    path = Path(path)
+    staging_root = path.parent if staging_in is None else Path(staging_in)
+    _make_folder(staging_root)
+    _make_folder(path.parent)
+    staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=staging_root))
+    old = staging.with_name(staging.name + ".old")
+    try:
+        write(staging)
+        if path.exists():
+            path.rename(old)
+        staging.rename(path)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        shutil.rmtree(old, ignore_errors=True)
     return path
 
 

@@ -199,11 +199,6 @@ class RunLayout:
         """The event files of one namespace, e.g. ``groundtruth`` or ``mapper/dm``."""
         return self.tb_dir / namespace
 
-    def tb_staging(self, token: str) -> Path:
-        """A temporary folder a namespace's event files are written into before they replace it
-        (outside ``tb/``, so a TensorBoard watching it never reads a half-written namespace)."""
-        return self.root / f".tb-{token}"
-
     # demo
     @property
     def demo_dir(self) -> Path:

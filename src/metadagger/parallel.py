@@ -27,7 +27,8 @@ import torch
 
 from metadagger.errors import UserError
 
-__all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "check_executor_options", "default_workers", "make_executor"]
+__all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "check_executor_options", "default_workers", "in_order",
+           "make_executor"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -60,6 +61,20 @@ def _describe(item: Any) -> str:
     """How messages name an item: by its seed for per-seed jobs, else by its repr."""
     seed = getattr(item, "seed", None)
     return f"item {item!r}" if seed is None else f"seed {seed}"
+
+
+def in_order(results: Iterable[R], keys: Iterable[Any], key: Callable[[R], Any]) -> Iterator[R]:
+    """``results`` (from :meth:`Executor.imap_unordered`, in any order) in the order of ``keys``:
+    each is yielded as soon as every one before it has arrived, so whatever consumes them (a
+    dataset, a study) is the same whatever the worker count."""
+    waiting: dict[Any, R] = {}
+    order = iter(keys)
+    expected = next(order, None)
+    for result in results:
+        waiting[key(result)] = result
+        while expected in waiting:
+            yield waiting.pop(expected)
+            expected = next(order, None)
 
 
 def default_workers() -> int:

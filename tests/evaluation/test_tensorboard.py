@@ -155,7 +155,7 @@ def test_a_rerun_replaces_the_points_instead_of_adding_to_them(run, presets, tmp
     _reproduce(layout.root, presets)  # resumes every stage; the run's config keeps log: tensorboard
     assert {namespace: _read(layout, namespace) for namespace in NAMESPACES} == before
     assert len(list(layout.tb_dir.rglob("events.out.tfevents.*"))) == len(NAMESPACES)
-    assert not list(layout.root.glob(".tb-*"))  # no staging folder left behind
+    assert not list(layout.root.glob(".*.tmp*"))  # no staging folder left behind
 
 
 def test_off_by_default_writes_nothing_and_never_imports_tensorboard(run, presets, tmp_path, monkeypatch):

@@ -20,16 +20,16 @@ docs/tensorboard.md lists every tag.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
-import shutil
-import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import read_csv
+from metadagger.io import atomic_folder
 from metadagger.layout import RunLayout
 from metadagger.metal.store import OUTCOME_KEYS, PairStore
 
@@ -136,36 +136,22 @@ def write_tensorboard(layout: RunLayout, runs: Mapping[str, Sequence[Scalar]]) -
         UserError: tensorboard is not installed.
     """
     writer_class = require_tensorboard()
+
+    def write(namespace: str, scalars: Sequence[Scalar], folder: Path) -> None:
+        writer = writer_class(log_dir=str(folder))
+        try:
+            for tag, value, step in scalars:
+                number = _number(value)
+                if number is not None:
+                    writer.add_scalar(f"{namespace}/{tag}", number, int(step))
+        finally:
+            writer.close()
+
     folders = []
     for namespace, scalars in runs.items():
-        staging = layout.tb_staging(uuid.uuid4().hex)
-        staging.mkdir(parents=True)
-        try:
-            writer = writer_class(log_dir=str(staging))
-            try:
-                for tag, value, step in scalars:
-                    number = _number(value)
-                    if number is not None:
-                        writer.add_scalar(f"{namespace}/{tag}", number, int(step))
-            finally:
-                writer.close()
-            _replace_folder(staging, layout.tb_run(namespace))
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
-        folders.append(layout.tb_run(namespace))
+        # staged beside tb/, so a TensorBoard watching it never reads a half-written namespace
+        folders.append(atomic_folder(layout.tb_run(namespace), functools.partial(write, namespace, scalars), staging_in=layout.root))
     return folders
-
-
-def _replace_folder(new: Path, target: Path) -> None:
-    """Put folder ``new`` at ``target``, removing what was there."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    if not target.exists():
-        new.rename(target)
-        return
-    old = new.with_name(new.name + ".old")
-    target.rename(old)
-    new.rename(target)
-    shutil.rmtree(old)
 
 
 def _leaves(data: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:

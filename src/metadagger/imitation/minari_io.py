@@ -15,8 +15,6 @@ its infos, the queried states and their labels; otherwise each observation with 
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
@@ -26,7 +24,8 @@ import numpy as np
 
 from metadagger.errors import UserError
 from metadagger.imitation.data import Dataset
-from metadagger.imitation.rollouts import Trajectory
+from metadagger.imitation.rollouts import Trajectory, stack_labels
+from metadagger.io import atomic_folder
 
 INSTALL_MINARI = 'pip install -c constraints.txt -e ".[minari]"'
 INFO_KEYS = ("expert_label", "queried", "round", "seed")
@@ -58,9 +57,9 @@ def datasets_root() -> Path:
 
 def check_new_dataset_name(name: str) -> None:
     """Raise a :class:`UserError` unless ``name`` is a valid Minari id that no local dataset uses."""
+    _minari()  # first: a missing package is a UserError, not an ImportError below
     from minari.dataset.minari_dataset import parse_dataset_id
 
-    _minari()
     try:
         parse_dataset_id(name)
     except (ValueError, TypeError):  # TypeError: Minari 0.5 fails so on a name without -v<version>
@@ -69,12 +68,6 @@ def check_new_dataset_name(name: str) -> None:
     if (datasets_root() / name).exists():
         raise UserError(f"a Minari dataset named {name!r} already exists in {datasets_root()}; pick another --name "
                         f"(or bump its version) or delete it with `minari delete {name}`")
-
-
-def _labels(values: list[Any] | np.ndarray, discrete: bool) -> np.ndarray:
-    if discrete:
-        return np.asarray(values, dtype=np.int64).reshape(len(values))
-    return np.asarray(values, dtype=np.float32).reshape(len(values), -1)
 
 
 def episode_buffer(episode: RecordedEpisode, index: int) -> Any:
@@ -88,7 +81,7 @@ def episode_buffer(episode: RecordedEpisode, index: int) -> Any:
     if queried.shape != (steps,):
         raise ValueError(f"queried has shape {queried.shape}, expected ({steps},) for an episode of {steps} steps")
     infos = {
-        "expert_label": np.concatenate([traj.expert_labels, _labels([traj.final_label], discrete)]),
+        "expert_label": np.concatenate([traj.expert_labels, stack_labels([traj.final_label], discrete)]),
         "queried": np.append(queried, False),
         "round": np.full(steps + 1, episode.round, dtype=np.int64),
         "seed": np.full(steps + 1, traj.seed, dtype=np.int64),
@@ -121,11 +114,12 @@ def write_dataset(name: str, chunks: Iterable[list[RecordedEpisode]], *, observa
 
     check_new_dataset_name(name)
     root = datasets_root()
-    root.mkdir(parents=True, exist_ok=True)
-    final = root / name
-    staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=root))
-    try:
-        storage = MinariStorage.new(staging / "data", observation_space=observation_space,
+    namespace = name.rsplit("/", 1)[0] if "/" in name else None
+    if namespace is not None and namespace not in list_local_namespaces():
+        create_namespace(namespace)
+
+    def write(folder: Path) -> None:
+        storage = MinariStorage.new(folder / "data", observation_space=observation_space,
                                     action_space=action_space, data_format="hdf5", jpeg_encoding=False)
         storage.update_metadata({"dataset_id": name, "algorithm_name": algorithm, "description": description,
                                  "author": {"metadagger"}, "minari_version": minari.__version__})
@@ -133,15 +127,9 @@ def write_dataset(name: str, chunks: Iterable[list[RecordedEpisode]], *, observa
         for chunk in chunks:
             storage.update_episodes([episode_buffer(e, index + i) for i, e in enumerate(chunk)])
             index += len(chunk)
-        namespace = name.rsplit("/", 1)[0] if "/" in name else None
-        if namespace is not None and namespace not in list_local_namespaces():
-            create_namespace(namespace)
-        final.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(staging, final)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    return final
+
+    # staged in the datasets root (a hidden folder Minari does not list), renamed into place when complete
+    return atomic_folder(root / name, write, staging_in=root)
 
 
 def _same_space(a: gym.Space, b: gym.Space) -> bool:
@@ -176,10 +164,10 @@ def read_demonstrations(name: str, *, observation_space: gym.Space, action_space
         if "expert_label" in infos:
             keep = np.asarray(infos["queried"], dtype=bool)[:-1] if "queried" in infos else slice(None)
             obs.append(np.asarray(episode.observations[:-1])[keep])
-            labels.append(_labels(np.asarray(infos["expert_label"])[:-1][keep], discrete))
+            labels.append(stack_labels(np.asarray(infos["expert_label"])[:-1][keep], discrete))
         else:
             obs.append(np.asarray(episode.observations[:-1]))
-            labels.append(_labels(np.asarray(episode.actions), discrete))
+            labels.append(stack_labels(np.asarray(episode.actions), discrete))
     if not obs:
         raise UserError(f"Minari dataset {name!r} has no episodes; export or collect some first")
     return Dataset(obs=np.concatenate(obs).astype(np.uint8, copy=False), labels=np.concatenate(labels))

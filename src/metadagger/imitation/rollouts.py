@@ -63,7 +63,8 @@ class Trajectory:
         return Dataset(obs=self.obs, labels=self.expert_labels)
 
 
-def _stack(values: list[Any], discrete: bool) -> np.ndarray:
+def stack_labels(values: list[Any] | np.ndarray, discrete: bool) -> np.ndarray:
+    """Labels or actions in the layout of :class:`Trajectory`: (N,) int64 or (N, d) float32."""
     if discrete:
         return np.asarray(values, dtype=np.int64).reshape(len(values))
     return np.asarray(values, dtype=np.float32).reshape(len(values), -1)
@@ -118,8 +119,8 @@ def rollout(
     steps = len(observations)
     return Trajectory(
         obs=np.stack(observations),
-        expert_labels=_stack(labels, discrete),
-        learner_actions=_stack(actions, discrete),
+        expert_labels=stack_labels(labels, discrete),
+        learner_actions=stack_labels(actions, discrete),
         reward=float(sum(rewards)),
         steps=steps,
         success=success,

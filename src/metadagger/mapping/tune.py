@@ -41,7 +41,7 @@ from metadagger.io import write_text
 from metadagger.mapping.registry import get_kind, kind_names, trained_names
 from metadagger.mapping.train import MapperConfig, evaluate_mapping, fit_mapper, mapper_stamp
 from metadagger.metal.store import PairSplit
-from metadagger.parallel import make_executor
+from metadagger.parallel import in_order, make_executor
 from metadagger.runner import StageOptions
 from metadagger.stamps import describe_changes, stamp_of
 
@@ -326,19 +326,22 @@ def _run(context: _Context, *, trials: int, seed: int, options: StageOptions) ->
             retries = sum("retry_of" in t.user_attrs for t in study.get_trials(deepcopy=False, states=(state.WAITING,)))
             asked = [study.ask(context.space) for _ in range(min(retries or pool.workers, trials - done))]
             jobs = [TrialJob(t.number, trial_config(context.base, t.params), context.split) for t in asked]
-            results: dict[int, dict[str, Any]] = {}
-            for result in pool.imap_unordered(score_trial, jobs):
-                results[result["number"]] = result
-                while asked and asked[0].number in results:  # tell in trial order: the same study every time
-                    trial = asked.pop(0)
-                    value = _tell(study, trial, results.pop(trial.number))
-                    ran += 1
-                    summary = _write_summary(context, ran)
-                    if options.progress:
-                        print(f"tune/{summary.kind}: trial {trial.number}: {value:.6g} ({done + len(jobs) - len(asked)}/{trials}, "
-                              f"{time.monotonic() - started:.0f}s); best {summary.best_value:.6g} (trial {summary.best_trial})",
-                              file=sys.stderr, flush=True)  # a line per trial: trials take minutes
+            # told in trial order: the same study every time
+            results = in_order(pool.imap_unordered(score_trial, jobs), [t.number for t in asked], key=_number_of)
+            for told, result in enumerate(results, 1):  # consumed to the end: an abandoned one closes the pool
+                trial = asked[told - 1]
+                value = _tell(study, trial, result)
+                ran += 1
+                summary = _write_summary(context, ran)
+                if options.progress:
+                    print(f"tune/{summary.kind}: trial {trial.number}: {value:.6g} ({done + told}/{trials}, "
+                          f"{time.monotonic() - started:.0f}s); best {summary.best_value:.6g} (trial {summary.best_trial})",
+                          file=sys.stderr, flush=True)  # a line per trial: trials take minutes
     return ran
+
+
+def _number_of(result: dict[str, Any]) -> int:
+    return result["number"]
 
 
 def _requeue_interrupted(study: Any, state: Any) -> None:

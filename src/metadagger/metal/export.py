@@ -21,7 +21,7 @@ from metadagger.imitation.rollouts import rollout
 from metadagger.layout import RunLayout
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairStore
-from metadagger.parallel import make_executor
+from metadagger.parallel import in_order, make_executor
 from metadagger.progress import progress_bar
 from metadagger.runner import SeedJob, StageOptions
 from metadagger.tasks.base import Task
@@ -98,7 +98,7 @@ def export_run(task: Task, layout: RunLayout, config: PairConfig, *, what: str, 
     spaces = {"observation_space": env.observation_space, "action_space": env.action_space}
     env.close()
     with make_executor(options.executor, workers=options.workers, address=options.address) as pool:
-        results = progress_bar(_in_order(pool.imap_unordered(seed_episodes, jobs), [j.seed for j in jobs]),
+        results = progress_bar(in_order(pool.imap_unordered(seed_episodes, jobs), [j.seed for j in jobs], key=_seed_of),
                                total=len(jobs), desc=f"export {what}", enabled=options.progress)
         folder = write_dataset(name, chunks(results), **spaces, algorithm=f"metadagger {what}",
                                description=f"{task.name}: {_DESCRIPTIONS[what]} of seeds {seeds[0]}..{seeds[-1]} "
@@ -119,27 +119,19 @@ def _stored_pairs(task: Task, layout: RunLayout, config: PairConfig, seeds: Sequ
         return {}
     stamp = pair_stamp(task, layout, config)
     store = PairStore(layout.pairs_dir)
-    current = [s for s, stamps in store.stamps().items() if stamps["pair"] == stamp and s in set(seeds)]
+    wanted = set(seeds)
+    current = [s for s, stamps in store.stamps().items() if stamps["pair"] == stamp and s in wanted]
     if not current:
         return {}
     w_bc, w_da = store.load(current)
     return {s: (w_bc[i].numpy(), w_da[i].numpy()) for i, s in enumerate(current)}
 
 
+def _seed_of(result: dict[str, Any]) -> int:
+    return result["seed"]
+
+
 def _check_pair(result: dict[str, Any], w_bc: np.ndarray, w_da: np.ndarray) -> None:
     if not (np.array_equal(result["w_bc"], w_bc) and np.array_equal(result["w_da"], w_da)):
         raise RuntimeError(f"seed {result['seed']}: the re-run pair differs from the stored one, so the episodes would not be "
                            "the data it was fit on; the code changed since the pairs were collected")
-
-
-def _in_order(results: Iterable[dict[str, Any]], seeds: Sequence[int]) -> Iterator[dict[str, Any]]:
-    """``results`` (arriving in any order) in the order of ``seeds``, each yielded once the seeds
-    before it have arrived."""
-    waiting: dict[int, dict[str, Any]] = {}
-    order = iter(seeds)
-    expected = next(order, None)
-    for result in results:
-        waiting[result["seed"]] = result
-        while expected in waiting:
-            yield waiting.pop(expected)
-            expected = next(order, None)
