@@ -9,12 +9,14 @@ Box variant outputs the lateral move (MSE).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from metadagger.tasks.base import Task
+from metadagger.tasks.family import FamilyTask, Variation
 
 SIZE = 16
 
@@ -160,3 +162,27 @@ presets:
     evaluate: {seeds: 300-301, methods: [dm], oneshot: false}
 """
 """A presets file for :class:`RunCorridorTask` runs: a two-seed pi*, four pairs, two evaluation seeds."""
+
+
+@dataclass(frozen=True)
+class MirrorVariation(Variation):
+    """The corridor family's variation: half of the seeds mirror the lateral move."""
+
+    def sample(self, rng: np.random.Generator) -> dict[str, float]:
+        return {"mirror": -1.0 if rng.random() < 0.5 else 1.0}
+
+    def apply(self, variation: dict[str, float], action: np.ndarray) -> np.ndarray:
+        return action * variation["mirror"]
+
+    def compensate(self, variation: dict[str, float], action: np.ndarray) -> np.ndarray:
+        return action * variation["mirror"]
+
+    def size(self, variation: dict[str, float]) -> float:
+        return (1.0 - variation["mirror"]) / 2.0
+
+
+class CorridorFamily(FamilyTask):
+    """The discrete corridor as a task family (docs/custom_task.md, "Your own task family")."""
+
+    def __init__(self, *, max_episode_steps: int = 30):
+        super().__init__(RunCorridorTask(max_episode_steps=max_episode_steps), MirrorVariation(), name="corridor-family")

@@ -9,6 +9,8 @@ ENV_IDS = {
     "metadagger/CarRacingSteer-v0": "metadagger.tasks.carracing.task:make_steer_env",
     "metadagger/FetchPickAndPlacePixels-v0": "metadagger.tasks.fetch.env:FetchPickAndPlacePixels",
     "metadagger/FetchPickAndPlaceXYZ-v0": "metadagger.tasks.fetch.task:make_xyz_env",
+    "metadagger/CarRacingSteerFamily-v0": "metadagger.tasks.carracing.family:make_family_env",
+    "metadagger/FetchPickAndPlaceXYZFamily-v0": "metadagger.tasks.fetch.family:make_family_env",
 }
 _MAX_STEPS = {"metadagger/CarRacing-v0": 1000, "metadagger/FetchPickAndPlacePixels-v0": 50}
 

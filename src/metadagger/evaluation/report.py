@@ -5,7 +5,8 @@ mappers: :mod:`~metadagger.evaluation.report_run`), MDM (Tables 1-2, Fig. 4:
 :mod:`~metadagger.evaluation.report_mdm`), one-shot (Tables 3-5:
 :mod:`~metadagger.evaluation.report_oneshot`), MDI (Table 7, Fig. 5:
 :mod:`~metadagger.evaluation.report_mdi`) and success against expert queries
-(:mod:`~metadagger.evaluation.report_benchmark`).
+(:mod:`~metadagger.evaluation.report_benchmark`); for a task family, each unseen seed's variation beside
+every method's outcome (:mod:`~metadagger.evaluation.report_family`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import yaml
 from metadagger.errors import UserError
 from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.report_diagnostics import diagnostics_section
+from metadagger.evaluation.report_family import family_section
 from metadagger.evaluation.report_mdi import mdi_section
 from metadagger.evaluation.report_mdm import mdm_section
 from metadagger.evaluation.report_oneshot import oneshot_section
@@ -25,7 +27,7 @@ from metadagger.io import write_text
 from metadagger.layout import RunLayout
 
 SECTIONS = (groundtruth_section, pairs_section, mappers_section, diagnostics_section, mdm_section, oneshot_section, mdi_section,
-            benchmark_section)
+            benchmark_section, family_section)
 
 
 def build_report(layout: RunLayout) -> Path:

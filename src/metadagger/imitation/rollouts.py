@@ -42,6 +42,8 @@ class Trajectory:
         final_label: the expert's label of ``final_obs`` (computed by the env, never trained on).
         terminated: whether the env terminated (False: truncated, capped or early-stopped).
         early_stopped: whether an :class:`EarlyStop` ended the episode.
+        variation: the task family's variation of this episode (``info["variation"]`` at reset);
+            None for a plain task.
     """
 
     obs: np.ndarray
@@ -57,6 +59,7 @@ class Trajectory:
     final_label: Any
     terminated: bool
     early_stopped: bool = False
+    variation: dict[str, float] | None = None
 
     def to_dataset(self) -> Dataset:
         """The (observation, expert label) pairs of this episode."""
@@ -94,6 +97,7 @@ def rollout(
         raise ValueError(f"max_steps must be positive or None, got {max_steps}")
     discrete = isinstance(env.action_space, gym.spaces.Discrete)
     obs, info = env.reset(seed=seed)
+    variation = info.get("variation")
     if early_stop is not None:
         early_stop.reset()
     observations, labels, actions, rewards = [], [], [], []
@@ -131,6 +135,7 @@ def rollout(
         final_label=info["expert_label"],
         terminated=bool(terminated) and not stopped,
         early_stopped=stopped,
+        variation=variation,
     )
 
 

@@ -86,6 +86,7 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     if layout.groundtruth.is_file() and layout.groundtruth_metrics.is_file():
         return json.loads(layout.groundtruth_metrics.read_text())
     write_json(layout.groundtruth_stamp, groundtruth_stamp(task, config))
+    task = task.groundtruth_task()  # a family's pi* learns its nominal member (docs/families.md)
 
     demos = collect(task, config.seeds, policy=None, progress=progress)
     data = Dataset.concat(*(t.to_dataset() for t in demos))

@@ -92,7 +92,8 @@ class PairRun:
     w_da: np.ndarray
     """The head after the DAgger rounds."""
     record: dict[str, Any]
-    """``bc`` and ``da`` outcomes, ``kept`` and ``outcome`` (as stored with the pair)."""
+    """``bc`` and ``da`` outcomes, ``kept`` and ``outcome`` (as stored with the pair); for a task
+    family also the seed's ``variation``."""
     dagger_features: torch.Tensor | None
     """With ``with_states``: trunk features of the states the learner visited in the DAgger
     rounds, in visiting order."""
@@ -136,6 +137,8 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
           "expert_queries": int(dagger.rounds[-1]["dagger/expert_queries"])}
     record = {"bc": bc, "da": da, "kept": is_kept(config.keep, bc["success"], da["success"]),
               "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
+    if demo.variation is not None:
+        record["variation"] = demo.variation
     states = cache.features(dagger.dataset.obs[len(data):]) if with_states else None
     return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), record=record, dagger_features=states)
 

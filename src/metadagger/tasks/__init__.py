@@ -21,6 +21,8 @@ ENTRY_POINT_GROUP = "metadagger.tasks"
 _FACTORIES: dict[str, Callable[[], Task] | str] = {
     "carracing": "metadagger.tasks.carracing.task:CarRacingTask",
     "fetch": "metadagger.tasks.fetch.task:FetchTask",
+    "carracing-family": "metadagger.tasks.carracing.family:CarRacingFamily",
+    "fetch-family": "metadagger.tasks.fetch.family:FetchFamily",
 }
 
 

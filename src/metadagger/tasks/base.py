@@ -63,6 +63,18 @@ class Task(abc.ABC):
             env.reset(seed=seed)
         return env
 
+    def groundtruth_task(self) -> "Task":
+        """The task pi* is trained on: this one (a family returns its nominal member)."""
+        return self
+
+    def variation_of(self, seed: int) -> dict[str, float] | None:
+        """The variation ``seed`` draws in a task family; ``None`` for a plain task."""
+        return None
+
+    def variation_size(self, variation: dict[str, float]) -> float:
+        """How far ``variation`` is from the family's nominal member (0 for a plain task)."""
+        return 0.0
+
     @property
     def is_discrete(self) -> bool:
         """Whether the learner's action is a class index (cross-entropy) or a vector (MSE)."""

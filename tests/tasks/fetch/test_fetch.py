@@ -49,8 +49,9 @@ def test_check_env_pixels():
         env.close()
 
 
-def test_check_env_xyz():
-    env = gym.make(XYZ_ID)
+@pytest.mark.parametrize("env_id", [XYZ_ID, "metadagger/FetchPickAndPlaceXYZFamily-v0"])
+def test_check_env_xyz(env_id):
+    env = gym.make(env_id)
     try:
         with warnings.catch_warnings():
             # The learner env is a wrapper by design; check_env only warns about that.
