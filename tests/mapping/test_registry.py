@@ -38,8 +38,8 @@ def with_linear(monkeypatch):
 
 
 def test_builtin_kinds_and_their_declarations():
-    assert kind_names() == ("dm", "sam", "tam", "ridge", "mean-da", "pistar-head")
-    assert [get_kind(k).learned for k in kind_names()] == [True, True, True, True, False, False]
+    assert kind_names() == ("dm", "sam", "tam", "ridge", "modes", "mean-da", "pistar-head")
+    assert [get_kind(k).learned for k in kind_names()] == [True, True, True, True, True, False, False]
     assert get_kind("tam").network_names == ("sigma_bc", "h", "sigma_da")
     assert get_kind("sam").scaler_names == ("all",) and get_kind("dm").paper_epochs == 500
     assert method_label("sam") == "SAM" and method_label("oneshot-dm") == "one-shot DM"

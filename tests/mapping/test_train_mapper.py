@@ -18,7 +18,7 @@ from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, evaluate_mapping, paper_config, train_mapper
 
 KINDS = kind_names()
-STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
+STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "modes": ["modes"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
 
 
 @pytest.fixture(scope="module")

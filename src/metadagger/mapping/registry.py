@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from metadagger.errors import UserError
-from metadagger.mapping import networks, ridge
+from metadagger.mapping import modes, networks, ridge
 
 
 class Route(NamedTuple):
@@ -144,5 +144,7 @@ register_kind(MapperKind("tam", "TAM", "twin autoencoders of w_BC and of w_DA, h
                          route=Route("bc", "sigma_bc", "h", "sigma_da", "da"), build=networks.build_tam, paper_epochs=1000))
 register_kind(MapperKind("ridge", "Ridge", "ridge regression of the update w_DA - w_BC on w_BC, λ by cross-validation",
                          route=Route("all", None, "ridge", None, "all"), build=ridge.build_ridge, closed_form=ridge.fit_ridge))
+register_kind(MapperKind("modes", "Modes", "the mean w_DA of the training pairs' group (k-means) that a ridge classifier of w_BC picks; K and λ by cross-validation",
+                         route=Route("bc", None, "modes", None, "da"), build=modes.build_modes, closed_form=modes.fit_modes))
 register_kind(MapperKind("mean-da", "mean-DA (control)", "control: always the training pairs' mean w_DA", constant=_mean_da))
 register_kind(MapperKind("pistar-head", "pi*-head (control)", "control: always pi*'s own head", constant=_pistar_head))

@@ -27,8 +27,8 @@ def build_ridge(dim: int, *, generator: torch.Generator | None = None, **_: obje
     return {"ridge": nn.Linear(dim, dim)}
 
 
-class _Dual:
-    """The dual ridge solution on training rows ``x`` and updates ``u`` (float64), for any λ."""
+class DualRidge:
+    """The dual ridge solution on training rows ``x`` and targets ``u`` (float64), for any λ."""
 
     def __init__(self, x: torch.Tensor, u: torch.Tensor) -> None:
         self.x_mean, self.u_mean = x.mean(dim=0), u.mean(dim=0)
@@ -42,7 +42,7 @@ class _Dual:
         return self.xc.T @ (self.vectors @ (self.projected / (self.values + alpha)[:, None]))
 
     def predict(self, x: torch.Tensor, alpha: float) -> torch.Tensor:
-        """The updates predicted for rows ``x``."""
+        """The targets predicted for rows ``x``."""
         return self.u_mean + (x - self.x_mean) @ self.coefficients(alpha)
 
 
@@ -60,12 +60,12 @@ def fit_ridge(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, fl
     errors = torch.zeros(len(RELATIVE_ALPHAS), dtype=torch.float64)
     for fold in range(min(FOLDS, n)):
         held = folds == fold
-        dual = _Dual(x64[~held], u64[~held])
+        dual = DualRidge(x64[~held], u64[~held])
         for i, relative in enumerate(RELATIVE_ALPHAS):
             errors[i] += (dual.predict(x64[held], relative * scale) - u64[held]).pow(2).sum()
     errors /= n * x.shape[1]
     relative = RELATIVE_ALPHAS[int(torch.argmin(errors))]
-    dual = _Dual(x64, u64)
+    dual = DualRidge(x64, u64)
     a = dual.coefficients(relative * scale)
     with torch.no_grad():
         core.weight.copy_((torch.eye(a.shape[0], dtype=torch.float64) + a.T).to(torch.float32))
