@@ -118,14 +118,21 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
     return value
 
 
-def to_dict(obj: Any) -> Any:
-    """A dataclass as plain YAML-ready data (tuples become lists)."""
+#: Metadata of a config field added after runs were made with its default behaviour: stamps leave
+#: it out while it holds its default, so adding it keeps every earlier artifact current.
+LATER_OPTION = {"stamp": "unless_default"}
+
+
+def to_dict(obj: Any, *, stamp: bool = False) -> Any:
+    """A dataclass as plain YAML-ready data (tuples become lists); with ``stamp``, without the
+    :data:`LATER_OPTION` fields that hold their default."""
     if dataclasses.is_dataclass(obj):
-        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        return {f.name: to_dict(getattr(obj, f.name), stamp=stamp) for f in dataclasses.fields(obj)
+                if not (stamp and f.metadata.get("stamp") == "unless_default" and getattr(obj, f.name) == f.default)}
     if isinstance(obj, typing.Mapping):
-        return {k: to_dict(v) for k, v in obj.items()}
+        return {k: to_dict(v, stamp=stamp) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [to_dict(v) for v in obj]
+        return [to_dict(v, stamp=stamp) for v in obj]
     return obj
 
 

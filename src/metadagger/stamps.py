@@ -50,7 +50,7 @@ def canonical(data: Any) -> str:
 def stamp_of(config: Any, *, drop: tuple[str, ...] = ()) -> dict[str, Any]:
     """A config dataclass as a stamp: its fields as plain data, without ``drop`` (the fields that
     only widen the work, such as seed lists and method lists)."""
-    return {k: v for k, v in to_dict(config).items() if k not in drop}
+    return {k: v for k, v in to_dict(config, stamp=True).items() if k not in drop}
 
 
 def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: str = "") -> list[str]:

@@ -133,3 +133,15 @@ def test_augmented_fit_is_deterministic_and_off_leaves_the_fit_unchanged(task, d
     first, second = fit(augment_shift=2), fit(augment_shift=2)
     assert first[0] == second[0] and torch.equal(first[1], second[1]) and torch.equal(first[2], second[2])
     assert not torch.equal(first[2], plain[2])
+
+
+def test_head_init_shared_starts_every_seed_from_one_head_and_stays_out_of_default_stamps():
+    from metadagger.stamps import stamp_of
+
+    seeded, shared = BCConfig(head_only=True), BCConfig(head_only=True, head_init="shared")
+    assert [seeded.head_init_seed(s) for s in (3, 4)] == [3, 4]
+    assert [shared.head_init_seed(s) for s in (3, 4)] == [0, 0]
+    # a run made before the option existed keeps its stamps: the default is not stamped
+    assert "head_init" not in stamp_of(seeded) and stamp_of(shared)["head_init"] == "shared"
+    with pytest.raises(UserError, match="head_init must be one of seed, shared"):
+        BCConfig(head_init="zero")

@@ -96,41 +96,53 @@ def test_bad_variation_settings_are_user_errors(kwargs):
 
 @pytest.fixture
 def corridor_family(tmp_path):
-    """The tiny presets, with the corridor family and the plain corridor registered as tasks."""
+    """The tiny presets, with the corridor family registered as a task."""
     from metadagger.tasks import _FACTORIES, register_task
 
     register_task("corridor-family", CorridorFamily)
-    register_task("corridor-plain", RunCorridorTask)
     path = tmp_path / "presets.yaml"
     path.write_text(TINY_PRESETS)
     yield path
-    del _FACTORIES["corridor-family"], _FACTORIES["corridor-plain"]
+    del _FACTORIES["corridor-family"]
 
 
 def test_a_custom_family_runs_the_pipeline_and_reports_each_seeds_variation(corridor_family, tmp_path):
-    sets = ["--set", "evaluate.methods=[dm, mean-da, pistar-head]", "--set", "mappers={dm: {epochs: 3}}",
-            "--set", "benchmark={seeds: [300, 301], methods: [bc, mdm, dagger], grids: {}}"]
-    runs = {}
-    for task in ("corridor-family", "corridor-plain"):
-        runs[task] = RunLayout(tmp_path / task)
-        result = runner.invoke(app, ["reproduce", "--task", task, "--presets", str(corridor_family), "--preset", "tiny",
-                                     "--out", str(runs[task].root), "--workers", "1", *sets])
-        assert result.exit_code == 0, result.output
-    # pi* learns the nominal member: the same weights as the plain task's pi*
-    family_pistar, plain_pistar = load_policy(runs["corridor-family"].groundtruth), load_policy(runs["corridor-plain"].groundtruth)
-    for a, b in zip(family_pistar.net.state_dict().values(), plain_pistar.net.state_dict().values()):
+    from metadagger.metal.groundtruth import train_groundtruth
+    from metadagger.run import load_run
+
+    run = RunLayout(tmp_path / "family")
+    result = runner.invoke(app, ["reproduce", "--task", "corridor-family", "--presets", str(corridor_family), "--preset", "tiny",
+                                 "--out", str(run.root), "--workers", "1", "--set", "evaluate.methods=[dm, mean-da, pistar-head]",
+                                 "--set", "mappers={dm: {epochs: 3}}",
+                                 "--set", "benchmark={seeds: [300, 301], methods: [bc, mdm, dagger], grids: {}}"])
+    assert result.exit_code == 0, result.output
+    # pi* learns the nominal member: the same weights as a pi* trained on the plain corridor
+    plain = RunLayout(tmp_path / "plain")
+    train_groundtruth(RunCorridorTask(max_episode_steps=12), load_run(run.root).groundtruth, plain, progress=False)
+    for a, b in zip(load_policy(run.groundtruth).net.state_dict().values(), load_policy(plain.groundtruth).net.state_dict().values()):
         assert np.array_equal(a.numpy(), b.numpy())
     family = CorridorFamily(max_episode_steps=12)
-    records = {r["seed"]: r for r in PairStore(runs["corridor-family"].pairs_dir).records()}
-    assert all(r["variation"] == family.variation_of(s) for s, r in records.items())
-    assert all("variation" not in r for r in PairStore(runs["corridor-plain"].pairs_dir).records())
-    report = runs["corridor-family"].report.read_text()
-    assert "## Task family" in report and "## Task family" not in runs["corridor-plain"].report.read_text()
+    records = {r["seed"]: r for r in PairStore(run.pairs_dir).records()}
+    assert records and all(r["variation"] == family.variation_of(s) for s, r in records.items())
+    report = run.report.read_text()
+    assert "## Task family" in report and "DAgger, 1 rounds" in report
     for seed in (300, 301):
         mirror = family.variation_of(seed)["mirror"]
         assert any(line.startswith(f"| {seed} | {mirror:+.3f} |") for line in report.splitlines())
-    assert "DAgger, 1 rounds" in report
-    assert (runs["corridor-family"].figures / "family_variation.png").is_file()
+    assert (run.figures / "family_variation.png").is_file()
+
+
+def test_a_plain_task_gets_no_family_section(tmp_path):
+    from metadagger.evaluation.report_family import family_section
+    from metadagger.evaluation.rows import write_csv
+
+    layout = RunLayout(tmp_path)
+    layout.config.write_text("task: carracing\nmax_episode_steps: 1000\n")
+    rows = [{"method": "bc", "seed": 5000, "success": False, "reward": 0.0, "steps": 10, "expert_queries": 10}]
+    write_csv(layout.eval_table("mdm"), rows)
+    assert make_task("carracing").variation_of(5000) is None and family_section(layout) == []
+    layout.config.write_text("task: carracing-family\nmax_episode_steps: 1000\n")
+    assert family_section(layout)[0].startswith("## Task family")
 
 
 @pytest.mark.parametrize("task", ["carracing-family", "fetch-family"])

@@ -147,7 +147,7 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
     """Run the job's ``method@setting`` keys on one seed; returns ``seed`` and ``entries``."""
     seed = job.seed
     pistar = cached_groundtruth(job.groundtruth)
-    policy = head_from_groundtruth(pistar, seed)
+    policy = head_from_groundtruth(pistar, job.bc.head_init_seed(seed))
     bc = dataclasses.replace(job.bc, seed=seed)
     dagger_bc = dataclasses.replace(job.dagger_bc, seed=seed)
     env = job.task.make_env()

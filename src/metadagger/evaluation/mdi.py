@@ -187,7 +187,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     """Run Table 6 for the job's methods on one seed; returns ``seed``, ``entries``
     (``{method: [row]}``) and ``heads`` (``{(method, shot): head vector}``)."""
     config, task, seed = job.config, job.task, job.seed
-    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), seed)
+    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), config.bc.head_init_seed(seed))
     bc = dataclasses.replace(config.bc, seed=seed)
     dagger_bc = dataclasses.replace(config.dagger_bc, seed=seed)
     stop = CosineEarlyStop(threshold=config.early_stop) if config.early_stop is not None else None

@@ -68,7 +68,7 @@ class EvalJob(SeedJob):
 def evaluate_seed(job: EvalJob) -> dict[str, Any]:
     """Evaluate BC and the job's mappers (and their one-shot refits) on one seed; returns
     ``seed``, ``entries`` (``{method: rows}``) and ``heads`` (``{row method: head}``)."""
-    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.seed)
+    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.bc.head_init_seed(job.seed))
     bc_config = dataclasses.replace(job.bc, seed=job.seed)
     env = job.task.make_env()
     entries: dict[str, list[dict[str, Any]]] = {}

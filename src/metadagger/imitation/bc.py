@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,10 +18,14 @@ import torch
 import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
+from metadagger.config import LATER_OPTION
 from metadagger.errors import UserError
 from metadagger.imitation.data import Dataset
 from metadagger.policies import Policy, load_policy
 from metadagger.progress import progress_bar
+
+#: How a seed's fresh head starts (:attr:`BCConfig.head_init`).
+HEAD_INITS = ("seed", "shared")
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,15 @@ class BCConfig:
     and random crop). Offsets come from the fit's seeded generator, so fits stay deterministic.
     0 (the default) turns it off and leaves the fit exactly as without it. Head-only fits train
     on cached trunk features, which cannot be augmented, so they need 0."""
+    head_init: str = field(default="seed", metadata=LATER_OPTION)
+    """How the fresh head of a seed's head-only BC fit (the pairs', the evaluations') starts:
+    ``seed``, Xavier drawn from the env seed (the paper's); ``shared``, one Xavier draw (seed 0)
+    for every seed, so that heads differ between seeds only by what their data taught them
+    (docs/families.md)."""
+
+    def head_init_seed(self, seed: int) -> int:
+        """The seed of the initial head of env seed ``seed``'s fit."""
+        return seed if self.head_init == "seed" else 0
 
     def __post_init__(self) -> None:
         if not self.lr > 0:
@@ -61,6 +74,8 @@ class BCConfig:
             raise UserError(f"BCConfig.seed must be an integer, got {self.seed!r}")
         if not isinstance(self.augment_shift, int) or isinstance(self.augment_shift, bool) or self.augment_shift < 0:
             raise UserError(f"BCConfig.augment_shift must be an integer >= 0, got {self.augment_shift!r}")
+        if self.head_init not in HEAD_INITS:
+            raise UserError(f"BCConfig.head_init must be one of {', '.join(HEAD_INITS)}, got {self.head_init!r}")
         if self.augment_shift and self.head_only:
             raise UserError("BCConfig.augment_shift needs a whole-policy fit: head-only fits use cached trunk features; set augment_shift=0 or head_only=false")
 

@@ -110,7 +110,7 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
     is fit on: the demonstration (round 0), then each DAgger round's rollout.
     """
     fit_seed = seed if fit_seed is None else fit_seed
-    policy = head_from_groundtruth(cached_groundtruth(groundtruth), seed)
+    policy = head_from_groundtruth(cached_groundtruth(groundtruth), config.bc.head_init_seed(seed))
     env = task.make_env()
     try:
         demo = rollout(env, seed=seed, policy=None)
