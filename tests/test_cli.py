@@ -145,7 +145,7 @@ def test_evaluate_protocol_errors(tmp_path):
 
 
 def test_reproduce_with_unknown_task_names_the_known_ones(tmp_path):
-    _fails_cleanly(["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")], "unknown task 'cartpole'", "carracing, fetch")
+    _fails_cleanly(["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")], "unknown task 'cartpole'", "carracing, carracing-family, fetch, fetch-family")
     assert not (tmp_path / "r" / "config.yaml").exists()
 
 

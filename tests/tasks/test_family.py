@@ -125,7 +125,7 @@ def test_a_custom_family_runs_the_pipeline_and_reports_each_seeds_variation(corr
     records = {r["seed"]: r for r in PairStore(run.pairs_dir).records()}
     assert records and all(r["variation"] == family.variation_of(s) for s, r in records.items())
     report = run.report.read_text()
-    assert "## Task family" in report and "DAgger, 1 rounds" in report
+    assert "## Task family" in report and "DAgger, 1 round |" in report
     for seed in (300, 301):
         mirror = family.variation_of(seed)["mirror"]
         assert any(line.startswith(f"| {seed} | {mirror:+.3f} |") for line in report.splitlines())

@@ -45,7 +45,7 @@ def family_section(layout: RunLayout) -> list[str]:
     median = statistics.median(sizes.values())
     small = {s for s in seeds if sizes[s] <= median}
     lines += [f"### Success on the smaller and the larger half of the variations (size <= {median:.3f} and above)", ""]
-    lines += markdown_table(("method", f"small ({len(small)} seeds)", f"large ({len(seeds) - len(small)} seeds)", "all"), [
+    lines += markdown_table(("method", f"small ({_seeds(len(small))})", f"large ({_seeds(len(seeds) - len(small))})", "all"), [
         (label, rate(r for s, r in outcomes[label].items() if s in small),
          rate(r for s, r in outcomes[label].items() if s not in small), rate(outcomes[label].values())) for label in methods])
     lines += ["", "### Per seed (✓ success, ✗ failure, - not run)", ""]
@@ -83,8 +83,12 @@ def _outcomes(layout: RunLayout) -> dict[str, dict[int, dict[str, Any]]]:
         dagger = [r for r in read_csv(layout.benchmark_table) if r["method"] == "dagger"]
         if dagger:
             rounds = max(int(r["setting"]) for r in dagger)
-            outcomes[f"DAgger, {rounds} rounds"] = {r["seed"]: r for r in dagger if int(r["setting"]) == rounds}
+            outcomes[f"DAgger, {rounds} round{'s' * (rounds != 1)}"] = {r["seed"]: r for r in dagger if int(r["setting"]) == rounds}
     return outcomes
+
+
+def _seeds(count: int) -> str:
+    return f"{count} seed{'s' * (count != 1)}"
 
 
 def _mark(row: dict[str, Any] | None) -> str:
