@@ -14,6 +14,7 @@ from typing import Any
 
 import yaml
 
+from metadagger.errors import UserError
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order, rate
 from metadagger.layout import RunLayout
@@ -28,13 +29,13 @@ def family_section(layout: RunLayout) -> list[str]:
     """Variation beside outcome per seed, success by variation size, and the figure; [] for a plain
     task or a run without per-seed evaluations."""
     task = _run_task(layout)
+    if task is None or task.variation_of(0) is None:  # a plain task: no variations to show
+        return []
     outcomes = _outcomes(layout)
-    if task is None or not outcomes:
+    if not outcomes:
         return []
     seeds = sorted({s for per_seed in outcomes.values() for s in per_seed})
     variations = {s: task.variation_of(s) for s in seeds}
-    if any(v is None for v in variations.values()):
-        return []
     sizes = {s: task.variation_size(variations[s]) for s in seeds}
     methods = list(outcomes)
     lines = ["## Task family: the seed's variation beside each method's outcome", "",
@@ -62,9 +63,12 @@ def _run_task(layout: RunLayout) -> Task | None:
     if not layout.config.is_file():
         return None
     config = yaml.safe_load(layout.config.read_text()) or {}
+    if "task" not in config:
+        return None
+    steps = {"max_episode_steps": config["max_episode_steps"]} if "max_episode_steps" in config else {}
     try:
-        return make_task(config["task"], max_episode_steps=config["max_episode_steps"])
-    except Exception:  # a task this process cannot build (an unregistered custom one): no section
+        return make_task(config["task"], **steps)
+    except UserError:  # a task this process cannot build (an unregistered custom one): no section
         return None
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from metadagger.mapping.ridge import FOLDS, RELATIVE_ALPHAS, DualRidge
+from metadagger.mapping.ridge import RELATIVE_ALPHAS, DualRidge, alpha_scale, fold_masks
 
 #: The largest number of groups tried.
 MAX_GROUPS = 6
@@ -84,13 +84,10 @@ def fit_modes(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, fl
     relative) and the cross-validated mean squared error."""
     x64, y64 = x.to(torch.float64), y.to(torch.float64)
     n = len(x64)
-    scale = float((x64 - x64.mean(dim=0)).pow(2).sum()) / min(n, x64.shape[1])
-    scale = scale if scale > 0 else 1.0
-    folds = torch.arange(n) % min(FOLDS, n)
+    scale = alpha_scale(x64)
     grid = [(k, relative) for k in range(1, MAX_GROUPS + 1) for relative in RELATIVE_ALPHAS]
     errors = torch.zeros(len(grid), dtype=torch.float64)
-    for fold in range(min(FOLDS, n)):
-        held = folds == fold
+    for held in fold_masks(n):
         fits = {k: _Classifier(x64[~held], y64[~held], k) for k in range(1, min(MAX_GROUPS, int((~held).sum())) + 1)}
         for i, (k, relative) in enumerate(grid):
             errors[i] += (fits[k].predict(x64[held], relative * scale) - y64[held]).pow(2).sum() if k in fits else float("inf")

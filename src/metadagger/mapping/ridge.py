@@ -46,6 +46,19 @@ class DualRidge:
         return self.u_mean + (x - self.x_mean) @ self.coefficients(alpha)
 
 
+def alpha_scale(x: torch.Tensor) -> float:
+    """The unit of :data:`RELATIVE_ALPHAS`: the mean non-zero eigenvalue of the centred Gram matrix
+    of rows ``x`` (its rank is at most min(N, d)); 1 when ``x`` does not vary."""
+    scale = float((x - x.mean(dim=0)).pow(2).sum()) / min(x.shape)
+    return scale if scale > 0 else 1.0
+
+
+def fold_masks(n: int) -> list[torch.Tensor]:
+    """The held-out rows of each cross-validation fold (row i is in fold i mod :data:`FOLDS`)."""
+    folds = torch.arange(n) % min(FOLDS, n)
+    return [folds == fold for fold in range(min(FOLDS, n))]
+
+
 def fit_ridge(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, float]:
     """Set ``core`` (an ``nn.Linear(d, d)``) to the ridge map from ``x`` to ``y`` (standardised
     training rows ``[N, d]``); λ by :data:`FOLDS`-fold cross-validation over
@@ -53,13 +66,9 @@ def fit_ridge(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, fl
     eigenvalue) and its cross-validated mean squared error of the update."""
     x64, u64 = x.to(torch.float64), (y - x).to(torch.float64)
     n = len(x64)
-    # the mean non-zero eigenvalue of the Gram matrix (its rank is at most min(n, d))
-    scale = float((x64 - x64.mean(dim=0)).pow(2).sum()) / min(n, x64.shape[1])
-    scale = scale if scale > 0 else 1.0
-    folds = torch.arange(n) % min(FOLDS, n)
+    scale = alpha_scale(x64)
     errors = torch.zeros(len(RELATIVE_ALPHAS), dtype=torch.float64)
-    for fold in range(min(FOLDS, n)):
-        held = folds == fold
+    for held in fold_masks(n):
         dual = DualRidge(x64[~held], u64[~held])
         for i, relative in enumerate(RELATIVE_ALPHAS):
             errors[i] += (dual.predict(x64[held], relative * scale) - u64[held]).pow(2).sum()

@@ -101,12 +101,6 @@ class FetchFamily(FamilyTask):
     def __init__(self, *, expert: Callable[[gym.Env], np.ndarray] | None = None,
                  max_episode_steps: int = MAX_EPISODE_STEPS, max_rotation: float = MAX_ROTATION,
                  scale_range: tuple[float, float] = SCALE_RANGE):
-        try:
-            scale_range = tuple(scale_range)
-        except TypeError:
-            raise UserError(f"scale_range must be (low, high) with 0 < low <= high, got {scale_range!r}") from None
-        if len(scale_range) != 2:
-            raise UserError(f"scale_range must be (low, high) with 0 < low <= high, got {scale_range!r}")
         variation = DisplacementVariation(max_rotation=max_rotation, scale_range=scale_range)
         super().__init__(FetchTask(expert=expert, max_episode_steps=max_episode_steps), variation,
                          name="fetch-family", learner_env_id="metadagger/FetchPickAndPlaceXYZFamily-v0")
