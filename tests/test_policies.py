@@ -51,6 +51,18 @@ def test_discrete_and_box_actions(rng):
     np.testing.assert_allclose(box.act_batch(obs)[0], action, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("spatial_softmax", [False, True])
+def test_acting_gives_forwards_numbers_to_the_bit(rng, spatial_softmax):
+    net = PolicyNet(obs_shape=(16, 16, 3), n_outputs=5, discrete=True, spatial_softmax=spatial_softmax, **SMALL)
+    net.init_weights(0)
+    obs = torch.from_numpy(images(rng, 6))
+    with torch.no_grad():
+        assert torch.equal(net.act_outputs(obs), net(obs))
+        assert torch.equal(net.act_outputs(obs[:1]), net(obs[:1]))
+    policy = Policy(net=net, task="toy")
+    assert [policy(o) for o in obs.numpy()] == net(obs).argmax(1).tolist()
+
+
 def test_wrong_observation_is_a_user_error(rng):
     policy = small_policy()
     with pytest.raises(UserError, match=r"uint8 arrays of shape \(N, 16, 16, 3\)"):
@@ -62,7 +74,13 @@ def test_wrong_observation_is_a_user_error(rng):
 def test_one_observation_runs_on_one_thread_and_keeps_the_callers_setting(rng):
     policy = small_policy()
     seen = []
-    policy.net.head.register_forward_hook(lambda *_: seen.append(torch.get_num_threads()))
+    act_outputs = policy.net.act_outputs
+
+    def recording(obs):
+        seen.append(torch.get_num_threads())
+        return act_outputs(obs)
+
+    policy.net.act_outputs = recording
     caller = torch.get_num_threads()
     torch.set_num_threads(3)
     try:

@@ -122,9 +122,11 @@ class PolicyNet(nn.Module):
             "spatial_softmax": bool(spatial_softmax),
         }
         height, width, channels = obs_shape
+        # in-place ReLUs: the same values and gradients (autograd's ReLU backward reads the output
+        # either way), one allocation fewer per layer
         layers: list[nn.Module] = []
         for out_channels, kernel, stride in zip(conv_channels, kernel_sizes, strides):
-            layers += [nn.Conv2d(channels, out_channels, kernel, stride=stride, padding=kernel // 2), nn.ReLU()]
+            layers += [nn.Conv2d(channels, out_channels, kernel, stride=stride, padding=kernel // 2), nn.ReLU(inplace=True)]
             channels, height, width = out_channels, _conv_out(height, kernel, stride), _conv_out(width, kernel, stride)
         if spatial_softmax:
             layers.append(SpatialSoftmax())
@@ -133,7 +135,7 @@ class PolicyNet(nn.Module):
             layers.append(nn.Flatten())
             width_in = channels * height * width
         for width_out in hidden:
-            layers += [nn.Linear(width_in, width_out), nn.ReLU()]
+            layers += [nn.Linear(width_in, width_out), nn.ReLU(inplace=True)]
             width_in = width_out
         self.trunk = nn.Sequential(*layers)
         self.head = nn.Linear(width_in, n_outputs)
@@ -156,6 +158,15 @@ class PolicyNet(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """Head output (N, n_outputs) for uint8 (N, H, W, C) images."""
         return self.head(self.features(obs))
+
+    def act_outputs(self, obs: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` without ``nn.Module``'s call machinery, so forward hooks do not run:
+        acting on one image at a time, that machinery costs a sixth of the step. The same numbers
+        as :meth:`forward`; :class:`Policy` acts through it."""
+        hidden = self.preprocess(obs)
+        for layer in self.trunk:
+            hidden = layer.forward(hidden)
+        return self.head.forward(hidden)
 
     def init_weights(self, seed: int, *, head_only: bool = False) -> None:
         """Xavier-uniform weights and zero biases (paper Tables 8-9), deterministic from ``seed``."""
@@ -207,7 +218,7 @@ class Policy:
         """Actions for a batch of raw observations (N, H, W, C) uint8: int64 classes or float32 (N, d)."""
         self._check_obs(obs)
         with torch.inference_mode():
-            out = self.net(torch.from_numpy(obs))
+            out = self.net.act_outputs(torch.from_numpy(obs))
         if self.discrete:
             return out.argmax(dim=1).numpy()
         return out.numpy().astype(np.float32, copy=False)

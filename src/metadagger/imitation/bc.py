@@ -11,7 +11,7 @@ import hashlib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -21,6 +21,7 @@ from torch.nn.utils import parameters_to_vector
 from metadagger.config import LATER_OPTION
 from metadagger.errors import UserError
 from metadagger.imitation.data import Dataset
+from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.policies import Policy, load_policy
 from metadagger.progress import progress_bar
 
@@ -197,8 +198,9 @@ def fit_bc(
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise UserError("the policy has no trainable parameters left to fit; do not freeze the head")
-    optimizer = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
-    loss_fn = F.cross_entropy if policy.discrete else F.mse_loss
+    head_adam = LinearHeadAdam(model, lr=config.lr, weight_decay=config.weight_decay, discrete=policy.discrete) \
+        if config.head_only and LinearHeadAdam.supports(model) else None
+    step = head_adam.step if head_adam is not None else _autograd_step(model, params, config, policy.discrete)
     generator = torch.Generator().manual_seed(config.seed)
     losses: list[float] = []
     n = len(data)
@@ -211,14 +213,28 @@ def fit_bc(
             x = inputs[batch]
             if config.augment_shift:
                 x = random_shift(x, config.augment_shift, generator)
-            loss = loss_fn(model(x), targets[batch])
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            total += loss.item() * len(batch)
+            total += step(x, targets[batch]).item() * len(batch)
         losses.append(total / n)
         bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    if head_adam is not None:
+        head_adam.write_back()
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
+
+
+def _autograd_step(model: torch.nn.Module, params: list[torch.nn.Parameter], config: BCConfig,
+                   discrete: bool) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """A training step of ``model`` by autograd and ``torch.optim.Adam``: returns the batch loss."""
+    optimizer = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
+    loss_fn = F.cross_entropy if discrete else F.mse_loss
+
+    def step(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        loss = loss_fn(model(x), y)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        return loss.detach()
+
+    return step
 
 
 def fit_or_resume(
