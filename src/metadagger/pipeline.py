@@ -36,6 +36,7 @@ from metadagger.metal.export import export_run
 from metadagger.metal.groundtruth import groundtruth_changes, train_groundtruth
 from metadagger.metal.pairs import collect_pairs, pair_status
 from metadagger.metal.store import PairSplit, PairStore
+from metadagger.parallel import default_workers
 from metadagger.policies import Policy, load_policy
 from metadagger.run import RunConfig, init_run, load_run
 from metadagger.runner import StageOptions
@@ -60,7 +61,10 @@ def _log(layout: RunLayout, config: RunConfig, runs: Callable[[], Mapping[str, l
 
 def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Train pi* (skipped when done and made from this config)."""
-    metrics = train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress)
+    # pi*'s rollouts use this machine's cores (a local pool) whatever executor the per-seed stages use
+    workers = options.workers if options.executor == "local" and options.workers else default_workers()
+    metrics = train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress,
+                                workers=workers)
     _log(layout, config, lambda: {"groundtruth": groundtruth_scalars(layout)})
     return metrics
 

@@ -92,3 +92,24 @@ def test_make_policy_reads_the_task(task):
     assert make_policy(task, seed=0, **TOY_ARCH).head_vector().equal(policy.head_vector())
     with pytest.raises(ValueError, match="unknown architecture option"):
         make_policy(task, seed=0, width=3)
+
+
+def test_a_process_pool_gives_the_same_trajectories_in_seed_order(task, policy):
+    seeds = [7, 2, 9, 4, 1, 8, 3, 6, 5]  # more seeds than chunks of one worker, not sorted
+    alone = collect(task, seeds, policy=policy)
+    pooled = collect(task, seeds, policy=policy, workers=2)
+    assert [t.seed for t in pooled] == seeds
+    for a, b in zip(alone, pooled):
+        np.testing.assert_array_equal(a.obs, b.obs)
+        np.testing.assert_array_equal(a.learner_actions, b.learner_actions)
+        np.testing.assert_array_equal(a.expert_labels, b.expert_labels)
+        assert (a.reward, a.success) == (b.reward, b.success)
+
+
+def test_evaluation_rows_are_made_where_the_episodes_run(task, policy):
+    from metadagger.imitation.episodes import episode_row, evaluate_policy
+
+    seeds = [3, 1, 2]
+    rows = evaluate_policy(task, policy, seeds, progress=False, workers=2)
+    assert rows == [episode_row(t) for t in collect(task, seeds, policy=policy)]
+    assert [r["seed"] for r in rows] == seeds

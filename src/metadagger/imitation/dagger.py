@@ -62,6 +62,7 @@ def run_dagger(
     cache: FeatureCache | None = None,
     checkpoints: str | Path | None = None,
     on_rollouts: Callable[[int, list[Trajectory]], None] | None = None,
+    workers: int = 1,
 ) -> DAggerResult:
     """Improve ``policy`` in place with DAgger on ``task``.
 
@@ -87,6 +88,7 @@ def run_dagger(
             expensive fits are not. ``final_loss`` and ``epoch_losses`` are None for a resumed round.
         on_rollouts: called as ``on_rollouts(round_idx, trajectories)`` with each round's rollouts
             before its refit (e.g. to export the episodes).
+        workers: roll the seeds out in a process pool of this size (see :func:`collect`).
 
     Returns:
         Per-round metrics, keys namespaced ``dagger/``: ``round`` (1-based), ``success_rate``,
@@ -104,7 +106,7 @@ def run_dagger(
     queries = len(initial)
     history: list[dict[str, Any]] = []
     for round_idx in progress_bar(range(1, config.rounds + 1), desc="dagger", enabled=progress, leave=False):
-        trajectories = collect(task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory)
+        trajectories = collect(task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory, workers=workers)
         if on_rollouts is not None:
             on_rollouts(round_idx, trajectories)
         dataset = dataset.concat(*(t.to_dataset() for t in trajectories))

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 from typing import Sequence
 
-
-from metadagger.imitation.rollouts import rollout
+from metadagger.imitation.rollouts import Trajectory, collect
 from metadagger.policies import Policy
-from metadagger.progress import progress_bar
 from metadagger.tasks.base import Task
 
 
@@ -18,14 +16,14 @@ def evaluate_policy(
     *,
     label: str = "eval",
     progress: bool = True,
+    workers: int = 1,
 ) -> list[dict]:
-    """One row per seed (seed, success, reward, steps); ``policy=None`` lets the expert act."""
-    env = task.make_env()
-    rows = []
-    try:
-        for seed in progress_bar(seeds, desc=label, enabled=progress, leave=False):
-            traj = rollout(env, seed=seed, policy=policy)
-            rows.append({"seed": int(seed), "success": bool(traj.success), "reward": float(traj.reward), "steps": int(traj.steps)})
-    finally:
-        env.close()
-    return rows
+    """One row per seed (seed, success, reward, steps); ``policy=None`` lets the expert act.
+    ``workers`` > 1 rolls chunks of seeds out in a process pool (the same rows)."""
+    return collect(task, seeds, policy=policy, progress=progress, workers=workers, each=episode_row, desc=label)
+
+
+def episode_row(trajectory: Trajectory) -> dict:
+    """An episode's evaluation row: seed, success, reward, steps."""
+    return {"seed": trajectory.seed, "success": bool(trajectory.success), "reward": float(trajectory.reward),
+            "steps": int(trajectory.steps)}

@@ -67,11 +67,13 @@ def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout
 
 
 def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, *, rebuild: bool = False,
-                      progress: bool = True) -> dict:
+                      progress: bool = True, workers: int = 1) -> dict:
     """Train pi* (or reuse a finished one made from the same config) and return its metrics:
     ``own_seeds`` and ``unseen_seeds`` (:func:`~metadagger.imitation.metrics.summarize`), ``rounds``
     (:func:`~metadagger.imitation.dagger.run_dagger`'s records), ``bc_epoch_losses`` (the BC fit's
-    loss per epoch; None when resumed from its checkpoint) and ``expert_queries``.
+    loss per epoch; None when resumed from its checkpoint) and ``expert_queries``. Its rollouts
+    (demonstrations, DAgger rounds, the success checks) run in a pool of ``workers`` processes;
+    the fits run in this one, on one thread (docs/architecture.md, "Determinism").
 
     Raises:
         UserError: the run's pi* (finished or not) was made from another config and ``rebuild``
@@ -88,7 +90,7 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     write_json(layout.groundtruth_stamp, groundtruth_stamp(task, config))
     task = task.groundtruth_task()  # a family's pi* learns its nominal member (docs/families.md)
 
-    demos = collect(task, config.seeds, policy=None, progress=progress)
+    demos = collect(task, config.seeds, policy=None, progress=progress, workers=workers)
     data = Dataset.concat(*(t.to_dataset() for t in demos))
     policy = make_policy(task, seed=config.seed)
     bc_losses = fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress)
@@ -97,11 +99,12 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
         result = run_dagger(
             policy, task, config.seeds, initial=data,
             config=DAggerConfig(rounds=config.dagger_rounds, bc=config.bc),
-            progress=progress, checkpoints=layout.groundtruth_rounds,
+            progress=progress, checkpoints=layout.groundtruth_rounds, workers=workers,
         )
         history = result.rounds
-    own = summarize(evaluate_policy(task, policy, config.seeds, label="pi* on its seeds", progress=progress))
-    unseen = summarize(evaluate_policy(task, policy, config.eval_seeds, label="pi* on unseen seeds", progress=progress))
+    own = summarize(evaluate_policy(task, policy, config.seeds, label="pi* on its seeds", progress=progress, workers=workers))
+    unseen = summarize(evaluate_policy(task, policy, config.eval_seeds, label="pi* on unseen seeds", progress=progress,
+                                       workers=workers))
     metrics = {"own_seeds": own, "unseen_seeds": unseen, "rounds": history, "bc_epoch_losses": bc_losses,
                "expert_queries": history[-1]["dagger/expert_queries"] if history else len(data)}
     policy.save(layout.groundtruth)
