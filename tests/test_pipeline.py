@@ -131,8 +131,8 @@ def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(tmp_path)
 
 
 def test_mapper_kinds_follow_the_run_config(tmp_path):
-    # every kind but the opt-in modes (docs/mapping.md), in registry order
-    assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == tuple(k for k in kind_names() if k != "modes")
+    # every kind but the opt-in modes and conditioned (docs/mapping.md), in registry order
+    assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == tuple(k for k in kind_names() if k not in ("modes", "conditioned"))
     assert init_run(tmp_path / "crm", "carracing", "ci", overrides=["evaluate.methods=[modes, dm]"]).mapper_kinds == ("dm", "modes")
     assert init_run(tmp_path / "fetch", "fetch", "ci").mapper_kinds == ("dm", "ridge", "mean-da", "pistar-head")
 

@@ -180,7 +180,7 @@ def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int]
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, eval_config.methods, pistar)
-    rows = evaluate_run(task, layout, eval_config, bc=config.pairs.bc, options=options)
+    rows = evaluate_run(task, layout, eval_config, bc=config.pairs.bc, early_stop=config.pairs.early_stop, options=options)
     tables = ("mdm", "oneshot") if eval_config.oneshot else ("mdm",)
     _log(layout, config, lambda: {f"eval/{table}": table_scalars(layout.eval_table(table)) for table in tables})
     return rows
@@ -197,7 +197,7 @@ def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | No
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, tuple(mdi.kinds.values()), pistar)
-    rows = evaluate_mdi(task, layout, mdi, options)
+    rows = evaluate_mdi(task, layout, mdi, options, context_early_stop=config.pairs.early_stop)
     _log(layout, config, lambda: {"eval/mdi": table_scalars(layout.eval_table("mdi"))})
     return rows
 

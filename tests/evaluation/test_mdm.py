@@ -13,12 +13,15 @@ from toy_task import CorridorTask
 from metadagger.errors import UserError
 from metadagger.evaluation.mdm import EvalConfig, evaluate_run
 from metadagger.evaluation.rows import read_csv
-from metadagger.imitation.bc import BCConfig, fit_bc
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import collect
 from metadagger.io import load_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
+from metadagger.mapping.train import MapperConfig, train_mapper
+from metadagger.metal.context import bc_rollout, seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.metal.store import PairSplit
 from metadagger.policies import load_policy
 from metadagger.runner import StageOptions
 
@@ -101,3 +104,30 @@ def test_missing_mapper_is_a_user_error(toy_run, tmp_path):
     layout = _copy(toy_run, tmp_path)
     with pytest.raises(UserError, match="mappers not trained yet: dm"):
         _evaluate(layout, SEEDS[:1], ("dm",))
+
+
+def test_a_conditioned_mapper_reads_the_seed_context_from_the_bc_rollout(toy_run, tmp_path):
+    """Its head is the mapper's output on w_BC and the context of the demonstration and the BC
+    head's rollout; its rows give that rollout's env steps and no further expert query."""
+    layout = _copy(toy_run, tmp_path)
+    pistar = load_policy(layout.groundtruth)
+    dim, width = pistar.head_vector().shape[0], 2 * pistar.net.feature_dim
+    g = torch.Generator().manual_seed(0)
+    w_bc, w_da, context = torch.randn(8, dim, generator=g), torch.randn(8, dim, generator=g), torch.randn(8, width, generator=g)
+    split = PairSplit(w_bc_train=w_bc[:6], w_da_train=w_da[:6], w_bc_val=w_bc[6:], w_da_val=w_da[6:], train_seeds=tuple(range(6)),
+                      val_seeds=(6, 7), context_train=context[:6], context_val=context[6:])
+    mapper = train_mapper(split, MapperConfig(kind="conditioned"), layout.mapper_dir("conditioned"), progress=False)
+    rows = _evaluate(layout, SEEDS, ("conditioned",))
+    table = {(r["method"], r["seed"]): r for r in rows}
+    for seed in SEEDS:
+        policy = head_from_groundtruth(load_policy(layout.groundtruth), seed)
+        demo = collect(CorridorTask(), [seed], policy=None)[0].to_dataset()
+        cache = FeatureCache(policy)
+        fit_bc(policy, demo, dataclasses.replace(BC, seed=seed), cache=cache)
+        w = policy.head_vector().numpy().copy()
+        unlabelled = bc_rollout(CorridorTask().make_env(), policy, seed, None)
+        expected = mapper(w, seed_context(cache, demo.obs, unlabelled.obs))
+        assert torch.equal(load_tensors(layout.heads("conditioned") / f"{seed}.safetensors")["head"], torch.from_numpy(expected))
+        assert table["conditioned", seed]["unlabelled_steps"] == unlabelled.steps == table["bc", seed]["steps"]
+        assert table["conditioned", seed]["expert_queries"] == len(demo)
+    assert "unlabelled_steps" in read_csv(layout.eval_table("mdm"))[0]

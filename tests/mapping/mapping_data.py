@@ -11,13 +11,18 @@ from metadagger.metal.store import PairSplit
 DIM = 12
 
 
-def synthetic_split(*, n_train: int = 60, n_val: int = 20, dim: int = DIM, seed: int = 0) -> PairSplit:
-    """w_BC on a rank-3 subspace; w_DA = w_BC @ M + b + noise (a linear relation a mapper can learn)."""
+def synthetic_split(*, n_train: int = 60, n_val: int = 20, dim: int = DIM, seed: int = 0, context_dim: int = 4,
+                    context_effect: float = 0.0) -> PairSplit:
+    """w_BC on a rank-3 subspace; w_DA = w_BC @ M + b + noise (a linear relation a mapper can learn),
+    plus ``context_effect`` times a linear map of each seed's context (``context_dim`` standard
+    normal numbers, drawn apart from w_BC: only a mapper that reads them can predict that part)."""
     g = np.random.default_rng(seed)
     n = n_train + n_val
     w_bc = g.normal(size=(n, 3)) @ g.normal(size=(3, dim)) * 0.3 + 0.01 * g.normal(size=(n, dim))
     w_da = w_bc @ (0.8 * np.eye(dim) + 0.1 * g.normal(size=(dim, dim))) + 0.2 + 0.01 * g.normal(size=(n, dim))
-    w_bc, w_da = torch.tensor(w_bc, dtype=torch.float32), torch.tensor(w_da, dtype=torch.float32)
+    context = np.random.default_rng(seed + 1000).normal(size=(n, context_dim))
+    w_da = w_da + context_effect * context @ np.random.default_rng(seed + 2000).normal(size=(context_dim, dim))
+    w_bc, w_da, context = (torch.tensor(a, dtype=torch.float32) for a in (w_bc, w_da, context))
     return PairSplit(
         w_bc_train=w_bc[:n_train],
         w_da_train=w_da[:n_train],
@@ -25,6 +30,8 @@ def synthetic_split(*, n_train: int = 60, n_val: int = 20, dim: int = DIM, seed:
         w_da_val=w_da[n_train:],
         train_seeds=tuple(range(n_train)),
         val_seeds=tuple(range(n_train, n)),
+        context_train=context[:n_train],
+        context_val=context[n_train:],
     )
 
 

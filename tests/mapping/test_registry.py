@@ -38,10 +38,12 @@ def with_linear(monkeypatch):
 
 
 def test_builtin_kinds_and_their_declarations():
-    assert kind_names() == ("dm", "sam", "tam", "ridge", "modes", "mean-da", "pistar-head")
-    assert [get_kind(k).learned for k in kind_names()] == [True, True, True, True, True, False, False]
+    assert kind_names() == ("dm", "sam", "tam", "ridge", "modes", "conditioned", "mean-da", "pistar-head")
+    assert [get_kind(k).learned for k in kind_names()] == [True, True, True, True, True, True, False, False]
+    assert [k for k in kind_names() if get_kind(k).context] == ["conditioned"]
     assert get_kind("tam").network_names == ("sigma_bc", "h", "sigma_da")
     assert get_kind("sam").scaler_names == ("all",) and get_kind("dm").paper_epochs == 500
+    assert get_kind("conditioned").scaler_names == ("all", "context")
     assert method_label("sam") == "SAM" and method_label("oneshot-dm") == "one-shot DM"
     with pytest.raises(UserError, match="unknown mapper kind 'xyz': expected one of dm, sam"):
         get_kind("xyz")
@@ -53,6 +55,9 @@ def test_a_kind_is_either_learned_or_a_control():
     with pytest.raises(ValueError, match="closed-form fit needs a route without autoencoders"):
         MapperKind("odd", "Odd", "closed form through a code", route=Route("all", "sigma_all", "h", "sigma_all", "all"),
                    build=get_kind("sam").build, closed_form=get_kind("ridge").closed_form)
+    with pytest.raises(ValueError, match="a context needs a route without autoencoders"):
+        MapperKind("coded", "Coded", "context through a code", route=Route("all", "sigma_all", "h", "sigma_all", "all"),
+                   build=get_kind("sam").build, context=True)
 
 
 def test_a_new_kind_trains_saves_loads_and_is_known_everywhere(with_linear, split, tmp_path):

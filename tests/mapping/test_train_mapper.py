@@ -18,7 +18,7 @@ from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, evaluate_mapping, paper_config, train_mapper
 
 KINDS = kind_names()
-STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "modes": ["modes"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
+STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "modes": ["modes"], "conditioned": ["ridge"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
 
 
 @pytest.fixture(scope="module")
@@ -51,10 +51,11 @@ def test_save_load_round_trip_is_exact(trained, split, kind):
     mapper, out_dir = trained[kind]
     loaded = load_mapper(out_dir / "mapper.safetensors")
     assert (loaded.kind, loaded.in_dim, loaded.config) == (kind, split.w_bc_val.shape[1], mapper.config)
-    np.testing.assert_array_equal(loaded.map_batch(split.w_bc_val), mapper.map_batch(split.w_bc_val))
-    w = split.w_bc_val[0].numpy()
-    np.testing.assert_array_equal(loaded(w), mapper(w))
-    assert mapper(w).dtype == np.float32 and mapper(w).shape == w.shape
+    np.testing.assert_array_equal(loaded.map_batch(split.w_bc_val, split.context_val), mapper.map_batch(split.w_bc_val, split.context_val))
+    w, c = split.w_bc_val[0].numpy(), split.context_val[0].numpy()
+    np.testing.assert_array_equal(loaded(w, c), mapper(w, c))
+    assert mapper(w, c).dtype == np.float32 and mapper(w, c).shape == w.shape
+    assert loaded.needs_context == (kind == "conditioned") and loaded.context_dim == (c.shape[0] if kind == "conditioned" else 0)
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -171,3 +172,31 @@ def test_paper_config_and_validation():
     ]:
         with pytest.raises(ValueError, match=f"MapperConfig.{field} "):
             MapperConfig(**kwargs)
+
+
+def test_conditioned_reads_the_context_where_it_predicts_the_update(tmp_path):
+    """Where w_DA depends on the seed's context, only the conditioned kind predicts that part;
+    where it does not, cross-validation gives the context (almost) no weight."""
+    informative = synthetic_split(context_effect=0.3)
+    ridge = train_mapper(informative, tiny_config("ridge"), tmp_path / "ridge", progress=False)
+    conditioned = train_mapper(informative, tiny_config("conditioned"), tmp_path / "conditioned", progress=False)
+    args = (informative.w_bc_val, informative.w_da_val)
+    with_context = evaluate_mapping(conditioned, *args, context=informative.context_val)["relative_mse"]
+    assert with_context < 0.2 * evaluate_mapping(ridge, *args)["relative_mse"]
+    assert conditioned.config["fit"]["context_weight"] > 0
+    plain = synthetic_split()
+    uninformed = train_mapper(plain, tiny_config("conditioned"), tmp_path / "plain", progress=False)
+    ridge_plain = train_mapper(plain, tiny_config("ridge"), tmp_path / "ridge-plain", progress=False)
+    args = (plain.w_bc_val, plain.w_da_val)
+    assert evaluate_mapping(uninformed, *args, context=plain.context_val)["mse"] <= 1.5 * evaluate_mapping(ridge_plain, *args)["mse"]
+
+
+def test_conditioned_needs_the_context(tmp_path, split):
+    mapper = train_mapper(split, tiny_config("conditioned"), tmp_path / "a", progress=False)
+    with pytest.raises(UserError, match="needs the seed's context beside w_BC"):
+        mapper(split.w_bc_val[0].numpy())
+    with pytest.raises(UserError, match=r"context has shape \(1, 3\), expected \(1, 4\)"):
+        mapper(split.w_bc_val[0].numpy(), np.zeros(3, np.float32))
+    bare = dataclasses.replace(split, context_train=None, context_val=None)
+    with pytest.raises(UserError, match="stored without one; collect them again"):
+        train_mapper(bare, tiny_config("conditioned"), tmp_path / "b", progress=False)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -11,11 +12,14 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 from toy_task import CorridorTask
 
-from metadagger.imitation.bc import BCConfig
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.rollouts import collect
 from metadagger.layout import RunLayout
-from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
+from metadagger.metal.context import bc_rollout, seed_context
+from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
@@ -150,3 +154,24 @@ def test_ray_executor_pairs_equal_local(gt_run, tmp_path, monkeypatch):
     collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "ray"), seeds, StageOptions(executor="ray", workers=2, progress=False))
     for seed in seeds.seeds:
         assert (tmp_path / "local" / "pairs" / f"{seed}.safetensors").read_bytes() == (tmp_path / "ray" / "pairs" / f"{seed}.safetensors").read_bytes()
+
+
+def test_each_pair_stores_its_seed_context_from_the_demonstration_and_the_bc_rollout(gt_run, tmp_path):
+    """The context is the mean trunk feature of the demonstration and of DAgger's first rollout
+    (the BC head's, under the pairs' early stop): the same numbers evaluation computes afresh."""
+    layout = with_pistar(gt_run, tmp_path)
+    collect_pairs(CorridorTask(), layout, PAIRS, StageOptions(workers=1, progress=False))
+    store = PairStore(layout.pairs_dir)
+    seed = PAIRS.seeds[0]
+    stored = store.load_contexts([seed])[0]
+    policy = head_from_groundtruth(load_policy(layout.groundtruth), PAIRS.bc.head_init_seed(seed))
+    demo = collect(CorridorTask(), [seed], policy=None)[0].to_dataset()
+    cache = FeatureCache(policy)
+    fit_bc(policy, demo, dataclasses.replace(PAIRS.bc, seed=seed), cache=cache)
+    unlabelled = bc_rollout(CorridorTask().make_env(), policy, seed, PAIRS.early_stop)
+    assert torch.equal(stored, torch.from_numpy(seed_context(cache, demo.obs, unlabelled.obs)))
+    assert stored.shape == (2 * policy.net.feature_dim,)
+    split = store.load_split(val_fraction=0.2, seed=0, kept_only=False)
+    assert split.context_train.shape == (len(split.train_seeds), stored.shape[0])
+    assert torch.equal(split.context_train[split.train_seeds.index(seed)] if seed in split.train_seeds
+                       else split.context_val[split.val_seeds.index(seed)], stored)

@@ -218,3 +218,23 @@ def test_write_rejects_bad_input_and_writes_nothing(tmp_path: Path, args: tuple,
     with pytest.raises(ValueError, match=match):
         store.write(*args)
     assert not store.root.exists()
+
+
+def test_contexts_travel_with_the_pairs_into_the_split(tmp_path: Path) -> None:
+    store = PairStore(tmp_path / "pairs")
+    for seed in range(5):
+        store.write(seed, *_pair(seed), _record(seed), context=torch.full((3,), float(seed)))
+    assert torch.equal(store.load_contexts([4, 1]), torch.tensor([[4.0] * 3, [1.0] * 3]))
+    split = store.load_split(val_fraction=0.4, seed=0)
+    for rows, seeds in ((split.context_train, split.train_seeds), (split.context_val, split.val_seeds)):
+        assert torch.equal(rows[:, 0], torch.tensor(seeds, dtype=torch.float32))
+    fewer = split.with_train_rows(torch.tensor([1]))
+    assert fewer.train_seeds == (split.train_seeds[1],) and torch.equal(fewer.context_train, split.context_train[1:2])
+    store.write(5, *_pair(5), _record(5))  # a pair stored without a context: the split has none
+    assert store.load_split(val_fraction=0.4, seed=0).context_train is None
+    with pytest.raises(ValueError, match="context must be a 1-D float32 tensor"):
+        store.write(6, *_pair(6), _record(6), context=torch.zeros(2, 2))
+    with pytest.raises(ValueError, match=r"context_val has shape \(2, 4\), expected \(2, 3\)"):
+        PairSplit(w_bc_train=split.w_bc_train, w_da_train=split.w_da_train, w_bc_val=split.w_bc_val, w_da_val=split.w_da_val,
+                  train_seeds=split.train_seeds, val_seeds=split.val_seeds, context_train=split.context_train,
+                  context_val=torch.zeros(2, 4))

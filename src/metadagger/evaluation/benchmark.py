@@ -43,6 +43,7 @@ from metadagger.evaluation.tables import method_label
 from metadagger.io import write_json
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
+from metadagger.metal.context import seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.plotting import plt, save_figure
 from metadagger.policies import Policy
@@ -168,9 +169,12 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
         first = run(w_bc)
         if "bc@" in wanted:
             entries["bc@"] = [_row("bc@", seed, first, len(data))]
-        for key in (k for k in job.methods if k.startswith(MDM_PREFIX)):
-            kind = key.split("@")[0].removeprefix(MDM_PREFIX)
-            entries[key] = [_row(key, seed, run(cached_mapper(job.mappers[kind])(w_bc)), len(data))]
+        mdm = {key: cached_mapper(job.mappers[key.split("@")[0].removeprefix(MDM_PREFIX)])
+               for key in job.methods if key.startswith(MDM_PREFIX)}
+        # w_BC's rollout under the pairs' early stop is the one a context summarises
+        context = seed_context(cache, data.obs, first.obs) if any(m.needs_context for m in mdm.values()) else None
+        for key, mapper in mdm.items():
+            entries[key] = [_row(key, seed, run(mapper(w_bc, context)), len(data))]
         if any(k.startswith("dagger@") for k in job.methods):
             for r, (traj, queries) in enumerate(_gated_rounds(policy, w_bc, first, demo, None, job, dagger_bc, cache, run), 1):
                 if f"dagger@{r}" in wanted:
@@ -222,7 +226,7 @@ def _mdi_entries(job: BenchmarkJob) -> dict[str, list[dict[str, Any]]]:
     """Table 6's one- and two-shot outcomes of DAgger-MDI, DAgger-BC and DAgger on this seed."""
     assert job.mdi is not None
     mdi_job = MDIJob(task=job.task, groundtruth=job.groundtruth, seed=job.seed, methods=tuple(MDI_NAMES),
-                     mappers={"dagger-mdi": job.mappers["mdi"]}, config=job.mdi)
+                     mappers={"dagger-mdi": job.mappers["mdi"]}, config=job.mdi, context_early_stop=job.early_stop)
     out: dict[str, list[dict[str, Any]]] = {}
     for method, rows in evaluate_mdi_seed(mdi_job)["entries"].items():
         r = rows[0]

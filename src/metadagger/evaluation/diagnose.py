@@ -22,7 +22,6 @@ resume like any mapper. Results: ``diagnostics/mapping.json`` and ``diagnostics/
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -179,10 +178,10 @@ def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, Mapper
         for fraction in sorted(fractions):
             count = max(2, int(round(fraction * len(order))))
             take = torch.from_numpy(np.sort(order[:count]))
-            subset = dataclasses.replace(split, w_bc_train=split.w_bc_train[take], w_da_train=split.w_da_train[take],
-                                         train_seeds=tuple(split.train_seeds[i] for i in take.tolist()))
+            subset = split.with_train_rows(take)
             mapper = train_mapper(subset, configs[kind], layout.diagnostics_scaling(kind, fraction), rebuild=True, progress=progress)
-            errors = _errors(torch.from_numpy(mapper.map_batch(split.w_bc_val)), subset, features, outputs=outputs, discrete=discrete)
+            errors = _errors(torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)), subset, features,
+                             outputs=outputs, discrete=discrete)
             rows.append({"kind": kind, "fraction": fraction, "train_pairs": count, "function": errors["function"]["mean"],
                          "weight": errors["weight"]["mean"]})
     return rows
@@ -212,8 +211,8 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
     ceiling = noise_ceiling(layout, split, config, outputs=outputs, discrete=discrete)
     methods = {"bc": _errors(split.w_bc_val, split, features, outputs=outputs, discrete=discrete)}
     for kind, mapper in mappers.items():
-        methods[kind] = _errors(torch.from_numpy(mapper.map_batch(split.w_bc_val)), split, features, outputs=outputs,
-                                discrete=discrete)
+        methods[kind] = _errors(torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)), split, features,
+                                outputs=outputs, discrete=discrete)
     for errors in methods.values():
         for space in ("weight", "function"):
             floor = ceiling[space]["mean"] if ceiling[space] else math.nan

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
@@ -48,7 +48,8 @@ from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper, cached_mapper
-from metadagger.mapping.registry import kind_names
+from metadagger.mapping.registry import get_kind, kind_names
+from metadagger.metal.context import bc_rollout, seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
 from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
@@ -139,6 +140,8 @@ class MDIJob(SeedJob):
     """Mapper file of every DAgger-MDI method of this job (see :attr:`MDIConfig.kinds`)."""
     config: MDIConfig
     """With ``bc`` resolved (never None here)."""
+    context_early_stop: float | None = None
+    """The pairs' early-stop threshold: it cuts the BC rollout of a mapper's context, as in the pairs."""
 
 
 def head_folder(method: str, shot: str) -> str:
@@ -165,14 +168,16 @@ def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
 
 
 def _steps_2_to_5(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache, mappers: dict[str, Mapper],
-                  methods: tuple[str, ...]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+                  methods: tuple[str, ...], context_of: Callable[[], np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Steps 2-5 on a policy whose head is the seed's Xavier head: each of ``methods``' saved
     initialisation (step 4) and its head after training on the demonstration (step 5).
-    ``mappers``: the initialiser of every DAgger-MDI method among them."""
+    ``mappers``: the initialiser of every DAgger-MDI method among them; ``context_of()``: the
+    seed's context once the policy's head is w_BC (called only for a mapper that reads one)."""
     xavier = _head(policy)
     fit_bc(policy, demo, bc, cache=cache)
     w_bc = _head(policy)
-    inits = {method: mapper(w_bc) for method, mapper in mappers.items()}
+    context = context_of() if any(mapper.needs_context for mapper in mappers.values()) else None
+    inits = {method: mapper(w_bc, context) for method, mapper in mappers.items()}
     if "dagger-bc" in methods:
         inits["dagger-bc"] = w_bc
     heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
@@ -203,7 +208,11 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
         demo = rollout(env, seed=seed, policy=None).to_dataset()
         cache = FeatureCache(policy)
         mappers = {method: cached_mapper(path) for method, path in job.mappers.items()}
-        inits, one_shot_heads = _steps_2_to_5(policy, demo, bc, cache, mappers, job.methods)
+
+        def context_of() -> np.ndarray:
+            return seed_context(cache, demo.obs, bc_rollout(env, policy, seed, job.context_early_stop).obs)
+
+        inits, one_shot_heads = _steps_2_to_5(policy, demo, bc, cache, mappers, job.methods, context_of)
         for method in job.methods:
             heads[method, "oneshot"] = one_shot_heads[method]
             first = final = test(one_shot_heads[method])
@@ -251,13 +260,20 @@ def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
             )
 
 
-def mdi_stamps(task: Task, layout: RunLayout, config: MDIConfig) -> dict[str, Stamp]:
-    """What each MDI method's rows are made from: the protocol's settings, pi* and its initialiser."""
+def mdi_stamps(task: Task, layout: RunLayout, config: MDIConfig, context_early_stop: float | None = None) -> dict[str, Stamp]:
+    """What each MDI method's rows are made from: the protocol's settings, pi* and its initialiser
+    (and, for an initialiser that reads the seed's context, the early stop of its BC rollout)."""
     common = {"protocol": "mdi", "task": task.name, **stamp_of(config, drop=("seeds", "mapper", "controls")),
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     kinds = config.kinds
-    return {method: {**common, **({"mapper_fingerprint": file_fingerprint(layout.mapper(kinds[method]))} if method in kinds else {})}
-            for method in config.methods}
+
+    def own(method: str) -> dict[str, Any]:
+        if method not in kinds:
+            return {}
+        context = {"context_early_stop": context_early_stop} if get_kind(kinds[method]).context else {}
+        return {"mapper_fingerprint": file_fingerprint(layout.mapper(kinds[method])), **context}
+
+    return {method: {**common, **own(method)} for method in config.methods}
 
 
 def evaluate_mdi(
@@ -265,6 +281,8 @@ def evaluate_mdi(
     layout: RunLayout,
     config: MDIConfig,
     options: StageOptions = StageOptions(),
+    *,
+    context_early_stop: float | None = None,
 ) -> list[dict[str, Any]]:
     """Run the MDI protocol on the missing (seed, method) rows of ``config``.
 
@@ -275,6 +293,8 @@ def evaluate_mdi(
         config: seeds, fits (``bc`` resolved), early stop, initialisers.
         options: rebuild (redo rows made from another pi*, mapper or settings; else they are an
             error), executor, workers, progress.
+        context_early_stop: the pairs' early-stop threshold, which cuts the BC rollout of an
+            initialiser's context (:mod:`metadagger.metal.context`).
 
     Returns:
         The rows (:data:`MDI_FIELDS`) of every seed of ``config``, by seed then in
@@ -283,12 +303,13 @@ def evaluate_mdi(
     if config.bc is None:
         raise UserError("mdi.bc is unresolved; build the run config with RunConfig (it takes pairs.bc)")
     _check_inputs(task, layout, config)
-    stamps = mdi_stamps(task, layout, config)
+    stamps = mdi_stamps(task, layout, config, context_early_stop)
     log = RowLog(layout.eval_log("mdi"))
     todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="MDI evaluation",
                 fix=f"run `metadagger evaluate --out {layout.root} --protocol mdi --rebuild` to redo it, or `metadagger reproduce`")
     jobs = [MDIJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config,
-                   mappers={m: str(layout.mapper(config.kinds[m])) for m in p.methods if m in config.kinds}) for p in todo]
+                   mappers={m: str(layout.mapper(config.kinds[m])) for m in p.methods if m in config.kinds},
+                   context_early_stop=context_early_stop) for p in todo]
 
     def save(result: dict[str, Any]) -> None:
         for (method, shot), head in result["heads"].items():

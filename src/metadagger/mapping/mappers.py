@@ -1,7 +1,8 @@
 """Mappers f: w_BC -> estimate of w_DA on flat head vectors (paper section 3.3), saved and loaded.
 
-The kinds (DM, SAM, TAM and the controls mean-DA and pi*-head) are declared in
-:mod:`metadagger.mapping.registry`.
+The kinds (DM, SAM, TAM, ridge, modes, conditioned and the controls mean-DA and pi*-head) are
+declared in :mod:`metadagger.mapping.registry`. A kind with a context (``conditioned``) also takes
+the seed's context (:mod:`metadagger.metal.context`) beside w_BC.
 
 Every learned kind works in standardised space: a :class:`Standardizer` per data set, fitted on
 the training split only and saved with the mapper. A mapper is one safetensors file whose
@@ -72,10 +73,14 @@ class Standardizer:
         return z * self.std + self.mean
 
 
-def build_networks(kind: str, dim: int, *, generator: torch.Generator | None = None, **arch: Any) -> dict[str, nn.Module]:
-    """The untrained networks of a learned kind (``arch``: the :data:`ARCH_FIELDS`); none for a control."""
+def build_networks(kind: str, dim: int, *, context_dim: int = 0, generator: torch.Generator | None = None,
+                   **arch: Any) -> dict[str, nn.Module]:
+    """The untrained networks of a learned kind (``arch``: the :data:`ARCH_FIELDS`; ``context_dim``:
+    the context's length, for a kind with a context); none for a control."""
     spec = get_kind(kind)
-    return spec.build(dim, generator=generator, **arch) if spec.build else {}
+    if not spec.build:
+        return {}
+    return spec.build(dim, generator=generator, **arch, **({"context_dim": context_dim} if spec.context else {}))
 
 
 class Mapper:
@@ -92,6 +97,7 @@ class Mapper:
         constant: the vector a control always returns (controls).
         config: the training config as plain JSON data; its :data:`ARCH_FIELDS` rebuild the networks.
         stamp: what it was made from (config and the fingerprint of its training data), saved with it.
+        context_dim: the length of the context a kind with a context reads (0 for the others).
     """
 
     def __init__(
@@ -104,10 +110,14 @@ class Mapper:
         constant: torch.Tensor | None = None,
         config: Mapping[str, Any] | None = None,
         stamp: Mapping[str, Any] | None = None,
+        context_dim: int = 0,
     ) -> None:
         spec = get_kind(kind)
         self.kind = kind
         self.dim = int(dim)
+        self.context_dim = int(context_dim)
+        if spec.context != (self.context_dim > 0):
+            raise ValueError(f"a {kind} mapper needs context_dim {'> 0' if spec.context else '= 0'}, got {self.context_dim}")
         self.networks = dict(networks or {})
         self.scalers = dict(scalers or {})
         self.constant = constant
@@ -149,17 +159,24 @@ class Mapper:
         """Length of the head vectors this mapper takes and returns."""
         return self.dim
 
-    def __call__(self, w_bc: np.ndarray | torch.Tensor) -> np.ndarray:
-        """Map one flat head vector ``[d]`` to the w_DA estimate ``[d]`` (float32, eval mode)."""
+    @property
+    def needs_context(self) -> bool:
+        """Whether the mapper reads the seed's context beside w_BC."""
+        return self.context_dim > 0
+
+    def __call__(self, w_bc: np.ndarray | torch.Tensor, context: np.ndarray | torch.Tensor | None = None) -> np.ndarray:
+        """Map one flat head vector ``[d]`` (and, for a kind with a context, the seed's context
+        ``[k]``) to the w_DA estimate ``[d]`` (float32, eval mode)."""
         w = _as_float32(w_bc)
         if w.ndim != 1:
             raise UserError(
                 f"mapper input must be a 1-D head vector, got shape {tuple(w.shape)}; pass policy.head_vector() (map_batch takes [N, {self.dim}])"
             )
-        return self.map_batch(w[None])[0]
+        return self.map_batch(w[None], None if context is None else _as_float32(context)[None])[0]
 
-    def map_batch(self, w_bc: np.ndarray | torch.Tensor) -> np.ndarray:
-        """Map rows ``[N, d]`` of head vectors to w_DA estimates ``[N, d]`` (float32, eval mode)."""
+    def map_batch(self, w_bc: np.ndarray | torch.Tensor, context: np.ndarray | torch.Tensor | None = None) -> np.ndarray:
+        """Map rows ``[N, d]`` of head vectors (and, for a kind with a context, the seeds' contexts
+        ``[N, k]``; ignored by the others) to w_DA estimates ``[N, d]`` (float32, eval mode)."""
         w = _as_float32(w_bc)
         if w.ndim != 2:
             raise UserError(f"map_batch takes a 2-D batch [N, {self.dim}], got shape {tuple(w.shape)}; use mapper(w) for one vector")
@@ -168,10 +185,19 @@ class Mapper:
                 f"mapper input has the wrong length: got {w.shape[1]}, expected {self.dim}: "
                 "the head of the policy the mapper was trained for (policy.head_vector())"
             )
-        return self.map_tensor(w).numpy()
+        if not self.needs_context:
+            return self.map_tensor(w).numpy()
+        if context is None:
+            raise UserError(f"the {self.kind} mapper needs the seed's context beside w_BC (metadagger.metal.context.seed_context), got none")
+        c = _as_float32(context)
+        if tuple(c.shape) != (w.shape[0], self.context_dim):
+            raise UserError(f"the {self.kind} mapper's context has shape {tuple(c.shape)}, expected {(w.shape[0], self.context_dim)}: "
+                            "one context per head, of the pi* the mapper was trained for")
+        return self.map_tensor(w, c).numpy()
 
-    def map_tensor(self, w: torch.Tensor) -> torch.Tensor:
-        """Map a float32 tensor ``[N, d]`` without input checks (eval mode, no gradients)."""
+    def map_tensor(self, w: torch.Tensor, context: torch.Tensor | None = None) -> torch.Tensor:
+        """Map a float32 tensor ``[N, d]`` (with ``context`` ``[N, k]`` for a kind with a context)
+        without input checks (eval mode, no gradients)."""
         if self.constant is not None:
             return self.constant.expand(w.shape[0], -1).clone()
         route = get_kind(self.kind).route
@@ -179,6 +205,8 @@ class Mapper:
             net.eval()
         with torch.inference_mode():
             x = self.scalers[route.in_scaler].transform(w)
+            if self.needs_context:
+                x = torch.cat([x, self.scalers["context"].transform(context)], dim=1)
             if route.encoder:
                 x = self.networks[route.encoder].encode(x)
             x = self.networks[route.core](x)
@@ -204,7 +232,7 @@ class Mapper:
             "config": json.dumps(self.config, sort_keys=True),
             "stamp": json.dumps(self.stamp, sort_keys=True),
             "metadagger_version": __version__,
-        }
+        } | ({"context_dim": str(self.context_dim)} if self.context_dim else {})
         return save_tensors(path, tensors, metadata=metadata)
 
 
@@ -222,6 +250,7 @@ def load_mapper(path: str | Path) -> Mapper:
     try:
         kind = meta["kind"]
         dim = int(meta["dim"])
+        context_dim = int(meta.get("context_dim", "0"))
         config = json.loads(meta["config"])
         stamp = json.loads(meta.get("stamp", "{}"))
         spec = get_kind(kind)
@@ -229,7 +258,7 @@ def load_mapper(path: str | Path) -> Mapper:
             return Mapper(kind=kind, dim=dim, constant=tensors["constant"], config=config, stamp=stamp)
         # A throwaway generator: rebuilding must not consume the caller's global torch RNG.
         arch = {field: config[field] for field in ARCH_FIELDS}
-        networks = build_networks(kind, dim, **arch, generator=torch.Generator().manual_seed(0))
+        networks = build_networks(kind, dim, context_dim=context_dim, **arch, generator=torch.Generator().manual_seed(0))
         for name, net in networks.items():
             prefix = f"networks.{name}."
             net.load_state_dict({k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}, strict=True)
@@ -237,7 +266,7 @@ def load_mapper(path: str | Path) -> Mapper:
             name: Standardizer(mean=tensors[f"scalers.{name}.mean"], std=tensors[f"scalers.{name}.std"])
             for name in spec.scaler_names
         }
-        return Mapper(kind=kind, dim=dim, networks=networks, scalers=scalers, config=config, stamp=stamp)
+        return Mapper(kind=kind, dim=dim, networks=networks, scalers=scalers, config=config, stamp=stamp, context_dim=context_dim)
     except UserError as exc:
         raise CheckpointError(f"mapper file {path}: {exc}; delete it and re-run train-mapper") from None
     except (KeyError, ValueError, TypeError, RuntimeError) as exc:

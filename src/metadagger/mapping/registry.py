@@ -60,12 +60,17 @@ class MapperKind:
     """Training epochs of the paper's Table 8 (learned kinds)."""
     closed_form: ClosedForm | None = None
     """Learned kinds fitted in closed form (no autoencoder): how the core is set."""
+    context: bool = False
+    """Learned kinds that also read the seed's context (:mod:`metadagger.metal.context`): the core
+    receives the standardised w_BC followed by the standardised context (scaler ``context``)."""
 
     def __post_init__(self) -> None:
         if (self.route is None) != (self.build is None) or (self.build is None) == (self.constant is None):
             raise ValueError(f"mapper kind {self.name!r} needs either route and build (learned) or constant (control)")
         if self.closed_form is not None and (self.route is None or self.route.encoder or self.route.decoder):
             raise ValueError(f"mapper kind {self.name!r}: a closed-form fit needs a route without autoencoders")
+        if self.context and (self.route is None or self.route.encoder or self.route.decoder):
+            raise ValueError(f"mapper kind {self.name!r}: a context needs a route without autoencoders")
 
     @property
     def learned(self) -> bool:
@@ -82,7 +87,9 @@ class MapperKind:
     @property
     def scaler_names(self) -> tuple[str, ...]:
         """The names of the kind's standardisers (none for a control)."""
-        return () if self.route is None else tuple(dict.fromkeys((self.route.in_scaler, self.route.out_scaler)))
+        if self.route is None:
+            return ()
+        return tuple(dict.fromkeys((self.route.in_scaler, self.route.out_scaler) + (("context",) if self.context else ())))
 
 
 _KINDS: dict[str, MapperKind] = {}
@@ -146,5 +153,9 @@ register_kind(MapperKind("ridge", "Ridge", "ridge regression of the update w_DA 
                          route=Route("all", None, "ridge", None, "all"), build=ridge.build_ridge, closed_form=ridge.fit_ridge))
 register_kind(MapperKind("modes", "Modes", "the mean w_DA of the training pairs' group (k-means) that a ridge classifier of w_BC picks; K and λ by cross-validation",
                          route=Route("bc", None, "modes", None, "da"), build=modes.build_modes, closed_form=modes.fit_modes))
+register_kind(MapperKind("conditioned", "Conditioned", "ridge regression of the update on w_BC and the seed's context "
+                         "(demonstration and BC-rollout features; no further expert label), λ and the context's weight by cross-validation",
+                         route=Route("all", None, "ridge", None, "all"), build=ridge.build_ridge, closed_form=ridge.fit_ridge,
+                         context=True))
 register_kind(MapperKind("mean-da", "mean-DA (control)", "control: always the training pairs' mean w_DA", constant=_mean_da))
 register_kind(MapperKind("pistar-head", "pi*-head (control)", "control: always pi*'s own head", constant=_pistar_head))

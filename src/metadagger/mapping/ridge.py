@@ -9,6 +9,12 @@ update to w_BC"). With N training pairs and d head weights (N << d here) the sol
 The regularisation λ is chosen by 5-fold cross-validation on the training pairs only, over a
 grid that is fixed in advance and scaled by the mean non-zero eigenvalue of ``Xc Xc^T`` (so it
 does not depend on the head's size); the chosen value is saved with the mapper.
+
+The same fit serves the ``conditioned`` kind, whose rows are ``[x, c]``: the standardised w_BC
+followed by the standardised seed context (k more columns). The update is still ``y - x``; the
+context columns enter only the regression, multiplied by a weight chosen with λ by the same
+cross-validation from :data:`CONTEXT_WEIGHTS` (0 gives the plain ridge map, so the context is used
+only where it predicts held-out updates better).
 """
 
 from __future__ import annotations
@@ -20,11 +26,15 @@ from torch import nn
 RELATIVE_ALPHAS = (1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, 1000.0)
 #: Cross-validation folds (row i of the training pairs is in fold i % FOLDS).
 FOLDS = 5
+#: Weights of the context columns, as multiples of sqrt(d / k), which gives the d head columns and
+#: the k context columns the same total variance; fixed in advance.
+CONTEXT_WEIGHTS = (0.0, 0.25, 1.0, 4.0)
 
 
-def build_ridge(dim: int, *, generator: torch.Generator | None = None, **_: object) -> dict[str, nn.Module]:
-    """The one affine map from standardised w_BC to standardised w_DA, set by :func:`fit_ridge`."""
-    return {"ridge": nn.Linear(dim, dim)}
+def build_ridge(dim: int, *, context_dim: int = 0, generator: torch.Generator | None = None, **_: object) -> dict[str, nn.Module]:
+    """The one affine map from standardised w_BC (and, with ``context_dim``, the standardised
+    context) to standardised w_DA, set by :func:`fit_ridge`."""
+    return {"ridge": nn.Linear(dim + context_dim, dim)}
 
 
 class DualRidge:
@@ -60,23 +70,45 @@ def fold_masks(n: int) -> list[torch.Tensor]:
 
 
 def fit_ridge(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, float]:
-    """Set ``core`` (an ``nn.Linear(d, d)``) to the ridge map from ``x`` to ``y`` (standardised
-    training rows ``[N, d]``); λ by :data:`FOLDS`-fold cross-validation over
-    :data:`RELATIVE_ALPHAS`. Returns the chosen ``alpha`` (absolute and relative to the mean
-    eigenvalue) and its cross-validated mean squared error of the update."""
-    x64, u64 = x.to(torch.float64), (y - x).to(torch.float64)
-    n = len(x64)
-    scale = alpha_scale(x64)
-    errors = torch.zeros(len(RELATIVE_ALPHAS), dtype=torch.float64)
-    for held in fold_masks(n):
-        dual = DualRidge(x64[~held], u64[~held])
-        for i, relative in enumerate(RELATIVE_ALPHAS):
-            errors[i] += (dual.predict(x64[held], relative * scale) - u64[held]).pow(2).sum()
-    errors /= n * x.shape[1]
-    relative = RELATIVE_ALPHAS[int(torch.argmin(errors))]
-    dual = DualRidge(x64, u64)
+    """Set ``core`` (an ``nn.Linear(d + k, d)``) to the ridge map from ``x`` ``[N, d + k]`` to
+    ``y`` ``[N, d]`` (standardised training rows; the first d columns of ``x`` are w_BC's, any
+    further k a context's); λ, and the context columns' weight when k > 0, by :data:`FOLDS`-fold
+    cross-validation over :data:`RELATIVE_ALPHAS` (and :data:`CONTEXT_WEIGHTS`). Returns the chosen
+    ``alpha`` (absolute and relative to the mean eigenvalue), ``context_weight`` when k > 0, and
+    the cross-validated mean squared error of the update."""
+    d = y.shape[1]
+    x64 = x.to(torch.float64)
+    u64 = (y - x[:, :d]).to(torch.float64)
+    n, k = len(x64), x.shape[1] - d
+    weights = CONTEXT_WEIGHTS if k > 0 else (None,)
+    best: tuple[float, float | None, float] | None = None
+    for weight in weights:
+        z = x64 if weight is None else _weighted(x64, d, weight * (d / k) ** 0.5)
+        scale = alpha_scale(z)
+        errors = torch.zeros(len(RELATIVE_ALPHAS), dtype=torch.float64)
+        for held in fold_masks(n):
+            dual = DualRidge(z[~held], u64[~held])
+            for i, relative in enumerate(RELATIVE_ALPHAS):
+                errors[i] += (dual.predict(z[held], relative * scale) - u64[held]).pow(2).sum()
+        errors /= n * d
+        i = int(torch.argmin(errors))
+        if best is None or float(errors[i]) < best[2]:
+            best = (RELATIVE_ALPHAS[i], weight, float(errors[i]))
+    relative, weight, cv_mse = best
+    z = x64 if weight is None else _weighted(x64, d, weight * (d / k) ** 0.5)
+    scale = alpha_scale(z)
+    dual = DualRidge(z, u64)
     a = dual.coefficients(relative * scale)
+    # the map of z = x S (S scales the context columns) is the map of x with coefficients S A
+    effective = a if weight is None else _weighted(a.T, d, weight * (d / k) ** 0.5).T
+    identity = torch.eye(d + k, d, dtype=torch.float64)
     with torch.no_grad():
-        core.weight.copy_((torch.eye(a.shape[0], dtype=torch.float64) + a.T).to(torch.float32))
+        core.weight.copy_((identity + effective).T.to(torch.float32))
         core.bias.copy_((dual.u_mean - dual.x_mean @ a).to(torch.float32))
-    return {"alpha": relative * scale, "relative_alpha": relative, "cv_mse": float(errors.min())}
+    chosen = {"alpha": relative * scale, "relative_alpha": relative, "cv_mse": cv_mse}
+    return chosen if weight is None else {**chosen, "context_weight": weight}
+
+
+def _weighted(x: torch.Tensor, d: int, weight: float) -> torch.Tensor:
+    """``x`` with the columns after the first ``d`` multiplied by ``weight``."""
+    return torch.cat([x[:, :d], x[:, d:] * weight], dim=1)

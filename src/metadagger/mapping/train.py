@@ -190,6 +190,8 @@ def mapper_stamp(split: PairSplit, config: MapperConfig, pistar_head: np.ndarray
     seeds and tensors, and pi*'s head for the ``pistar-head`` control)."""
     parts: list[Any] = [list(split.train_seeds), list(split.val_seeds)]
     parts += [t.contiguous().numpy().tobytes() for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val)]
+    if get_kind(config.kind).context and split.context_train is not None:
+        parts += [t.contiguous().numpy().tobytes() for t in (split.context_train, split.context_val)]
     if pistar_head is not None and config.kind == "pistar-head":
         parts.append(torch.as_tensor(pistar_head, dtype=torch.float32).numpy().tobytes())
     return {"config": stamp_of(config), "pairs_fingerprint": data_fingerprint(*parts)}
@@ -200,11 +202,15 @@ def _train(
 ) -> tuple[Mapper, list[dict[str, Any]]]:
     bc_tr, da_tr, bc_va, da_va = (t.to(torch.float32) for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val))
     dim = bc_tr.shape[1]
+    spec = get_kind(config.kind)
+    if spec.context and split.context_train is None:
+        raise UserError(f"the {config.kind} mapper needs each pair's context, but these pairs were stored without one; "
+                        "collect them again with `metadagger pairs --rebuild` (or `metadagger reproduce --rebuild`)")
+    ctx_tr, ctx_va = (split.context_train, split.context_val) if spec.context else (None, None)
 
     def weight_mse(mapper: Mapper) -> tuple[float, float]:
-        return _mse(mapper.map_tensor(bc_tr), da_tr), _mse(mapper.map_tensor(bc_va), da_va)
+        return _mse(mapper.map_tensor(bc_tr, ctx_tr), da_tr), _mse(mapper.map_tensor(bc_va, ctx_va), da_va)
 
-    spec = get_kind(config.kind)
     if not spec.learned:
         head = None if pistar_head is None else torch.as_tensor(pistar_head, dtype=torch.float32)
         mapper = Mapper.control(config.kind, w_da_train=da_tr, pistar_head=head, config=config_data)
@@ -214,15 +220,22 @@ def _train(
         return mapper, [_row(config.kind, 0, math.nan, math.nan, train_w, val_w)]
 
     generator = torch.Generator().manual_seed(config.seed)
-    networks = build_networks(config.kind, dim, **{f: getattr(config, f) for f in ARCH_FIELDS}, generator=generator)
+    context_dim = 0 if ctx_tr is None else ctx_tr.shape[1]
+    networks = build_networks(config.kind, dim, context_dim=context_dim, **{f: getattr(config, f) for f in ARCH_FIELDS},
+                              generator=generator)
     route = spec.route
     scalers = (
         {"all": Standardizer.fit(torch.cat([bc_tr, da_tr]))}
         if route.in_scaler == "all"
         else {"bc": Standardizer.fit(bc_tr), "da": Standardizer.fit(da_tr)}
     )
-    mapper = Mapper(kind=config.kind, dim=dim, networks=networks, scalers=scalers, config=config_data)
+    if ctx_tr is not None:
+        scalers["context"] = Standardizer.fit(ctx_tr)
+    mapper = Mapper(kind=config.kind, dim=dim, networks=networks, scalers=scalers, config=config_data, context_dim=context_dim)
     x_tr, x_va = scalers[route.in_scaler].transform(bc_tr), scalers[route.in_scaler].transform(bc_va)
+    if ctx_tr is not None:  # the core reads [w_BC, context], both standardised (Mapper.map_tensor)
+        x_tr = torch.cat([x_tr, scalers["context"].transform(ctx_tr)], dim=1)
+        x_va = torch.cat([x_va, scalers["context"].transform(ctx_va)], dim=1)
     y_tr, y_va = scalers[route.out_scaler].transform(da_tr), scalers[route.out_scaler].transform(da_va)
     fit = dict(lr=config.lr, batch_size=config.batch_size, generator=generator, progress=progress)
     rows: list[dict[str, Any]] = []
@@ -330,6 +343,7 @@ def evaluate_mapping(
     w_da: np.ndarray | torch.Tensor,
     *,
     mean_da: np.ndarray | torch.Tensor | None = None,
+    context: np.ndarray | torch.Tensor | None = None,
 ) -> dict[str, float]:
     """How close ``mapper(w_bc)`` comes to ``w_da`` on rows ``[N, d]``, in original weight units.
 
@@ -337,6 +351,7 @@ def evaluate_mapping(
         mapper: the mapper to evaluate.
         w_bc: heads after BC (inputs).
         w_da: heads after DAgger (targets), same shape.
+        context: the seeds' contexts ``[N, k]``, for a mapper that reads them.
         mean_da: the mean-DA baseline's vector (the training mean); None uses the mean of ``w_da``,
             which makes ``relative_mse`` one minus the coefficient of determination.
 
@@ -350,7 +365,7 @@ def evaluate_mapping(
     da = torch.as_tensor(np.asarray(w_da, dtype=np.float32))
     if bc.ndim != 2 or bc.shape != da.shape or len(bc) == 0:
         raise UserError(f"w_bc and w_da must be non-empty [N, d] of one shape, got {tuple(bc.shape)} and {tuple(da.shape)}")
-    pred = torch.from_numpy(mapper.map_batch(bc))
+    pred = torch.from_numpy(mapper.map_batch(bc, context))
     ref = da.mean(dim=0) if mean_da is None else torch.as_tensor(np.asarray(mean_da, dtype=np.float32))
     mse, baseline = _mse(pred, da), _mse(ref.expand_as(da), da)
     return {

@@ -169,7 +169,8 @@ def score_trial(job: TrialJob) -> dict[str, Any]:
     :func:`~metadagger.mapping.train.evaluate_mapping`'s metrics (``mse`` is the score)."""
     split = job.split
     mapper, _ = fit_mapper(split, job.config, progress=False)
-    return {"number": job.number, **evaluate_mapping(mapper, split.w_bc_val, split.w_da_val, mean_da=split.w_da_train.mean(0))}
+    return {"number": job.number, **evaluate_mapping(mapper, split.w_bc_val, split.w_da_val, mean_da=split.w_da_train.mean(0),
+                                                   context=split.context_val)}
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 For each seed: freeze layers 1..n-1 to pi*, re-initialise the head (Xavier, zero bias), fit it by
 BC on that seed's expert demonstration -> w_BC; run DAgger rounds on that seed from there -> w_DA;
-roll both out. The seeds run in parallel through :mod:`metadagger.parallel`; the driver alone
+roll both out. The seed's context (:mod:`metadagger.metal.context`) is stored with its pair. The seeds run in parallel through :mod:`metadagger.parallel`; the driver alone
 writes each pair to the :class:`~metadagger.metal.store.PairStore` as soon as it arrives, so a
 killed run resumes with the seeds that are not stored yet.
 """
@@ -25,6 +25,7 @@ from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import write_json
 from metadagger.layout import RunLayout
+from metadagger.metal.context import CONTEXT_PARTS, seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.metal.store import PairStore
 from metadagger.runner import SeedJob, StageOptions, drive, plan
@@ -91,6 +92,9 @@ class PairRun:
     """The head after BC on the demonstration."""
     w_da: np.ndarray
     """The head after the DAgger rounds."""
+    context: np.ndarray
+    """The seed's context (:mod:`metadagger.metal.context`): what the ``conditioned`` mapper kind
+    reads beside w_BC."""
     record: dict[str, Any]
     """``bc`` and ``da`` outcomes, ``kept`` and ``outcome`` (as stored with the pair); for a task
     family also the seed's ``variation``."""
@@ -121,11 +125,14 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
         fit_bc(policy, data, dataclasses.replace(config.bc, seed=fit_seed), cache=cache)
         w_bc = policy.head_vector().numpy().copy()
         early_stop = None if config.early_stop is None else functools.partial(CosineEarlyStop, threshold=config.early_stop)
+        rounds: dict[int, list[Trajectory]] = {}
         dagger = run_dagger(
             policy, task, [seed], initial=data, cache=cache, early_stop_factory=early_stop,
-            on_rollouts=None if on_episode is None else functools.partial(_each_episode, on_episode),
+            on_rollouts=functools.partial(_each_round, rounds, on_episode),
             config=DAggerConfig(rounds=config.dagger_rounds, bc=dataclasses.replace(config.dagger_bc, seed=fit_seed)),
         )
+        # round 1 rolled out the BC head under the pairs' early stop: the context's unlabelled rollout
+        context = seed_context(cache, data.obs, rounds[1][0].obs)
         # round 1 rolled out the BC policy: its outcome is BC's (rollouts are deterministic)
         first = dagger.rounds[0]
         da_traj = rollout(env, seed=seed, policy=policy, early_stop=None if early_stop is None else early_stop())
@@ -140,24 +147,27 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
     if demo.variation is not None:
         record["variation"] = demo.variation
     states = cache.features(dagger.dataset.obs[len(data):]) if with_states else None
-    return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), record=record, dagger_features=states)
+    return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), context=context, record=record, dagger_features=states)
 
 
-def _each_episode(on_episode: Callable[[int, Trajectory], None], round_idx: int, trajectories: list[Trajectory]) -> None:
-    for trajectory in trajectories:
+def _each_round(rounds: dict[int, list[Trajectory]], on_episode: Callable[[int, Trajectory], None] | None,
+                round_idx: int, trajectories: list[Trajectory]) -> None:
+    if round_idx == 1:
+        rounds[1] = trajectories
+    for trajectory in trajectories if on_episode is not None else ():
         on_episode(round_idx, trajectory)
 
 
 def collect_pair(job: PairJob) -> dict[str, Any]:
-    """Make one seed's pair; returns ``seed``, ``w_bc``, ``w_da`` (float32 arrays) and ``record``."""
+    """Make one seed's pair; returns ``seed``, ``w_bc``, ``w_da``, ``context`` (float32 arrays) and ``record``."""
     pair = run_pair(job.task, job.groundtruth, job.seed, job.config)
-    return {"seed": job.seed, "w_bc": pair.w_bc, "w_da": pair.w_da, "record": pair.record}
+    return {"seed": job.seed, "w_bc": pair.w_bc, "w_da": pair.w_da, "context": pair.context, "record": pair.record}
 
 
 def pair_stamp(task: Task, layout: RunLayout, config: PairConfig) -> dict[str, Any]:
     """What a pair is made from: the task, the pair settings (not the seed list) and pi*."""
     return {"task": task.name, "max_episode_steps": task.max_episode_steps, **stamp_of(config, drop=("seeds", "val_fraction")),
-            "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
+            "context": list(CONTEXT_PARTS), "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
 
 
 def pair_status(task: Task, layout: RunLayout, config: PairConfig) -> tuple[list[int], list[str]]:

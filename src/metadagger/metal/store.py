@@ -2,7 +2,9 @@
 
 Layout:
     ``<seed>.safetensors``  tensors ``w_bc`` and ``w_da``: the head after BC and after DAgger
-                            (flat float32 vectors of one length), written atomically;
+                            (flat float32 vectors of one length), and ``context``, the seed's
+                            context (:mod:`metadagger.metal.context`; absent in pairs stored
+                            without one), written atomically;
     ``pairs.jsonl``         one JSON line per seed: ``seed``, ``bc`` and ``da`` outcomes
                             (success, reward, steps, expert_queries), ``kept`` and free-form fields.
 
@@ -14,6 +16,7 @@ loads; a SIGKILL can leave a torn last line (ignored, and cut off by the next ap
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Iterable, Mapping
@@ -47,6 +50,8 @@ class PairSplit:
         w_da_val: ``[n_val, d]`` float32.
         train_seeds: the seeds of the training rows, ascending.
         val_seeds: the seeds of the validation rows, ascending.
+        context_train: ``[n_train, k]`` float32, the seeds' contexts; None when a pair has none.
+        context_val: ``[n_val, k]`` float32, or None with ``context_train``.
     """
 
     w_bc_train: torch.Tensor
@@ -55,6 +60,8 @@ class PairSplit:
     w_da_val: torch.Tensor
     train_seeds: tuple[int, ...]
     val_seeds: tuple[int, ...]
+    context_train: torch.Tensor | None = None
+    context_val: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         dim = self.w_bc_train.shape[-1]
@@ -64,8 +71,23 @@ class PairSplit:
                 shape = tuple(getattr(self, field).shape)
                 if shape != (len(seeds), dim):
                     raise ValueError(f"PairSplit.{field} has shape {shape}, expected {(len(seeds), dim)} ({len(seeds)} {name}_seeds)")
+        if (self.context_train is None) != (self.context_val is None):
+            raise ValueError("PairSplit.context_train and context_val must both be given or both be None")
+        if self.context_train is not None:
+            width = self.context_train.shape[-1]
+            for name, seeds in (("train", self.train_seeds), ("val", self.val_seeds)):
+                shape = tuple(getattr(self, f"context_{name}").shape)
+                if shape != (len(seeds), width):
+                    raise ValueError(f"PairSplit.context_{name} has shape {shape}, expected {(len(seeds), width)} ({len(seeds)} {name}_seeds)")
         if set(self.train_seeds) & set(self.val_seeds):
             raise ValueError(f"PairSplit train_seeds and val_seeds overlap: {sorted(set(self.train_seeds) & set(self.val_seeds))}")
+
+    def with_train_rows(self, rows: torch.Tensor) -> PairSplit:
+        """The same validation pairs with only the training rows at indices ``rows``."""
+        return dataclasses.replace(
+            self, w_bc_train=self.w_bc_train[rows], w_da_train=self.w_da_train[rows],
+            train_seeds=tuple(self.train_seeds[i] for i in rows.tolist()),
+            context_train=None if self.context_train is None else self.context_train[rows])
 
 
 class PairStore:
@@ -96,7 +118,8 @@ class PairStore:
             done.add(seed)
         return done
 
-    def write(self, seed: int, w_bc: torch.Tensor, w_da: torch.Tensor, record: Mapping[str, Any]) -> None:
+    def write(self, seed: int, w_bc: torch.Tensor, w_da: torch.Tensor, record: Mapping[str, Any],
+              context: torch.Tensor | None = None) -> None:
         """Store one seed's pair and record; a later write for the same seed supersedes it.
 
         Args:
@@ -105,17 +128,22 @@ class PairStore:
             w_da: the head after DAgger, a 1-D float32 tensor of the same length.
             record: ``bc`` and ``da`` outcomes (each with :data:`OUTCOME_KEYS`), ``kept`` (bool) and
                 any JSON-serialisable extra fields; ``seed`` is added (or must match).
+            context: the seed's context, a 1-D float32 tensor (None: stored without one).
 
         Raises:
             ValueError: bad seed, tensors or record (nothing is written then).
         """
         seed = _check_seed(seed)
         _check_vectors(w_bc, w_da)
+        if context is not None and (not isinstance(context, torch.Tensor) or context.dtype != torch.float32 or context.ndim != 1):
+            raise ValueError(f"context must be a 1-D float32 tensor, got {getattr(context, 'dtype', type(context).__name__)} "
+                             f"of shape {tuple(getattr(context, 'shape', ()))}")
         line = _record_line(seed, record)
         self.root.mkdir(parents=True, exist_ok=True)
         for stale in self.root.glob(f".{seed}.safetensors.*.tmp"):
             stale.unlink()  # left by a kill inside an atomic write; only this process writes here
-        save_tensors(self.pair_path(seed), {"w_bc": w_bc, "w_da": w_da}, metadata={"seed": str(seed)})
+        tensors = {"w_bc": w_bc, "w_da": w_da} | ({} if context is None else {"context": context})
+        save_tensors(self.pair_path(seed), tensors, metadata={"seed": str(seed)})
         append_line(self.jsonl_path, line)
 
     def records(self) -> list[dict[str, Any]]:
@@ -157,6 +185,22 @@ class PairStore:
                 )
         return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
 
+    def load_contexts(self, seeds: Iterable[int]) -> torch.Tensor | None:
+        """The contexts of ``seeds`` (stored pairs), ``[len(seeds), k]`` float32 in the order given;
+        None when any of them was stored without one.
+
+        Raises:
+            CheckpointError: a file is missing or corrupt, or the contexts differ in length.
+        """
+        contexts = [load_tensors(self.pair_path(_check_seed(s)), what=f"pair file of seed {s}").get("context") for s in seeds]
+        if not contexts or any(c is None for c in contexts):
+            return None
+        lengths = sorted({c.shape[0] for c in contexts})
+        if len(lengths) > 1:
+            raise CheckpointError(f"the pairs in {self.root} hold contexts of lengths {lengths}: pairs from different policies "
+                                  "are mixed; re-run metadagger pairs --rebuild")
+        return torch.stack(contexts)
+
     def stamps(self) -> dict[int, dict[str, Any]]:
         """For the per-seed driver (:mod:`metadagger.runner`): each done seed's ``{"pair": stamp}``
         (what its pair was made from; seeds recorded without a stamp are left out)."""
@@ -168,8 +212,10 @@ class PairStore:
         """For the per-seed driver: store a collected pair (``seed``, ``w_bc``, ``w_da``, ``record``)
         with the stamp it was made from."""
         # np.array copies: arrays from Ray workers are read-only, which torch warns about
+        context = result.get("context")
         self.write(result["seed"], torch.from_numpy(np.array(result["w_bc"])), torch.from_numpy(np.array(result["w_da"])),
-                   {**result["record"], "stamp": dict(stamps["pair"])})
+                   {**result["record"], "stamp": dict(stamps["pair"])},
+                   context=None if context is None else torch.from_numpy(np.array(context)))
 
     def load_split(self, *, val_fraction: float, seed: int, kept_only: bool = True,
                    seeds: Iterable[int] | None = None) -> PairSplit:
@@ -200,6 +246,7 @@ class PairStore:
         val_seeds = tuple(sorted(seeds[i] for i in order[:n_val]))
         train_seeds = tuple(sorted(seeds[i] for i in order[n_val:]))
         w_bc, w_da = self.load(train_seeds + val_seeds)
+        contexts = self.load_contexts(train_seeds + val_seeds)
         n_train = len(train_seeds)
         return PairSplit(
             w_bc_train=w_bc[:n_train],
@@ -208,6 +255,8 @@ class PairStore:
             w_da_val=w_da[n_train:],
             train_seeds=train_seeds,
             val_seeds=val_seeds,
+            context_train=None if contexts is None else contexts[:n_train],
+            context_val=None if contexts is None else contexts[n_train:],
         )
 
     def _require_root(self) -> None:
