@@ -14,13 +14,16 @@ from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_mdi, head_folder
 from metadagger.evaluation.report_mdi import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
-from metadagger.imitation.bc import BCConfig, fit_bc
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import collect
 from metadagger.io import load_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
+from metadagger.mapping.train import MapperConfig, train_mapper
+from metadagger.metal.context import bc_rollout, seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.metal.store import PairSplit
 from metadagger.policies import load_policy
 from metadagger.run import init_run, load_run
 from metadagger.runner import StageOptions
@@ -296,3 +299,30 @@ def test_fetch_presets_build(preset, tmp_path):
 def test_an_mdi_bc_other_than_the_pairs_is_refused(tmp_path):
     with pytest.raises(UserError, match="mdi.bc differs from pairs.bc"):
         init_run(tmp_path, "fetch", "ci", overrides=["mdi.bc={lr: 0.5, head_only: true}"])
+
+
+def test_a_conditioned_initialiser_reads_the_seed_context(toy_run, tmp_path):
+    """Its step-4 initialisation is the mapper's output on w_BC and the context of the
+    demonstration and the BC head's rollout under the pairs' early stop."""
+    run, _ = toy_run
+    copy_run(run, tmp_path)
+    layout = RunLayout(tmp_path)
+    pistar = load_policy(layout.groundtruth)
+    dim, width = pistar.head_vector().shape[0], 2 * pistar.net.feature_dim
+    g = torch.Generator().manual_seed(0)
+    w_bc, w_da, context = torch.randn(8, dim, generator=g), torch.randn(8, dim, generator=g), torch.randn(8, width, generator=g)
+    split = PairSplit(w_bc_train=w_bc[:6], w_da_train=w_da[:6], w_bc_val=w_bc[6:], w_da_val=w_da[6:], train_seeds=tuple(range(6)),
+                      val_seeds=(6, 7), context_train=context[:6], context_val=context[6:])
+    mapper = train_mapper(split, MapperConfig(kind="conditioned"), layout.mapper_dir("conditioned"), progress=False)
+    config = dataclasses.replace(CONFIG, controls=("conditioned",))
+    evaluate_mdi(CorridorTask(discrete=False), layout, config, StageOptions(workers=1, progress=False), context_early_stop=3.0)
+    seed = CONFIG.seeds[0]
+    policy = head_from_groundtruth(pistar, CONFIG.bc.head_init_seed(seed))
+    demo = collect(CorridorTask(discrete=False), [seed], policy=None)[0].to_dataset()
+    cache, bc = FeatureCache(policy), dataclasses.replace(CONFIG.bc, seed=seed)
+    fit_bc(policy, demo, bc, cache=cache)
+    unlabelled = bc_rollout(CorridorTask(discrete=False).make_env(), policy, seed, 3.0)
+    policy.load_head_vector(torch.from_numpy(mapper(policy.head_vector().numpy(), seed_context(cache, demo.obs, unlabelled.obs))))
+    fit_bc(policy, demo, bc, cache=cache)
+    saved = load_tensors(head_dir(tmp_path, "dagger-mdi-conditioned", "oneshot") / f"{seed}.safetensors")["head"]
+    assert torch.equal(saved, policy.head_vector())

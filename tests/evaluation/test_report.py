@@ -72,3 +72,12 @@ def test_groundtruth_and_pairs_sections(tmp_path):
     text = build_report(layout).read_text()
     assert "| unseen seeds | 8/10 | 80.0% | 49.0%-94.0% | 1.0 | 30 |" in text and "Expert queries spent on pi*: 1234." in text
     assert "4 seeds, 2 pairs kept." in text and "| bc fail, da ok | 2 | 50.0% |" in text
+
+
+def test_a_kind_with_a_context_reports_its_unlabelled_rollout(run):
+    rows = [_row("bc", 0, False, 100.0), {**_row("conditioned", 0, True, 900.0), "unlabelled_steps": 300},
+            _row("bc", 1, False, 100.0), {**_row("conditioned", 1, False, 200.0), "unlabelled_steps": 500}]
+    write_csv(run.eval_table("mdm"), rows, fields=tuple(rows[1]))
+    text = build_report(run).read_text()
+    assert "Conditioned also read the seed's context: one rollout of the BC head, never labelled, 400 env steps per seed" in text
+    assert "BC also read" not in text

@@ -39,6 +39,10 @@ def mdm_section(layout: RunLayout) -> list[str]:
                       f"{s['mean_steps']:.0f} ± {_sd(rows, 'steps'):.0f}", f"{s['expert_queries'] / max(s['episodes'], 1):.0f}"))
     lines += markdown_table(("method", "mean reward", "mean timesteps", "expert queries per seed"), cells)
     lines += ["", "Every MDM method spends only the BC demonstration's expert queries; no DAgger round is run.", ""]
+    for m in (m for m in methods if any(r.get("unlabelled_steps") not in (None, "") for r in table[m].values())):
+        steps = [float(r["unlabelled_steps"]) for r in table[m].values()]
+        lines += [f"{method_label(m)} also read the seed's context: one rollout of the BC head, never labelled, "
+                  f"{sum(steps) / len(steps):.0f} env steps per seed on average.", ""]
     if not _scatter(table, [m for m in methods if m != "bc"], layout):
         return lines
     return lines + ["### Fig. 4: each method against BC (one point per seed; filled: the method succeeded)", "",
