@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from toy_mappers import random_conditioned_mapper
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
@@ -20,10 +21,8 @@ from metadagger.imitation.rollouts import collect
 from metadagger.io import load_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
-from metadagger.mapping.train import MapperConfig, train_mapper
 from metadagger.metal.context import bc_rollout, seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
-from metadagger.metal.store import PairSplit
 from metadagger.policies import load_policy
 from metadagger.run import init_run, load_run
 from metadagger.runner import StageOptions
@@ -308,12 +307,7 @@ def test_a_conditioned_initialiser_reads_the_seed_context(toy_run, tmp_path):
     copy_run(run, tmp_path)
     layout = RunLayout(tmp_path)
     pistar = load_policy(layout.groundtruth)
-    dim, width = pistar.head_vector().shape[0], 2 * pistar.net.feature_dim
-    g = torch.Generator().manual_seed(0)
-    w_bc, w_da, context = torch.randn(8, dim, generator=g), torch.randn(8, dim, generator=g), torch.randn(8, width, generator=g)
-    split = PairSplit(w_bc_train=w_bc[:6], w_da_train=w_da[:6], w_bc_val=w_bc[6:], w_da_val=w_da[6:], train_seeds=tuple(range(6)),
-                      val_seeds=(6, 7), context_train=context[:6], context_val=context[6:])
-    mapper = train_mapper(split, MapperConfig(kind="conditioned"), layout.mapper_dir("conditioned"), progress=False)
+    mapper = random_conditioned_mapper(pistar, layout.mapper_dir("conditioned"))
     config = dataclasses.replace(CONFIG, controls=("conditioned",))
     evaluate_mdi(CorridorTask(discrete=False), layout, config, StageOptions(workers=1, progress=False), context_early_stop=3.0)
     seed = CONFIG.seeds[0]
