@@ -48,7 +48,7 @@ from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper, cached_mapper
-from metadagger.mapping.registry import get_kind, kind_names
+from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.context import bc_rollout, seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
@@ -270,8 +270,7 @@ def mdi_stamps(task: Task, layout: RunLayout, config: MDIConfig, context_early_s
     def own(method: str) -> dict[str, Any]:
         if method not in kinds:
             return {}
-        context = {"context_early_stop": context_early_stop} if get_kind(kinds[method]).context else {}
-        return {"mapper_fingerprint": file_fingerprint(layout.mapper(kinds[method])), **context}
+        return {"mapper_fingerprint": file_fingerprint(layout.mapper(kinds[method])), **context_inputs(kinds[method], context_early_stop)}
 
     return {method: {**common, **own(method)} for method in config.methods}
 

@@ -21,11 +21,11 @@ import torch
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import ROW_FIELDS, write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.rollouts import rollout
+from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
-from metadagger.mapping.registry import get_kind, kind_names
+from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.context import bc_rollout, seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
@@ -79,14 +79,14 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
     entries: dict[str, list[dict[str, Any]]] = {}
     heads: dict[str, np.ndarray] = {}
 
-    def run(owner: str, method: str, head: np.ndarray, queries: int, extra: dict[str, int]) -> bool:
+    def run(owner: str, method: str, head: np.ndarray, queries: int, extra: dict[str, int]) -> Trajectory:
         policy.load_head_vector(torch.from_numpy(head))
         traj = rollout(env, seed=job.seed, policy=policy)
         heads[method] = head
         entries.setdefault(owner, []).append({"method": method, "seed": job.seed, "success": bool(traj.success),
                                               "reward": float(traj.reward), "steps": int(traj.steps), "expert_queries": queries,
                                               **extra})
-        return bool(traj.success)
+        return traj
 
     try:
         demo = rollout(env, seed=job.seed, policy=None).to_dataset()
@@ -94,17 +94,18 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
         fit_bc(policy, demo, bc_config, cache=cache)
         w_bc = policy.head_vector().numpy().copy()
         kinds = [m for m in job.methods if m != "bc"]
+        bc_traj = run("bc", "bc", w_bc, len(demo), {}) if "bc" in job.methods else None
         context, unlabelled = None, {}
         if any(cached_mapper(job.mappers[kind]).needs_context for kind in kinds):
-            unlabelled_rollout = bc_rollout(env, policy, job.seed, job.early_stop)  # its labels are never used
+            # without an early stop the BC row's rollout is the context's (rollouts are deterministic)
+            reuse = bc_traj is not None and job.early_stop is None
+            unlabelled_rollout = bc_traj if reuse else bc_rollout(env, policy, job.seed, job.early_stop)  # labels never used
             context, unlabelled = seed_context(cache, demo.obs, unlabelled_rollout.obs), {"unlabelled_steps": unlabelled_rollout.steps}
-        if "bc" in job.methods:
-            run("bc", "bc", w_bc, len(demo), {})
         for kind in kinds:
             mapper = cached_mapper(job.mappers[kind])
             extra = unlabelled if mapper.needs_context else {}
             mapped = mapper(w_bc, context)
-            if run(kind, kind, mapped, len(demo), extra) or not job.oneshot:
+            if run(kind, kind, mapped, len(demo), extra).success or not job.oneshot:
                 continue
             policy.load_head_vector(torch.from_numpy(mapped))
             fit_bc(policy, demo, bc_config, cache=cache)
@@ -121,7 +122,7 @@ def mdm_stamps(task: Task, layout: RunLayout, config: EvalConfig, bc: BCConfig, 
     common = {"protocol": "mdm", "task": task.name, "bc": stamp_of(bc), "oneshot": config.oneshot,
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     return {"bc": common, **{kind: {**common, "mapper_fingerprint": file_fingerprint(layout.mapper(kind)),
-                                    **({"context_early_stop": early_stop} if get_kind(kind).context else {})}
+                                    **context_inputs(kind, early_stop)}
                              for kind in config.methods}}
 
 

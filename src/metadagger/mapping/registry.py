@@ -129,6 +129,12 @@ def control_names() -> tuple[str, ...]:
     return tuple(k.name for k in _KINDS.values() if not k.learned)
 
 
+def context_inputs(kind: str, early_stop: float | None) -> dict[str, float | None]:
+    """What a row made with ``kind`` depends on beyond its mapper file: for a kind with a context,
+    the early stop that cut the BC rollout the context summarises; nothing for the others."""
+    return {"context_early_stop": early_stop} if get_kind(kind).context else {}
+
+
 def _mean_da(w_da_train: torch.Tensor, pistar_head: torch.Tensor | None) -> torch.Tensor:
     if w_da_train.ndim != 2 or w_da_train.shape[0] == 0:
         raise UserError(f"mean-da needs training rows [N, d] with N >= 1, got shape {tuple(w_da_train.shape)}")

@@ -81,9 +81,10 @@ def fit_ridge(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, fl
     u64 = (y - x[:, :d]).to(torch.float64)
     n, k = len(x64), x.shape[1] - d
     weights = CONTEXT_WEIGHTS if k > 0 else (None,)
+    balance = (d / k) ** 0.5 if k > 0 else 1.0
     best: tuple[float, float | None, float] | None = None
     for weight in weights:
-        z = x64 if weight is None else _weighted(x64, d, weight * (d / k) ** 0.5)
+        z = x64 if weight is None else _weighted(x64, d, weight * balance)
         scale = alpha_scale(z)
         errors = torch.zeros(len(RELATIVE_ALPHAS), dtype=torch.float64)
         for held in fold_masks(n):
@@ -95,12 +96,12 @@ def fit_ridge(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, fl
         if best is None or float(errors[i]) < best[2]:
             best = (RELATIVE_ALPHAS[i], weight, float(errors[i]))
     relative, weight, cv_mse = best
-    z = x64 if weight is None else _weighted(x64, d, weight * (d / k) ** 0.5)
+    z = x64 if weight is None else _weighted(x64, d, weight * balance)
     scale = alpha_scale(z)
     dual = DualRidge(z, u64)
     a = dual.coefficients(relative * scale)
     # the map of z = x S (S scales the context columns) is the map of x with coefficients S A
-    effective = a if weight is None else _weighted(a.T, d, weight * (d / k) ** 0.5).T
+    effective = a if weight is None else _weighted(a.T, d, weight * balance).T
     identity = torch.eye(d + k, d, dtype=torch.float64)
     with torch.no_grad():
         core.weight.copy_((identity + effective).T.to(torch.float32))

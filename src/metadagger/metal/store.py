@@ -164,26 +164,7 @@ class PairStore:
             UserError: no store folder, or no seeds given.
             CheckpointError: a seed has no record, or its file is missing, corrupt or of another shape.
         """
-        self._require_root()
-        seeds = [_check_seed(s) for s in seeds]
-        if not seeds:
-            raise UserError(f"no seeds given to load from {self.root}; pass at least one seed that records() lists")
-        recorded = self._latest_records()
-        pairs = []
-        for seed in seeds:
-            if seed not in recorded:
-                raise CheckpointError(
-                    f"seed {seed} has no record in {self.jsonl_path}; collect it first (metadagger pairs resumes missing seeds)"
-                )
-            pairs.append(self._read_pair(seed))
-        dim = pairs[0][0].shape[0]
-        for seed, (w_bc, _) in zip(seeds, pairs):
-            if w_bc.shape[0] != dim:
-                raise CheckpointError(
-                    f"pair file {self.pair_path(seed)} holds vectors of length {w_bc.shape[0]}, but seed {seeds[0]} has "
-                    f"length {dim}; pairs from different policies are mixed: delete the odd files and re-run metadagger pairs"
-                )
-        return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
+        return _stacked(self._load_files(seeds))
 
     def load_contexts(self, seeds: Iterable[int]) -> torch.Tensor | None:
         """The contexts of ``seeds`` (stored pairs), ``[len(seeds), k]`` float32 in the order given;
@@ -192,7 +173,10 @@ class PairStore:
         Raises:
             CheckpointError: a file is missing or corrupt, or the contexts differ in length.
         """
-        contexts = [load_tensors(self.pair_path(_check_seed(s)), what=f"pair file of seed {s}").get("context") for s in seeds]
+        return self._contexts(self._load_files(seeds))
+
+    def _contexts(self, files: list[dict[str, torch.Tensor]]) -> torch.Tensor | None:
+        contexts = [tensors.get("context") for tensors in files]
         if not contexts or any(c is None for c in contexts):
             return None
         lengths = sorted({c.shape[0] for c in contexts})
@@ -245,8 +229,9 @@ class PairStore:
         order = np.random.default_rng(seed).permutation(len(seeds))
         val_seeds = tuple(sorted(seeds[i] for i in order[:n_val]))
         train_seeds = tuple(sorted(seeds[i] for i in order[n_val:]))
-        w_bc, w_da = self.load(train_seeds + val_seeds)
-        contexts = self.load_contexts(train_seeds + val_seeds)
+        files = self._load_files(train_seeds + val_seeds)  # each file read once
+        w_bc, w_da = _stacked(files)
+        contexts = self._contexts(files)
         n_train = len(train_seeds)
         return PairSplit(
             w_bc_train=w_bc[:n_train],
@@ -274,14 +259,42 @@ class PairStore:
                 ) from None
         return latest
 
-    def _read_pair(self, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def _load_files(self, seeds: Iterable[int]) -> list[dict[str, torch.Tensor]]:
+        """The checked tensors of each of ``seeds``' pair files, in the order given (see :meth:`load`)."""
+        self._require_root()
+        seeds = [_check_seed(s) for s in seeds]
+        if not seeds:
+            raise UserError(f"no seeds given to load from {self.root}; pass at least one seed that records() lists")
+        recorded = self._latest_records()
+        files = []
+        for seed in seeds:
+            if seed not in recorded:
+                raise CheckpointError(
+                    f"seed {seed} has no record in {self.jsonl_path}; collect it first (metadagger pairs resumes missing seeds)"
+                )
+            files.append(self._read_pair(seed))
+        dim = files[0]["w_bc"].shape[0]
+        for seed, tensors in zip(seeds, files):
+            w_bc = tensors["w_bc"]
+            if w_bc.shape[0] != dim:
+                raise CheckpointError(
+                    f"pair file {self.pair_path(seed)} holds vectors of length {w_bc.shape[0]}, but seed {seeds[0]} has "
+                    f"length {dim}; pairs from different policies are mixed: delete the odd files and re-run metadagger pairs"
+                )
+        return files
+
+    def _read_pair(self, seed: int) -> dict[str, torch.Tensor]:
         path = self.pair_path(seed)
         tensors = load_tensors(path, what=f"pair file of seed {seed}")
         try:
             _check_vectors(tensors.get("w_bc"), tensors.get("w_da"))
         except ValueError as exc:
             raise CheckpointError(f"pair file {path} is not a valid pair ({exc}); delete it and re-run metadagger pairs") from None
-        return tensors["w_bc"], tensors["w_da"]
+        return tensors
+
+
+def _stacked(files: list[dict[str, torch.Tensor]]) -> tuple[torch.Tensor, torch.Tensor]:
+    return torch.stack([f["w_bc"] for f in files]), torch.stack([f["w_da"] for f in files])
 
 
 def _check_seed(seed: Any) -> int:
