@@ -6,7 +6,7 @@ import io
 import subprocess
 import sys
 
-from metadagger.progress import progress_bar
+from metadagger.progress import note, progress_bar
 
 
 class _Terminal(io.StringIO):
@@ -40,6 +40,14 @@ def test_unknown_length_and_disabled_loops_print_nothing_but_yield_everything() 
     assert log.getvalue() == ""
 
 
+def test_a_note_is_one_line_inside_a_loop_and_nothing_when_disabled() -> None:
+    log = io.StringIO()
+    for i in progress_bar(range(2), desc="fit", stream=log):
+        note(f"check {i}", stream=log)
+        note("hidden", stream=log, enabled=False)
+    assert [line.split(" in ")[0] for line in log.getvalue().splitlines()] == ["check 0", "fit: 1/2", "check 1", "fit: 2/2"]
+
+
 def test_a_terminal_gets_a_redrawn_bar() -> None:
     screen = _Terminal()
     assert list(progress_bar(range(20), desc="bar", stream=screen)) == list(range(20))
@@ -47,7 +55,7 @@ def test_a_terminal_gets_a_redrawn_bar() -> None:
 
 
 def test_a_stage_run_into_a_file_logs_lines_not_bars(tmp_path) -> None:
-    code = ("from metadagger.progress import progress_bar\n"
+    code = ("from metadagger.progress import note, progress_bar\n"
             "for _ in progress_bar(range(1000), desc='seeds'):\n"
             "    for _ in progress_bar(range(10), desc='inner', leave=False): pass\n")
     with open(tmp_path / "log.txt", "w") as log:

@@ -122,6 +122,9 @@ def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets
     for name in ("own_seeds", "unseen_seeds"):
         m = metrics[name]
         typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} successes ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
+    if metrics.get("bc_selection"):
+        choice = metrics["bc_selection"]
+        typer.echo(f"pi* is epoch {choice['epoch']} of its BC fit: {choice['successes']}/{choice['episodes']} held-out seeds")
     typer.echo(f"wrote {layout.groundtruth}")
 
 

@@ -165,7 +165,7 @@ def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequ
 
 def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
     """``seeds`` as a tuple, checked to be none of pi*'s or the pairs' seeds."""
-    used = set(config.groundtruth.seeds) | set(config.groundtruth.eval_seeds) | set(config.pairs.seeds)
+    used = config.groundtruth.used_seeds | set(config.pairs.seeds)
     seen = sorted(set(seeds) & used)
     if seen:
         raise UserError(f"evaluation seeds must be unseen, but {seen[:5]} were used for pi* or pairs; pick other seeds")

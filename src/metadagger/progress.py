@@ -94,3 +94,10 @@ def progress_bar(iterable: Iterable[Any], *, desc: str, total: int | None = None
     if enabled and not stream.isatty():
         return _Lines(iterable, desc=desc, total=total, stream=stream)
     return tqdm(iterable, desc=desc, total=total, disable=not enabled, leave=leave, file=stream)
+
+
+def note(line: str, *, enabled: bool = True, stream: IO[str] | None = None) -> None:
+    """Print one line of progress (a milestone inside a loop, say) on ``stream`` (standard error
+    by default) without breaking a bar drawn there; ``enabled=False`` prints nothing."""
+    if enabled:
+        tqdm.write(line, file=stream if stream is not None else sys.stderr)

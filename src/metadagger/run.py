@@ -71,7 +71,7 @@ class RunConfig:
             require_tensorboard()  # a missing extra fails now, not after the first stage
         if self.max_episode_steps < 1:
             raise UserError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
-        gt = set(self.groundtruth.seeds) | set(self.groundtruth.eval_seeds)
+        gt = self.groundtruth.used_seeds
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")

@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from metadagger.cli import app
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tensorboard import INSTALL, require_tensorboard
+from metadagger.evaluation.tensorboard import INSTALL, groundtruth_scalars, require_tensorboard
 from metadagger.layout import RunLayout
 from metadagger.metal.store import PairStore
 
@@ -194,3 +194,16 @@ def test_a_missing_tensorboard_is_one_line_naming_the_extra(monkeypatch):
 def test_an_unknown_log_is_one_line_naming_the_choices():
     line = _one_error_line(["config", "show", "--task", "carracing", "--preset", "ci", "--set", "log=wandb"])
     assert "log must be one of none, tensorboard, got 'wandb'" in line
+
+
+def test_groundtruth_scalars_carry_the_epoch_selection(tmp_path):
+    layout = RunLayout(tmp_path)
+    layout.groundtruth_dir.mkdir(parents=True)
+    summary = {"episodes": 2, "successes": 1, "success_rate": 0.5}
+    choice = {"epoch": 4, "successes": 3, "episodes": 5, "history": [{"epoch": 4, "successes": 3, "episodes": 5},
+                                                                     {"epoch": 8, "successes": 2, "episodes": 5}]}
+    layout.groundtruth_metrics.write_text(json.dumps({"own_seeds": summary, "unseen_seeds": summary, "rounds": [],
+                                                      "bc_epoch_losses": [0.5] * 8, "expert_queries": 7, "bc_selection": choice}))
+    scalars = groundtruth_scalars(layout)
+    assert [s for s in scalars if s[0].startswith("select/")] == [("select/successes", 3, 4), ("select/successes", 2, 8),
+                                                                  ("select/chosen_epoch", 4, 0)]

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -102,6 +107,9 @@ def test_fit_rejects_labels_of_the_other_kind(policy, demo):
         ({"augment_shift": -1}, "augment_shift must be an integer >= 0"),
         ({"augment_shift": 1.5}, "augment_shift must be an integer >= 0"),
         ({"augment_shift": 2, "head_only": True}, "augment_shift needs a whole-policy fit"),
+        ({"batch_shards": 0}, "batch_shards must be an integer >= 1"),
+        ({"batch_shards": True}, "batch_shards must be an integer >= 1"),
+        ({"batch_shards": 2, "head_only": True}, "batch_shards needs a whole-policy fit"),
     ],
 )
 def test_config_validation(kwargs, match):
@@ -145,3 +153,75 @@ def test_head_init_shared_starts_every_seed_from_one_head_and_stays_out_of_defau
     assert "head_init" not in stamp_of(seeded) and stamp_of(shared)["head_init"] == "shared"
     with pytest.raises(UserError, match="head_init must be one of seed, shared"):
         BCConfig(head_init="zero")
+
+
+def _sharded_reference(policy, demo: Dataset, config: BCConfig) -> None:
+    """The sharded fit written out: per batch, each shard's summed loss differentiated in turn,
+    the gradients added in shard order and divided by the batch's count, then an Adam step."""
+    params = list(policy.net.parameters())
+    optimizer = torch.optim.Adam(params, lr=config.lr)
+    loss_fn = torch.nn.functional.cross_entropy if policy.discrete else torch.nn.functional.mse_loss
+    obs, labels = torch.from_numpy(demo.obs), torch.from_numpy(demo.labels)
+    generator = torch.Generator().manual_seed(config.seed)
+    for _ in range(config.epochs):
+        order = torch.randperm(len(demo), generator=generator)
+        for start in range(0, len(demo), config.batch_size):
+            batch = order[start : start + config.batch_size]
+            shards = [(x, y) for x, y in zip(obs[batch].tensor_split(config.batch_shards),
+                                              labels[batch].tensor_split(config.batch_shards)) if len(x)]
+            grads = [torch.autograd.grad(loss_fn(policy.net(x), y, reduction="sum"), params) for x, y in shards]
+            count = len(batch) if policy.discrete else labels[batch].numel()
+            for i, param in enumerate(params):
+                total = grads[0][i]
+                for other in grads[1:]:
+                    total = total + other[i]
+                param.grad = total / count
+            optimizer.step()
+
+
+@pytest.mark.parametrize("shards", [2, 3])
+def test_sharded_fit_adds_the_shards_gradients_in_order(task, demo, shards):
+    # batch 16 over the demo leaves a short last batch; 3 shards of it split unevenly
+    config = BCConfig(lr=3e-3, epochs=3, batch_size=16, seed=11, batch_shards=shards)
+    fitted, reference = make_policy(task, seed=4, **TOY_ARCH), make_policy(task, seed=4, **TOY_ARCH)
+    fit_bc(fitted, demo, config)
+    _sharded_reference(reference, demo, config)
+    for ours, theirs in zip(fitted.net.parameters(), reference.net.parameters()):
+        assert torch.equal(ours, theirs)
+    plain = make_policy(task, seed=4, **TOY_ARCH)
+    fit_bc(plain, demo, BCConfig(lr=3e-3, epochs=3, batch_size=16, seed=11))
+    # the same step summed another way: close to the one-shard fit, not equal to it bit for bit
+    assert torch.allclose(parameters_to_vector(plain.net.parameters()), parameters_to_vector(fitted.net.parameters()), atol=1e-4)
+
+
+_FIT_ON_CORES = """
+import hashlib, os, sys
+sys.path.insert(0, sys.argv[2])
+if sys.argv[1] == "one":
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+import torch
+from toy_task import TOY_ARCH, CorridorTask
+from torch.nn.utils import parameters_to_vector
+from metadagger.imitation.bc import BCConfig, fit_bc
+from metadagger.imitation.rollouts import collect
+from metadagger.policies import make_policy
+torch.set_num_threads(1)
+task = CorridorTask(discrete=True)
+policy = make_policy(task, seed=4, **TOY_ARCH)
+fit_bc(policy, collect(task, [0], policy=None)[0].to_dataset(), BCConfig(lr=3e-3, epochs=3, batch_size=16, batch_shards=2))
+print(hashlib.sha256(parameters_to_vector(policy.net.parameters()).detach().numpy().tobytes()).hexdigest())
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs os.sched_setaffinity to confine a process to one core")
+def test_sharded_fit_gives_the_same_weights_on_one_core_as_on_all():
+    tests = str(Path(__file__).resolve().parents[1])
+    digests = [subprocess.run([sys.executable, "-c", _FIT_ON_CORES, cores, tests], capture_output=True, text=True, check=True).stdout
+               for cores in ("one", "all")]
+    assert len(digests[0].strip()) == 64 and digests[0] == digests[1]
+
+
+def test_batch_shards_stays_out_of_default_stamps():
+    from metadagger.stamps import stamp_of
+
+    assert "batch_shards" not in stamp_of(BCConfig()) and stamp_of(BCConfig(batch_shards=2))["batch_shards"] == 2

@@ -15,6 +15,7 @@ import pytest
 import torch
 from toy_task import CorridorTask
 
+from metadagger.evaluation.report_run import groundtruth_section
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import collect
 from metadagger.layout import RunLayout
@@ -24,6 +25,7 @@ from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
 from metadagger.runner import StageOptions
+from metadagger.stamps import stamp_of
 
 TESTS = Path(__file__).resolve().parents[1]
 # Subprocesses and Ray workers import the toy tasks from here; the caller's PYTHONPATH (e.g. a
@@ -175,3 +177,27 @@ def test_each_pair_stores_its_seed_context_from_the_demonstration_and_the_bc_rol
     assert split.context_train.shape == (len(split.train_seeds), stored.shape[0])
     assert torch.equal(split.context_train[split.train_seeds.index(seed)] if seed in split.train_seeds
                        else split.context_val[split.val_seeds.index(seed)], stored)
+
+
+def test_groundtruth_can_choose_its_bc_epoch_on_held_out_seeds(tmp_path):
+    config = dataclasses.replace(GT, dagger_rounds=0, select_seeds=(200, 201, 202, 203), select_every=2)
+    metrics = train_groundtruth(CorridorTask(), config, RunLayout(tmp_path), progress=False)
+    choice = metrics["bc_selection"]
+    assert [check["epoch"] for check in choice["history"]] == [2, 3] and choice["episodes"] == 4
+    assert choice["successes"] == max(check["successes"] for check in choice["history"])
+    saved, checkpoint = load_policy(groundtruth_path(tmp_path)), load_policy(tmp_path / "groundtruth" / "rounds" / "round_0.safetensors")
+    assert all(torch.equal(a, b) for a, b in zip(saved.net.parameters(), checkpoint.net.parameters()))
+    assert any(line.startswith(f"pi* is epoch {choice['epoch']} of its BC fit") for line in groundtruth_section(RunLayout(tmp_path)))
+    # the options joined the config later: a pi* made without them keeps its stamp
+    assert "select_seeds" not in stamp_of(GT) and "select_every" not in stamp_of(GT)
+
+
+@pytest.mark.parametrize("changes,match", [
+    ({"select_seeds": (3, 200)}, "select_seeds must be held out"),
+    ({"select_seeds": (101,)}, "select_seeds must be held out"),
+    ({"select_seeds": (200,), "dagger_rounds": 1}, "needs dagger_rounds: 0"),
+    ({"select_seeds": (200,), "dagger_rounds": 0, "select_every": 0}, "select_every must be an integer >= 1"),
+])
+def test_groundtruth_selection_settings_are_checked(changes, match):
+    with pytest.raises(ValueError, match=match):
+        dataclasses.replace(GT, **changes)

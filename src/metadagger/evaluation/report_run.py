@@ -25,7 +25,17 @@ def groundtruth_section(layout: RunLayout) -> list[str]:
                       f"{pct(s['success_ci_low'])}-{pct(s['success_ci_high'])}", f"{s['mean_reward']:.1f}", f"{s['mean_steps']:.0f}"))
     return (["## Ground-truth policy pi*", ""]
             + markdown_table(("seeds", "successes", "success", "95% CI", "mean reward", "mean steps"), cells)
-            + ["", f"Expert queries spent on pi*: {m.get('expert_queries', 0)}.", ""])
+            + ["", f"Expert queries spent on pi*: {m.get('expert_queries', 0)}.", ""] + _selection_lines(m))
+
+
+def _selection_lines(metrics: dict) -> list[str]:
+    """Which epoch of the BC fit became pi* when it was chosen on held-out seeds."""
+    choice = metrics.get("bc_selection")
+    if not choice:
+        return []
+    checks = ", ".join(f"epoch {c['epoch']}: {c['successes']}" for c in choice["history"])
+    return [f"pi* is epoch {choice['epoch']} of its BC fit, chosen on {choice['episodes']} held-out seeds of its own "
+            f"(groundtruth.select_seeds), where it succeeded {choice['successes']} times; every check: {checks}.", ""]
 
 
 def pairs_section(layout: RunLayout) -> list[str]:

@@ -65,7 +65,9 @@ def groundtruth_scalars(layout: RunLayout) -> list[Scalar]:
     ``k*E+1 .. (k+1)*E`` for E epochs per fit; a fit resumed from its checkpoint, or made before
     pi*'s metrics recorded epoch losses, has none);
     ``dagger/<key>`` of every DAgger round's record at step = round; ``own_seeds/<key>``,
-    ``unseen_seeds/<key>`` and ``expert_queries`` of the final pi* at step = its rounds.
+    ``unseen_seeds/<key>`` and ``expert_queries`` of the final pi* at step = its rounds;
+    ``select/successes`` at step = epoch for each check of ``groundtruth.select_seeds``, and
+    ``select/chosen_epoch`` at step 0.
     """
     metrics = json.loads(layout.groundtruth_metrics.read_text())
     rounds = metrics["rounds"]
@@ -75,6 +77,10 @@ def groundtruth_scalars(layout: RunLayout) -> list[Scalar]:
     for record in rounds:
         out += [(key, value, record["dagger/round"]) for key, value in record.items() if key != "dagger/round"]
     out += [(f"{name}/{key}", value, len(rounds)) for name in ("own_seeds", "unseen_seeds") for key, value in metrics[name].items()]
+    choice = metrics.get("bc_selection")
+    if choice:
+        out += [("select/successes", check["successes"], check["epoch"]) for check in choice["history"]]
+        out.append(("select/chosen_epoch", choice["epoch"], 0))
     return out + [("expert_queries", metrics["expert_queries"], len(rounds))]
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -22,6 +24,7 @@ from metadagger.config import LATER_OPTION
 from metadagger.errors import UserError
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.head_adam import LinearHeadAdam
+from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
 from metadagger.progress import progress_bar
 
@@ -57,6 +60,13 @@ class BCConfig:
     ``seed``, Xavier drawn from the env seed (the paper's); ``shared``, one Xavier draw (seed 0)
     for every seed, so that heads differ between seeds only by what their data taught them
     (docs/families.md)."""
+    batch_shards: int = field(default=1, metadata=LATER_OPTION)
+    """Whole-policy fits: each batch's gradient is computed in this many contiguous parts, each
+    in its own thread, and the parts' gradients are summed in a fixed order. The arithmetic
+    depends on this number alone, never on the cores there are, so a fit with 2 shards gives the
+    same weights on one core as on two, where it runs about twice as fast. 1 (the default) is the
+    plain autograd step. Head-only fits need 1: their steps are microseconds
+    (docs/performance.md)."""
 
     def head_init_seed(self, seed: int) -> int:
         """The seed of the initial head of env seed ``seed``'s fit."""
@@ -77,6 +87,10 @@ class BCConfig:
             raise UserError(f"BCConfig.augment_shift must be an integer >= 0, got {self.augment_shift!r}")
         if self.head_init not in HEAD_INITS:
             raise UserError(f"BCConfig.head_init must be one of {', '.join(HEAD_INITS)}, got {self.head_init!r}")
+        if not isinstance(self.batch_shards, int) or isinstance(self.batch_shards, bool) or self.batch_shards < 1:
+            raise UserError(f"BCConfig.batch_shards must be an integer >= 1, got {self.batch_shards!r}")
+        if self.batch_shards > 1 and self.head_only:
+            raise UserError("BCConfig.batch_shards needs a whole-policy fit: head-only steps are too small to split; set batch_shards=1 or head_only=false")
         if self.augment_shift and self.head_only:
             raise UserError("BCConfig.augment_shift needs a whole-policy fit: head-only fits use cached trunk features; set augment_shift=0 or head_only=false")
 
@@ -168,6 +182,7 @@ def fit_bc(
     *,
     progress: bool = False,
     cache: FeatureCache | None = None,
+    on_epoch: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
     """Fit ``policy`` in place to ``data`` with Adam: cross-entropy (discrete) or MSE (continuous).
 
@@ -178,6 +193,8 @@ def fit_bc(
             ``config.augment_shift`` shifts the images of whole-policy fits at random.
         progress: show a progress bar over epochs.
         cache: features to reuse across calls (head-only fits only); a fresh one if None.
+        on_epoch: called with the epoch's number (1, 2, ...) after each epoch, the policy holding
+            that epoch's weights (an :class:`~metadagger.imitation.selection.EpochSelector`, say).
 
     Returns:
         ``{"loss": [mean training loss per epoch], "samples": N, "seconds": wall time}``.
@@ -200,22 +217,35 @@ def fit_bc(
         raise UserError("the policy has no trainable parameters left to fit; do not freeze the head")
     head_adam = LinearHeadAdam(model, lr=config.lr, weight_decay=config.weight_decay, discrete=policy.discrete) \
         if config.head_only and LinearHeadAdam.supports(model) else None
-    step = head_adam.step if head_adam is not None else _autograd_step(model, params, config, policy.discrete)
     generator = torch.Generator().manual_seed(config.seed)
     losses: list[float] = []
     n = len(data)
-    bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
-    for _ in bar:
-        total = 0.0
-        order = torch.randperm(n, generator=generator)
-        for start in range(0, n, config.batch_size):
-            batch = order[start : start + config.batch_size]
-            x = inputs[batch]
-            if config.augment_shift:
-                x = random_shift(x, config.augment_shift, generator)
-            total += step(x, targets[batch]).item() * len(batch)
-        losses.append(total / n)
-        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    with ExitStack() as stack:
+        if head_adam is not None:
+            step = head_adam.step
+        elif config.batch_shards > 1:
+            # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
+            pool = stack.enter_context(ThreadPoolExecutor(config.batch_shards, thread_name_prefix="bc-shard",
+                                                          initializer=torch.set_num_threads, initargs=(torch.get_num_threads(),)))
+            step = _sharded_step(model, params, config, policy.discrete, pool)
+        else:
+            step = _autograd_step(model, params, config, policy.discrete)
+        bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
+        for epoch in bar:
+            total = 0.0
+            order = torch.randperm(n, generator=generator)
+            for start in range(0, n, config.batch_size):
+                batch = order[start : start + config.batch_size]
+                x = inputs[batch]
+                if config.augment_shift:
+                    x = random_shift(x, config.augment_shift, generator)
+                total += step(x, targets[batch]).item() * len(batch)
+            losses.append(total / n)
+            bar.set_postfix(loss=f"{losses[-1]:.4f}")
+            if on_epoch is not None:
+                if head_adam is not None:
+                    head_adam.write_back()
+                on_epoch(epoch + 1)
     if head_adam is not None:
         head_adam.write_back()
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
@@ -237,6 +267,40 @@ def _autograd_step(model: torch.nn.Module, params: list[torch.nn.Parameter], con
     return step
 
 
+def _sharded_step(model: torch.nn.Module, params: list[torch.nn.Parameter], config: BCConfig, discrete: bool,
+                  pool: ThreadPoolExecutor) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """:func:`_autograd_step` with the batch split into ``config.batch_shards`` contiguous parts,
+    whose summed losses are differentiated in ``pool``'s threads; the gradients are added in shard
+    order and divided by the batch's count, so the step is the mean loss's, summed another way.
+
+    Each shard differentiates with ``torch.autograd.grad``, which returns its gradients rather
+    than accumulating them into the shared parameters, so the threads never write the same tensor.
+    """
+    optimizer = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
+    loss_fn = F.cross_entropy if discrete else F.mse_loss
+
+    def shard(xy: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
+        loss = loss_fn(model(xy[0]), xy[1], reduction="sum")
+        return loss.detach(), torch.autograd.grad(loss, params)
+
+    def step(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        parts = [(xs, ys) for xs, ys in zip(x.tensor_split(config.batch_shards), y.tensor_split(config.batch_shards)) if len(xs)]
+        results = list(pool.map(shard, parts))
+        count = len(y) if discrete else y.numel()
+        loss = results[0][0]
+        for part_loss, _ in results[1:]:
+            loss = loss + part_loss
+        for i, param in enumerate(params):
+            grad = results[0][1][i]
+            for _, grads in results[1:]:
+                grad = grad + grads[i]
+            param.grad = grad / count
+        optimizer.step()
+        return loss / count
+
+    return step
+
+
 def fit_or_resume(
     policy: Policy,
     data: Dataset,
@@ -245,9 +309,11 @@ def fit_or_resume(
     *,
     cache: FeatureCache | None = None,
     progress: bool = False,
+    selector: EpochSelector | None = None,
 ) -> list[float] | None:
     """:func:`fit_bc`, then save the policy at ``checkpoint``; if that checkpoint already exists
-    (a killed run being resumed) load its weights instead of fitting.
+    (a killed run being resumed) load its weights instead of fitting. With a ``selector`` the
+    policy saved (and left in ``policy``) is the epoch it chose.
 
     Returns:
         The mean training loss of every epoch, or None when the weights were loaded.
@@ -255,7 +321,9 @@ def fit_or_resume(
     if checkpoint is not None and Path(checkpoint).is_file():
         policy.net.load_state_dict(load_policy(checkpoint).net.state_dict())
         return None
-    losses = fit_bc(policy, data, config, progress=progress, cache=cache)["loss"]
+    losses = fit_bc(policy, data, config, progress=progress, cache=cache, on_epoch=selector)["loss"]
+    if selector is not None:
+        selector.restore()
     if checkpoint is not None:
         policy.save(checkpoint)
     return losses

@@ -13,6 +13,7 @@ import json
 import shutil
 from dataclasses import dataclass, field
 
+from metadagger.config import LATER_OPTION
 from metadagger.errors import UserError
 from metadagger.imitation.episodes import evaluate_policy
 from metadagger.imitation.metrics import summarize
@@ -20,6 +21,7 @@ from metadagger.imitation.bc import BCConfig, fit_or_resume
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import collect
+from metadagger.imitation.selection import EpochSelector
 from metadagger.io import write_json
 from metadagger.layout import RunLayout
 from metadagger.policies import Policy, load_policy, make_policy
@@ -41,12 +43,31 @@ class GroundTruthConfig:
     """The whole-policy fit done on the demos and again after every round."""
     seed: int = 0
     """Seed of pi*'s initial weights."""
+    select_seeds: tuple[int, ...] = field(default=(), metadata=LATER_OPTION)
+    """Early stopping on held-out seeds of pi*'s own: every ``select_every`` epochs of the BC fit
+    (and after its last) pi* is rolled out on these seeds, and the epoch with the most successes
+    (the later on a tie) is pi*. They must be none of ``seeds`` and ``eval_seeds``. Empty (the
+    default): pi* is the last epoch's. Needs ``dagger_rounds: 0``."""
+    select_every: int = field(default=4, metadata=LATER_OPTION)
+    """Epochs between the checks of ``select_seeds``."""
+
+    @property
+    def used_seeds(self) -> set[int]:
+        """Every seed pi*'s stage rolls out: its training, held-out selection and unseen check seeds."""
+        return set(self.seeds) | set(self.select_seeds) | set(self.eval_seeds)
 
     def __post_init__(self) -> None:
         if not self.seeds:
             raise UserError("groundtruth.seeds must not be empty")
         if set(self.seeds) & set(self.eval_seeds):
             raise UserError("groundtruth.eval_seeds must be unseen: they overlap groundtruth.seeds; pick disjoint ranges")
+        if set(self.select_seeds) & (set(self.seeds) | set(self.eval_seeds)):
+            raise UserError("groundtruth.select_seeds must be held out: they overlap groundtruth.seeds or eval_seeds; pick disjoint ranges")
+        if self.select_seeds and self.dagger_rounds:
+            raise UserError("groundtruth.select_seeds chooses an epoch of the BC fit and needs dagger_rounds: 0; "
+                            "drop select_seeds or set dagger_rounds: 0")
+        if not isinstance(self.select_every, int) or isinstance(self.select_every, bool) or self.select_every < 1:
+            raise UserError(f"groundtruth.select_every must be an integer >= 1, got {self.select_every!r}")
         if self.dagger_rounds < 0:
             raise UserError(f"groundtruth.dagger_rounds must be >= 0, got {self.dagger_rounds}")
         if self.bc.head_only:
@@ -71,7 +92,9 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     """Train pi* (or reuse a finished one made from the same config) and return its metrics:
     ``own_seeds`` and ``unseen_seeds`` (:func:`~metadagger.imitation.metrics.summarize`), ``rounds``
     (:func:`~metadagger.imitation.dagger.run_dagger`'s records), ``bc_epoch_losses`` (the BC fit's
-    loss per epoch; None when resumed from its checkpoint) and ``expert_queries``. Its rollouts
+    loss per epoch; None when resumed from its checkpoint), ``expert_queries`` and, with
+    ``select_seeds``, ``bc_selection`` (:attr:`~metadagger.imitation.selection.EpochSelector.choice`;
+    None when resumed). Its rollouts
     (demonstrations, DAgger rounds, the success checks) run in a pool of ``workers`` processes;
     the fits run in this one, on one thread (docs/architecture.md, "Determinism").
 
@@ -93,7 +116,10 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     demos = collect(task, config.seeds, policy=None, progress=progress, workers=workers)
     data = Dataset.concat(*(t.to_dataset() for t in demos))
     policy = make_policy(task, seed=config.seed)
-    bc_losses = fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress)
+    selector = EpochSelector(task, policy, config.select_seeds, every=config.select_every, epochs=config.bc.epochs,
+                             workers=workers, progress=progress) if config.select_seeds else None
+    bc_losses = fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress,
+                              selector=selector)
     history = []
     if config.dagger_rounds:
         result = run_dagger(
@@ -107,6 +133,8 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
                                        workers=workers))
     metrics = {"own_seeds": own, "unseen_seeds": unseen, "rounds": history, "bc_epoch_losses": bc_losses,
                "expert_queries": history[-1]["dagger/expert_queries"] if history else len(data)}
+    if selector is not None:
+        metrics["bc_selection"] = selector.choice if bc_losses is not None else None
     policy.save(layout.groundtruth)
     write_json(layout.groundtruth_metrics, metrics)
     return metrics
