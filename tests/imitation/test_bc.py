@@ -17,6 +17,7 @@ from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
 from metadagger.imitation.data import Dataset
 from metadagger.policies import make_policy
+from metadagger.stamps import stamp_of
 
 FAST = BCConfig(lr=3e-3, epochs=20, batch_size=16)
 
@@ -110,6 +111,8 @@ def test_fit_rejects_labels_of_the_other_kind(policy, demo):
         ({"batch_shards": 0}, "batch_shards must be an integer >= 1"),
         ({"batch_shards": True}, "batch_shards must be an integer >= 1"),
         ({"batch_shards": 2, "head_only": True}, "batch_shards needs a whole-policy fit"),
+        ({"lr_schedule": "linear"}, "lr_schedule must be one of constant, cosine"),
+        ({"lr_schedule": "cosine", "head_only": True}, "lr_schedule needs a whole-policy fit"),
     ],
 )
 def test_config_validation(kwargs, match):
@@ -144,8 +147,6 @@ def test_augmented_fit_is_deterministic_and_off_leaves_the_fit_unchanged(task, d
 
 
 def test_head_init_shared_starts_every_seed_from_one_head_and_stays_out_of_default_stamps():
-    from metadagger.stamps import stamp_of
-
     seeded, shared = BCConfig(head_only=True), BCConfig(head_only=True, head_init="shared")
     assert [seeded.head_init_seed(s) for s in (3, 4)] == [3, 4]
     assert [shared.head_init_seed(s) for s in (3, 4)] == [0, 0]
@@ -222,6 +223,32 @@ def test_sharded_fit_gives_the_same_weights_on_one_core_as_on_all():
 
 
 def test_batch_shards_stays_out_of_default_stamps():
-    from metadagger.stamps import stamp_of
-
     assert "batch_shards" not in stamp_of(BCConfig()) and stamp_of(BCConfig(batch_shards=2))["batch_shards"] == 2
+
+
+def test_cosine_schedule_anneals_the_rate_epoch_by_epoch(task, demo):
+    config = BCConfig(lr=3e-3, epochs=4, batch_size=16, seed=11, lr_schedule="cosine")
+    assert [round(config.lr_at(e) / config.lr, 6) for e in range(4)] == [1.0, 0.853553, 0.5, 0.146447]
+    assert BCConfig(lr=3e-3, epochs=4).lr_at(3) == 3e-3
+    fitted, reference = make_policy(task, seed=4, **TOY_ARCH), make_policy(task, seed=4, **TOY_ARCH)
+    fit_bc(fitted, demo, config)
+    # the same fit written out: Adam over the whole policy, its rate set at the start of each epoch
+    optimizer = torch.optim.Adam(reference.net.parameters(), lr=config.lr)
+    loss_fn = torch.nn.functional.cross_entropy if reference.discrete else torch.nn.functional.mse_loss
+    obs, labels = torch.from_numpy(demo.obs), torch.from_numpy(demo.labels)
+    generator = torch.Generator().manual_seed(config.seed)
+    for epoch in range(config.epochs):
+        for group in optimizer.param_groups:
+            group["lr"] = config.lr_at(epoch)
+        order = torch.randperm(len(demo), generator=generator)
+        for start in range(0, len(demo), config.batch_size):
+            batch = order[start : start + config.batch_size]
+            loss = loss_fn(reference.net(obs[batch]), labels[batch])
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+    assert all(torch.equal(a, b) for a, b in zip(fitted.net.parameters(), reference.net.parameters()))
+    constant = make_policy(task, seed=4, **TOY_ARCH)
+    fit_bc(constant, demo, BCConfig(lr=3e-3, epochs=4, batch_size=16, seed=11))
+    assert not torch.equal(trunk_vector(constant), trunk_vector(fitted))
+    assert "lr_schedule" not in stamp_of(BCConfig()) and stamp_of(config)["lr_schedule"] == "cosine"

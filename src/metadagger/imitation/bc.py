@@ -8,6 +8,7 @@ for every seed and every DAgger round.
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
@@ -30,6 +31,8 @@ from metadagger.progress import progress_bar
 
 #: How a seed's fresh head starts (:attr:`BCConfig.head_init`).
 HEAD_INITS = ("seed", "shared")
+#: How a whole-policy fit's learning rate moves over its epochs (:attr:`BCConfig.lr_schedule`).
+LR_SCHEDULES = ("constant", "cosine")
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,11 @@ class BCConfig:
     ``seed``, Xavier drawn from the env seed (the paper's); ``shared``, one Xavier draw (seed 0)
     for every seed, so that heads differ between seeds only by what their data taught them
     (docs/families.md)."""
+    lr_schedule: str = field(default="constant", metadata=LATER_OPTION)
+    """Whole-policy fits: ``constant`` keeps ``lr`` for every epoch; ``cosine`` anneals it over
+    the epochs, epoch e (from 0) taking ``lr * (1 + cos(pi * e / epochs)) / 2``, so a fit ends
+    with small steps instead of swinging between policies (docs/fetch.md). Head-only fits need
+    ``constant``."""
     batch_shards: int = field(default=1, metadata=LATER_OPTION)
     """Whole-policy fits: each batch's gradient is computed in this many contiguous parts, each
     in its own thread, and the parts' gradients are summed in a fixed order. The arithmetic
@@ -67,6 +75,12 @@ class BCConfig:
     same weights on one core as on two, where it runs about twice as fast. 1 (the default) is the
     plain autograd step. Head-only fits need 1: their steps are microseconds
     (docs/performance.md)."""
+
+    def lr_at(self, epoch: int) -> float:
+        """The learning rate of epoch ``epoch`` (counted from 0) under :attr:`lr_schedule`."""
+        if self.lr_schedule == "constant":
+            return self.lr
+        return self.lr * (1 + math.cos(math.pi * epoch / self.epochs)) / 2
 
     def head_init_seed(self, seed: int) -> int:
         """The seed of the initial head of env seed ``seed``'s fit."""
@@ -87,6 +101,11 @@ class BCConfig:
             raise UserError(f"BCConfig.augment_shift must be an integer >= 0, got {self.augment_shift!r}")
         if self.head_init not in HEAD_INITS:
             raise UserError(f"BCConfig.head_init must be one of {', '.join(HEAD_INITS)}, got {self.head_init!r}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise UserError(f"BCConfig.lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}")
+        if self.lr_schedule != "constant" and self.head_only:
+            raise UserError("BCConfig.lr_schedule needs a whole-policy fit: head-only fits keep a constant rate; "
+                            "set lr_schedule=constant or head_only=false")
         if not isinstance(self.batch_shards, int) or isinstance(self.batch_shards, bool) or self.batch_shards < 1:
             raise UserError(f"BCConfig.batch_shards must be an integer >= 1, got {self.batch_shards!r}")
         if self.batch_shards > 1 and self.head_only:
@@ -221,17 +240,21 @@ def fit_bc(
     losses: list[float] = []
     n = len(data)
     with ExitStack() as stack:
+        optimizer = None if head_adam is not None else torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
         if head_adam is not None:
             step = head_adam.step
         elif config.batch_shards > 1:
             # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
             pool = stack.enter_context(ThreadPoolExecutor(config.batch_shards, thread_name_prefix="bc-shard",
                                                           initializer=torch.set_num_threads, initargs=(torch.get_num_threads(),)))
-            step = _sharded_step(model, params, config, policy.discrete, pool)
+            step = _sharded_step(model, params, optimizer, policy.discrete, pool, config.batch_shards)
         else:
-            step = _autograd_step(model, params, config, policy.discrete)
+            step = _autograd_step(model, optimizer, policy.discrete)
         bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
         for epoch in bar:
+            if optimizer is not None and config.lr_schedule != "constant":
+                for group in optimizer.param_groups:
+                    group["lr"] = config.lr_at(epoch)
             total = 0.0
             order = torch.randperm(n, generator=generator)
             for start in range(0, n, config.batch_size):
@@ -251,10 +274,9 @@ def fit_bc(
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
 
 
-def _autograd_step(model: torch.nn.Module, params: list[torch.nn.Parameter], config: BCConfig,
+def _autograd_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer,
                    discrete: bool) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
-    """A training step of ``model`` by autograd and ``torch.optim.Adam``: returns the batch loss."""
-    optimizer = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
+    """A training step of ``model`` by autograd and ``optimizer``: returns the batch loss."""
     loss_fn = F.cross_entropy if discrete else F.mse_loss
 
     def step(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
@@ -267,16 +289,15 @@ def _autograd_step(model: torch.nn.Module, params: list[torch.nn.Parameter], con
     return step
 
 
-def _sharded_step(model: torch.nn.Module, params: list[torch.nn.Parameter], config: BCConfig, discrete: bool,
-                  pool: ThreadPoolExecutor) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
-    """:func:`_autograd_step` with the batch split into ``config.batch_shards`` contiguous parts,
+def _sharded_step(model: torch.nn.Module, params: list[torch.nn.Parameter], optimizer: torch.optim.Optimizer,
+                  discrete: bool, pool: ThreadPoolExecutor, shards: int) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """:func:`_autograd_step` with the batch split into ``shards`` contiguous parts,
     whose summed losses are differentiated in ``pool``'s threads; the gradients are added in shard
     order and divided by the batch's count, so the step is the mean loss's, summed another way.
 
     Each shard differentiates with ``torch.autograd.grad``, which returns its gradients rather
     than accumulating them into the shared parameters, so the threads never write the same tensor.
     """
-    optimizer = torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
     loss_fn = F.cross_entropy if discrete else F.mse_loss
 
     def shard(xy: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
@@ -284,7 +305,7 @@ def _sharded_step(model: torch.nn.Module, params: list[torch.nn.Parameter], conf
         return loss.detach(), torch.autograd.grad(loss, params)
 
     def step(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        parts = [(xs, ys) for xs, ys in zip(x.tensor_split(config.batch_shards), y.tensor_split(config.batch_shards)) if len(xs)]
+        parts = [(xs, ys) for xs, ys in zip(x.tensor_split(shards), y.tensor_split(shards)) if len(xs)]
         results = list(pool.map(shard, parts))
         count = len(y) if discrete else y.numel()
         loss = results[0][0]
