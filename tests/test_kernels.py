@@ -12,7 +12,7 @@ import pytest
 PROBE = "import metadagger, torch, os; torch.ones(2) + 1; print(torch.backends.cpu.get_cpu_capability(), os.environ['ONEDNN_MAX_CPU_ISA'])"
 
 
-def _probe(**env: str) -> str:
+def _probe(**env: str) -> list[str]:
     clean = {k: v for k, v in os.environ.items() if k not in ("ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA")}
     return subprocess.run([sys.executable, "-c", PROBE], env={**clean, **env}, capture_output=True, text=True, check=True).stdout.split()
 

@@ -156,18 +156,26 @@ def test_head_init_shared_starts_every_seed_from_one_head_and_stays_out_of_defau
         BCConfig(head_init="zero")
 
 
-def _sharded_reference(policy, demo: Dataset, config: BCConfig) -> None:
-    """The sharded fit written out: per batch, each shard's summed loss differentiated in turn,
-    the gradients added in shard order and divided by the batch's count, then an Adam step."""
+def _reference_fit(policy, demo: Dataset, config: BCConfig) -> None:
+    """A whole-policy fit written out: Adam, its rate set at each epoch's start by the schedule;
+    one shard steps on the batch's mean loss, K shards differentiate each shard's summed loss in
+    turn, add the gradients in shard order and divide by the batch's count."""
     params = list(policy.net.parameters())
     optimizer = torch.optim.Adam(params, lr=config.lr)
     loss_fn = torch.nn.functional.cross_entropy if policy.discrete else torch.nn.functional.mse_loss
     obs, labels = torch.from_numpy(demo.obs), torch.from_numpy(demo.labels)
     generator = torch.Generator().manual_seed(config.seed)
-    for _ in range(config.epochs):
+    for epoch in range(config.epochs):
+        for group in optimizer.param_groups:
+            group["lr"] = config.lr_at(epoch)
         order = torch.randperm(len(demo), generator=generator)
         for start in range(0, len(demo), config.batch_size):
             batch = order[start : start + config.batch_size]
+            if config.batch_shards == 1:
+                optimizer.zero_grad(set_to_none=True)
+                loss_fn(policy.net(obs[batch]), labels[batch]).backward()
+                optimizer.step()
+                continue
             shards = [(x, y) for x, y in zip(obs[batch].tensor_split(config.batch_shards),
                                               labels[batch].tensor_split(config.batch_shards)) if len(x)]
             grads = [torch.autograd.grad(loss_fn(policy.net(x), y, reduction="sum"), params) for x, y in shards]
@@ -186,7 +194,7 @@ def test_sharded_fit_adds_the_shards_gradients_in_order(task, demo, shards):
     config = BCConfig(lr=3e-3, epochs=3, batch_size=16, seed=11, batch_shards=shards)
     fitted, reference = make_policy(task, seed=4, **TOY_ARCH), make_policy(task, seed=4, **TOY_ARCH)
     fit_bc(fitted, demo, config)
-    _sharded_reference(reference, demo, config)
+    _reference_fit(reference, demo, config)
     for ours, theirs in zip(fitted.net.parameters(), reference.net.parameters()):
         assert torch.equal(ours, theirs)
     plain = make_policy(task, seed=4, **TOY_ARCH)
@@ -232,21 +240,7 @@ def test_cosine_schedule_anneals_the_rate_epoch_by_epoch(task, demo):
     assert BCConfig(lr=3e-3, epochs=4).lr_at(3) == 3e-3
     fitted, reference = make_policy(task, seed=4, **TOY_ARCH), make_policy(task, seed=4, **TOY_ARCH)
     fit_bc(fitted, demo, config)
-    # the same fit written out: Adam over the whole policy, its rate set at the start of each epoch
-    optimizer = torch.optim.Adam(reference.net.parameters(), lr=config.lr)
-    loss_fn = torch.nn.functional.cross_entropy if reference.discrete else torch.nn.functional.mse_loss
-    obs, labels = torch.from_numpy(demo.obs), torch.from_numpy(demo.labels)
-    generator = torch.Generator().manual_seed(config.seed)
-    for epoch in range(config.epochs):
-        for group in optimizer.param_groups:
-            group["lr"] = config.lr_at(epoch)
-        order = torch.randperm(len(demo), generator=generator)
-        for start in range(0, len(demo), config.batch_size):
-            batch = order[start : start + config.batch_size]
-            loss = loss_fn(reference.net(obs[batch]), labels[batch])
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
+    _reference_fit(reference, demo, config)
     assert all(torch.equal(a, b) for a, b in zip(fitted.net.parameters(), reference.net.parameters()))
     constant = make_policy(task, seed=4, **TOY_ARCH)
     fit_bc(constant, demo, BCConfig(lr=3e-3, epochs=4, batch_size=16, seed=11))

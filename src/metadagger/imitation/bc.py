@@ -252,7 +252,7 @@ def fit_bc(
             step = _autograd_step(model, optimizer, policy.discrete)
         bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
         for epoch in bar:
-            if optimizer is not None and config.lr_schedule != "constant":
+            if optimizer is not None:
                 for group in optimizer.param_groups:
                     group["lr"] = config.lr_at(epoch)
             total = 0.0
