@@ -95,13 +95,16 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         run = tmp_path / "run"
         stage_groundtruth(RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False))
 
-        result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10)
+        result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10, nodes=(4,))
         assert not (run / "pairs").exists()  # collected into temporary stores only
         assert set(result["seconds"]) == {"1", "2"} and all(t > 0 for t in result["seconds"].values())
         assert all(r > 0 for r in result["pairs_per_hour"].values())
         # keep: all, so every pair the bench collected is kept, and a target is reachable
         assert result["kept_share"] == 1.0 and result["kept_share_from"] == "bench"
         assert result["minutes_for_target_kept"] > 0
+        hours = result["extrapolated"]["hours_on_ray_nodes"]
+        assert hours["1"] == pytest.approx(result["minutes_for_target_kept"] / 60) and hours["4"] == pytest.approx(hours["1"] / 4)
+        assert result["extrapolated"]["pair_seeds_for_target_kept"] == 10
         assert result["machine"]["cpu_count"] == os.cpu_count()
 
         # with a pairs summary in the run, its kept share is used
@@ -113,5 +116,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
 
         with pytest.raises(UserError, match="1 <= --seeds <= 4"):
             bench_pairs(run, seeds=5)
+        with pytest.raises(UserError, match="--target-kept >= 1 and --nodes >= 1"):
+            bench_pairs(run, seeds=1, nodes=(0,))
     finally:
         del _FACTORIES["corridor-bench"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import platform
 import time
@@ -200,13 +201,17 @@ def _machine() -> dict[str, Any]:
     }
 
 
-def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1, 2), target_kept: int = 375) -> dict:
+def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1, 2), target_kept: int = 375,
+                nodes: Sequence[int] = (4, 16)) -> dict:
     """Time pair collection with 1 and 2 workers on the first ``seeds`` pair seeds of a run.
 
     Each measurement collects into a fresh temporary store (process-pool start-up included), so
     the run's own pairs are untouched. The kept share comes from the run's ``pairs/summary.json``
     when the run has one, else from the bench's own seeds; with it the bench extrapolates the
-    minutes needed for ``target_kept`` kept pairs (the paper's 300 train + 75 validation).
+    minutes needed for ``target_kept`` kept pairs (default the paper's 300 train + 75 validation)
+    on this machine, and on Ray clusters of ``nodes`` nodes like it (``extrapolated``: pair
+    seeds are independent jobs, so the rate is taken to grow with the node count; measured on
+    one machine only).
     """
     import dataclasses
     import json
@@ -220,6 +225,8 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     run = Path(run)
     layout = RunLayout(run)
     config = load_run(run)
+    if target_kept < 1 or any(n < 1 for n in nodes):
+        raise UserError(f"bench pairs needs --target-kept >= 1 and --nodes >= 1, got {target_kept} and {list(nodes)}")
     if seeds < 1 or len(config.pairs.seeds) < seeds:
         raise UserError(f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}")
     pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]))
@@ -239,6 +246,7 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     kept_share = kept_source["kept"] / kept_source["seeds"] if kept_source["seeds"] else 0.0
     best = str(max(workers))
     pairs_per_hour = 3600.0 * seeds / timings[best]
+    minutes = (60.0 * target_kept / (kept_share * pairs_per_hour)) if kept_share > 0 else None
     return {
         "run": str(run),
         "seeds": seeds,
@@ -249,7 +257,13 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
         "kept_share": kept_share,
         "kept_share_from": "run" if run_summary.is_file() else "bench",
         "target_kept": target_kept,
-        "minutes_for_target_kept": (60.0 * target_kept / (kept_share * pairs_per_hour)) if kept_share > 0 else None,
+        "minutes_for_target_kept": minutes,
+        "extrapolated": {
+            "assumes": f"a Ray cluster of N nodes like this machine, each running {best} workers, collects "
+                       "N times this machine's pairs per hour (not measured)",
+            "pair_seeds_for_target_kept": math.ceil(target_kept / kept_share) if kept_share > 0 else None,
+            "hours_on_ray_nodes": {str(n): None if minutes is None else minutes / 60.0 / n for n in (1, *nodes)},
+        },
         "machine": _machine(),
     }
 

@@ -408,11 +408,14 @@ def bench_pairs_cmd(
     out: Path = OUT,
     seeds: int = typer.Option(4, "--seeds", help="How many of the run's pair seeds to time."),
     json_out: Path = typer.Option(Path("runs/bench/pairs.json"), "--json", help="JSON file to write."),
+    target_kept: int = typer.Option(375, "--target-kept", help="Kept pairs to extrapolate the time for (the paper's: 375)."),
+    nodes: list[int] = typer.Option([4, 16], "--nodes", help="Ray cluster sizes to extrapolate to (nodes like this machine); repeatable."),
 ) -> None:
-    """Seconds per pair with 1 and 2 workers, pairs per hour, and minutes for 375 kept pairs."""
+    """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
+    pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
     from metadagger.bench import bench_pairs, write_bench
 
-    result = bench_pairs(out, seeds=seeds)
+    result = bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes)
     write_bench(result, json_out)
     typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
     typer.echo(f"wrote {json_out}")

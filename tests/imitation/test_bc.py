@@ -15,7 +15,7 @@ from torch.nn.utils import parameters_to_vector
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
-from metadagger.imitation.data import Dataset
+from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.policies import make_policy
 from metadagger.stamps import stamp_of
 
@@ -76,6 +76,30 @@ def test_feature_cache_computes_each_image_once(policy, demo):
         policy.net.trunk[0].weight.mul_(2.0)  # a new trunk invalidates every cached feature
     cache.features(demo.obs[:3])
     assert len(cache) == len({image.tobytes() for image in demo.obs[:3]})
+
+
+def test_features_of_an_aggregate_equal_those_of_its_concatenation(policy, demo):
+    """Part by part, each part hashed once, the same bits as the same calls on copied images."""
+    parts = [Dataset(obs=demo.obs[s : s + 9], labels=demo.labels[s : s + 9]) for s in range(0, len(demo), 9)]
+    aggregate = Aggregate(parts[:2])
+    grown = aggregate.append(*parts[2:], demo)
+    copied = FeatureCache(policy, batch_size=7)
+    expected = [copied.features(aggregate.obs), copied.features(grown.obs)]
+    cache = FeatureCache(policy, batch_size=7)
+    assert torch.equal(cache.features_of(aggregate), expected[0])
+    assert torch.equal(cache.features_of(grown), expected[1])
+    assert cache.computed == copied.computed == len({image.tobytes() for image in demo.obs})
+
+
+def test_fit_on_an_aggregate_equals_the_fit_on_its_concatenation(task, demo):
+    halves = Aggregate([Dataset(obs=demo.obs[:12], labels=demo.labels[:12]),
+                        Dataset(obs=demo.obs[12:], labels=demo.labels[12:])])
+    heads = []
+    for data in (demo, halves):
+        policy = make_policy(task, seed=4, **TOY_ARCH)
+        fit_bc(policy, data, BCConfig(lr=3e-3, epochs=3, head_only=True, seed=2), cache=FeatureCache(policy))
+        heads.append(policy.head_vector())
+    assert torch.equal(heads[0], heads[1])
 
 
 def test_fit_rejects_mismatched_data_and_cache(policy, demo):

@@ -1,11 +1,11 @@
-"""Dataset: validation, concatenation, empty."""
+"""Dataset: validation, concatenation, empty; Aggregate: appending without copying."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from metadagger.imitation.data import Dataset
+from metadagger.imitation.data import Aggregate, Dataset
 
 
 def make(n: int, *, discrete: bool = True) -> Dataset:
@@ -49,3 +49,20 @@ def test_bad_dtypes_or_shapes(obs, labels, match):
 def test_concat_rejects_other_label_kind():
     with pytest.raises(ValueError, match="cannot concatenate"):
         make(2).concat(make(2, discrete=False))
+
+
+def test_aggregate_keeps_parts_and_concatenates_on_demand():
+    a, b, c = make(2), make(3), make(1)
+    aggregate = Aggregate([a]).append(b, Aggregate([c]))
+    assert aggregate.parts == (a, b, c)  # nested aggregates are flattened, no image copied
+    assert len(aggregate) == 6 and aggregate.discrete and aggregate.image_shape == (4, 4, 3)
+    np.testing.assert_array_equal(aggregate.labels, [0, 1, 0, 1, 2, 0])
+    np.testing.assert_array_equal(aggregate.obs, a.concat(b, c).obs)
+    assert Aggregate([a]).obs is a.obs
+
+
+def test_aggregate_rejects_other_label_kind_and_no_parts():
+    with pytest.raises(ValueError, match="cannot concatenate"):
+        Aggregate([make(2)]).append(make(2, discrete=False))
+    with pytest.raises(ValueError, match="at least one dataset"):
+        Aggregate([])

@@ -34,7 +34,7 @@ from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.data import Dataset
+from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.gates import GATES, Gate, Labelled, make_gate
 from metadagger.imitation.metrics import summarize
@@ -198,7 +198,7 @@ def _gated_rounds(policy: Policy, w_bc: np.ndarray, first: Trajectory, demo: Tra
     yields, after each round's refit, the rollout of the refitted policy and the cumulative queries.
     ``first`` is w_BC's own rollout, which round 1 labels."""
     generator = torch.Generator().manual_seed(job.seed)
-    data = demo.to_dataset()
+    data = Aggregate([demo.to_dataset()])
     actions = demo.expert_labels  # on the demonstration the expert acted
     queries = len(data)
     policy.load_head_vector(torch.from_numpy(w_bc))
@@ -207,10 +207,10 @@ def _gated_rounds(policy: Policy, w_bc: np.ndarray, first: Trajectory, demo: Tra
         if gate is None:
             keep = np.ones(traj.steps, dtype=bool)
         else:
-            labelled = Labelled(features=cache.features(data.obs), labels=_tensor(data.labels), learner_actions=_tensor(actions))
+            labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
             keep = gate.select(cache.features(traj.obs), _tensor(traj.learner_actions), labelled, generator=generator).numpy()
         if keep.any():
-            data = data.concat(Dataset(obs=traj.obs[keep], labels=traj.expert_labels[keep]))
+            data = data.append(Dataset(obs=traj.obs[keep], labels=traj.expert_labels[keep]))
             actions = np.concatenate([actions, traj.learner_actions[keep]])
             queries += int(keep.sum())
             fit_bc(policy, data, dagger_bc, cache=cache)

@@ -42,7 +42,7 @@ import torch
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.data import Dataset
+from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import save_tensors
@@ -222,7 +222,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                 # stop on a deterministic env), so its labelled states are aggregated directly.
                 if config.dagger_init == "saved":
                     policy.load_head_vector(inits[method])
-                fit_bc(policy, demo.concat(first.to_dataset()), dagger_bc, cache=cache)
+                fit_bc(policy, Aggregate([demo, first.to_dataset()]), dagger_bc, cache=cache)
                 heads[method, "twoshot"] = _head(policy)
                 final = test(heads[method, "twoshot"])
             cosine_total, cosine_mean = _cosine(task, final)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -23,7 +24,7 @@ from torch.nn.utils import parameters_to_vector
 
 from metadagger.config import LATER_OPTION
 from metadagger.errors import UserError
-from metadagger.imitation.data import Dataset
+from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
@@ -133,7 +134,9 @@ class FeatureCache:
     """Trunk features of images, each computed once while the trunk's weights stay the same.
 
     Images are keyed by their bytes, so the cache can be shared by every fit on a growing
-    (aggregated) dataset; a change of the trunk's weights empties it.
+    (aggregated) dataset; a change of the trunk's weights empties it. A dataset's rows are
+    remembered for as long as the dataset lives, so a part of an :class:`Aggregate` is hashed once,
+    however many fits read it.
 
     Args:
         policy: the policy whose trunk computes the features.
@@ -150,6 +153,7 @@ class FeatureCache:
         self._rows: dict[bytes, int] = {}
         self._store = torch.empty(0, policy.net.feature_dim)
         self._trunk_digest = self._digest_trunk()
+        self._part_rows: weakref.WeakKeyDictionary[Dataset, torch.Tensor] = weakref.WeakKeyDictionary()
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -158,37 +162,80 @@ class FeatureCache:
         weights = parameters_to_vector(self.policy.net.trunk.parameters()).detach().numpy()
         return hashlib.blake2b(weights.tobytes(), digest_size=16).digest()
 
-    def features(self, obs: np.ndarray) -> torch.Tensor:
-        """Features (N, feature_dim) of uint8 images (N, H, W, C), computing only unseen images."""
+    def _check_trunk(self) -> None:
         digest = self._digest_trunk()
         if digest != self._trunk_digest:
             self._rows.clear()
             self._store = self._store[:0]
+            self._part_rows.clear()
             self._trunk_digest = digest
-        obs = np.ascontiguousarray(obs)
-        keys = [hashlib.blake2b(image, digest_size=16).digest() for image in obs]
-        missing: dict[bytes, int] = {}
-        for i, key in enumerate(keys):
-            if key not in self._rows and key not in missing:
-                missing[key] = i
+
+    def features(self, obs: np.ndarray) -> torch.Tensor:
+        """Features (N, feature_dim) of uint8 images (N, H, W, C), computing only unseen images."""
+        self._check_trunk()
+        rows = self._row_indices([obs])[0]
+        return self._store[rows]
+
+    def features_of(self, data: Dataset | Aggregate) -> torch.Tensor:
+        """Features (N, feature_dim) of a dataset's images, in its row order.
+
+        The same numbers as ``features(data.obs)``, without concatenating an aggregate's images
+        or hashing a part already read.
+        """
+        self._check_trunk()
+        unread = [part for part in data.parts if part not in self._part_rows]
+        for part, rows in zip(unread, self._row_indices([part.obs for part in unread])):
+            self._part_rows[part] = rows
+        rows = torch.cat([self._part_rows[part] for part in data.parts])
+        return self._store[rows]
+
+    def _row_indices(self, images: list[np.ndarray]) -> list[torch.Tensor]:
+        """The store's rows of each array of ``images``, after computing the unseen ones.
+
+        Unseen images are passed through the trunk in the order they appear across all arrays,
+        in batches of ``batch_size``: the batches (and so the numbers) are those of one call on
+        the arrays' concatenation.
+        """
+        images = [np.ascontiguousarray(obs) for obs in images]
+        keys = [[hashlib.blake2b(image, digest_size=16).digest() for image in obs] for obs in images]
+        missing: dict[bytes, tuple[int, int]] = {}
+        for a, array_keys in enumerate(keys):
+            for i, key in enumerate(array_keys):
+                if key not in self._rows and key not in missing:
+                    missing[key] = (a, i)
         if missing:
-            new = torch.from_numpy(obs[list(missing.values())])
+            where = list(missing.values())
             # no_grad rather than inference_mode: the cached tensors later feed a head that trains
             with torch.no_grad():
-                chunks = [self.policy.net.features(new[s : s + self.batch_size]) for s in range(0, len(new), self.batch_size)]
+                chunks = [self.policy.net.features(torch.from_numpy(_gather(images, where[s : s + self.batch_size])))
+                          for s in range(0, len(where), self.batch_size)]
             start = len(self._store)
             self._store = torch.cat([self._store, *chunks])
             self._rows.update({key: start + j for j, key in enumerate(missing)})
             self.computed += len(missing)
-        return self._store[torch.tensor([self._rows[key] for key in keys], dtype=torch.long)]
+        return [torch.tensor([self._rows[key] for key in array_keys], dtype=torch.long) for array_keys in keys]
 
 
-def _check_data(policy: Policy, data: Dataset) -> None:
+def _gather(images: list[np.ndarray], where: list[tuple[int, int]]) -> np.ndarray:
+    """The images at ``(array, row)`` positions ``where`` (ordered by array, then row), stacked.
+
+    Gathered a batch at a time, so that no copy of a whole aggregate's images is ever made.
+    """
+    first, last = where[0], where[-1]
+    if first[0] == last[0] and last[1] - first[1] == len(where) - 1:
+        return images[first[0]][first[1] : last[1] + 1]  # consecutive rows of one array: a view
+    by_array: dict[int, list[int]] = {}
+    for a, row in where:
+        by_array.setdefault(a, []).append(row)
+    return np.concatenate([images[a][rows] for a, rows in by_array.items()])
+
+
+def _check_data(policy: Policy, data: Dataset | Aggregate) -> None:
     arch = policy.arch
     if len(data) == 0:
         raise UserError("cannot fit on an empty dataset: collect at least one demonstration first")
-    if list(data.obs.shape[1:]) != list(arch["obs_shape"]):
-        raise UserError(f"dataset images are {data.obs.shape[1:]} but the policy expects {tuple(arch['obs_shape'])}; use data from the policy's task")
+    if list(data.image_shape) != list(arch["obs_shape"]):
+        raise UserError(f"dataset images are {data.image_shape} but the policy expects {tuple(arch['obs_shape'])}; use data from the policy's task")
     if data.discrete != policy.discrete or (not data.discrete and data.labels.shape[1] != arch["n_outputs"]):
         kind = "int64 class labels" if policy.discrete else f"float32 labels of width {arch['n_outputs']}"
         raise UserError(f"dataset labels are {data.labels.dtype} {data.labels.shape[1:]} but the policy needs {kind}; use data from the policy's task")
@@ -196,7 +243,7 @@ def _check_data(policy: Policy, data: Dataset) -> None:
 
 def fit_bc(
     policy: Policy,
-    data: Dataset,
+    data: Dataset | Aggregate,
     config: BCConfig,
     *,
     progress: bool = False,
@@ -207,7 +254,8 @@ def fit_bc(
 
     Args:
         policy: the policy to train (its network is updated in place).
-        data: observations and expert labels.
+        data: observations and expert labels (an :class:`Aggregate`'s images are concatenated only
+            for a whole-policy fit).
         config: optimiser settings; ``config.head_only`` fits layer n on cached trunk features;
             ``config.augment_shift`` shifts the images of whole-policy fits at random.
         progress: show a progress bar over epochs.
@@ -225,7 +273,7 @@ def fit_bc(
         cache = cache if cache is not None else FeatureCache(policy)
         if cache.policy is not policy:
             raise UserError("the FeatureCache was built for another policy; build one with FeatureCache(policy)")
-        inputs, model = cache.features(data.obs), net.head
+        inputs, model = cache.features_of(data), net.head
     else:
         if cache is not None:
             raise UserError("a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache=")
@@ -324,7 +372,7 @@ def _sharded_step(model: torch.nn.Module, params: list[torch.nn.Parameter], opti
 
 def fit_or_resume(
     policy: Policy,
-    data: Dataset,
+    data: Dataset | Aggregate,
     config: BCConfig,
     checkpoint: str | Path | None,
     *,

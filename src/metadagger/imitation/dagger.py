@@ -10,7 +10,7 @@ import numpy as np
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
-from metadagger.imitation.data import Dataset
+from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.rollouts import EarlyStop, Trajectory, collect
 from metadagger.policies import Policy
 from metadagger.progress import progress_bar
@@ -42,11 +42,12 @@ class DAggerResult:
 
     Attributes:
         rounds: one metrics dict per round (see :func:`run_dagger`).
-        dataset: the final aggregated dataset (initial data first, then each round's rollouts).
+        dataset: the final aggregated dataset (initial data first, then each round's rollouts,
+            one part per rollout).
     """
 
     rounds: list[dict[str, Any]]
-    dataset: Dataset
+    dataset: Aggregate
 
 
 def run_dagger(
@@ -54,7 +55,7 @@ def run_dagger(
     task: Task,
     seeds: Iterable[int],
     *,
-    initial: Dataset,
+    initial: Dataset | Aggregate,
     config: DAggerConfig,
     progress: bool = False,
     on_round: Callable[[int, Policy, dict[str, Any]], None] | None = None,
@@ -102,14 +103,14 @@ def run_dagger(
         raise ValueError("run_dagger needs at least one seed")
     if cache is None and config.bc.head_only:
         cache = FeatureCache(policy)
-    dataset = initial
+    dataset = Aggregate([initial])
     queries = len(initial)
     history: list[dict[str, Any]] = []
     for round_idx in progress_bar(range(1, config.rounds + 1), desc="dagger", enabled=progress, leave=False):
         trajectories = collect(task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory, workers=workers)
         if on_rollouts is not None:
             on_rollouts(round_idx, trajectories)
-        dataset = dataset.concat(*(t.to_dataset() for t in trajectories))
+        dataset = dataset.append(*(t.to_dataset() for t in trajectories))
         queries += sum(t.expert_queries for t in trajectories)
         if config.reset_each_round and not _has_checkpoint(checkpoints, round_idx):
             # a frozen trunk (e.g. pi*'s layers 1..n-1) is never re-initialised

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
+from typing import Sequence
 
 import numpy as np
 
 
-@dataclass(frozen=True)
+# eq=False: a dataset is compared (and hashed) by identity, so it can key the feature cache's memo
+@dataclass(frozen=True, eq=False)
 class Dataset:
     """Observations and expert labels, row-aligned.
 
@@ -44,20 +47,76 @@ class Dataset:
         """Whether the labels are class indices."""
         return self.labels.dtype == np.int64
 
+    @property
+    def image_shape(self) -> tuple[int, ...]:
+        """The shape of one observation, (H, W, C)."""
+        return tuple(self.obs.shape[1:])
+
+    @property
+    def parts(self) -> tuple[Dataset, ...]:
+        """The datasets this one is made of: itself."""
+        return (self,)
+
     def concat(self, *others: Dataset) -> Dataset:
-        """This dataset followed by ``others`` (rows appended in order)."""
-        for other in others:
-            if other.obs.shape[1:] != self.obs.shape[1:] or other.labels.dtype != self.labels.dtype or other.labels.shape[1:] != self.labels.shape[1:]:
-                raise ValueError(
-                    f"cannot concatenate obs {other.obs.shape[1:]} / labels {other.labels.dtype}{other.labels.shape[1:]} "
-                    f"onto obs {self.obs.shape[1:]} / labels {self.labels.dtype}{self.labels.shape[1:]}"
-                )
-        parts = (self, *others)
-        return Dataset(
-            obs=np.concatenate([d.obs for d in parts]), labels=np.concatenate([d.labels for d in parts])
-        )
+        """This dataset followed by ``others`` (rows appended in order, images copied)."""
+        aggregate = Aggregate((self, *others))
+        return Dataset(obs=aggregate.obs, labels=aggregate.labels)
 
     @classmethod
     def empty(cls, like: Dataset) -> Dataset:
         """A dataset with no rows and the same image and label shapes as ``like``."""
         return cls(obs=like.obs[:0].copy(), labels=like.labels[:0].copy())
+
+
+class Aggregate:
+    """Datasets appended in order and kept apart, so that appending copies no image.
+
+    DAgger's aggregated data grows by a rollout a round; copying every image at every round
+    cost more than the head-only fits on them. ``obs`` and ``labels`` are concatenated on first
+    use (whole-policy fits need them); head-only fits read the trunk features part by part
+    (:meth:`~metadagger.imitation.bc.FeatureCache.features_of`).
+
+    Args:
+        parts: the datasets, in order (at least one; same image shape and label layout).
+    """
+
+    def __init__(self, parts: Sequence[Dataset]) -> None:
+        parts = tuple(part for item in parts for part in item.parts)
+        if not parts:
+            raise ValueError("an Aggregate needs at least one dataset")
+        first = parts[0]
+        for other in parts[1:]:
+            if other.obs.shape[1:] != first.obs.shape[1:] or other.labels.dtype != first.labels.dtype \
+                    or other.labels.shape[1:] != first.labels.shape[1:]:
+                raise ValueError(
+                    f"cannot concatenate obs {other.obs.shape[1:]} / labels {other.labels.dtype}{other.labels.shape[1:]} "
+                    f"onto obs {first.obs.shape[1:]} / labels {first.labels.dtype}{first.labels.shape[1:]}"
+                )
+        self.parts: tuple[Dataset, ...] = parts
+
+    def __len__(self) -> int:
+        return sum(len(part) for part in self.parts)
+
+    @property
+    def discrete(self) -> bool:
+        """Whether the labels are class indices."""
+        return self.parts[0].discrete
+
+    @property
+    def image_shape(self) -> tuple[int, ...]:
+        """The shape of one observation, (H, W, C)."""
+        return self.parts[0].image_shape
+
+    @cached_property
+    def obs(self) -> np.ndarray:
+        """Every part's images, concatenated (a copy, made once)."""
+        return self.parts[0].obs if len(self.parts) == 1 else np.concatenate([part.obs for part in self.parts])
+
+    @cached_property
+    def labels(self) -> np.ndarray:
+        """Every part's labels, concatenated."""
+        return self.parts[0].labels if len(self.parts) == 1 else np.concatenate([part.labels for part in self.parts])
+
+    def append(self, *others: Dataset | Aggregate) -> Aggregate:
+        """A new aggregate: these parts followed by ``others``'."""
+        return Aggregate((*self.parts, *others))

@@ -21,6 +21,7 @@ import torch
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
+from metadagger.imitation.data import Aggregate
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import write_json
@@ -146,7 +147,7 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
               "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
     if demo.variation is not None:
         record["variation"] = demo.variation
-    states = cache.features(dagger.dataset.obs[len(data):]) if with_states else None
+    states = cache.features_of(Aggregate(dagger.dataset.parts[1:])) if with_states else None
     return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), context=context, record=record, dagger_features=states)
 
 
