@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +90,15 @@ def test_features_of_an_aggregate_equal_those_of_its_concatenation(policy, demo)
     assert torch.equal(cache.features_of(aggregate), expected[0])
     assert torch.equal(cache.features_of(grown), expected[1])
     assert cache.computed == copied.computed == len({image.tobytes() for image in demo.obs})
+
+
+def test_features_of_read_only_images_are_computed_from_a_copy(policy, demo):
+    obs = demo.obs.copy()
+    obs.flags.writeable = False  # as images loaded from a file may be
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # torch warns when it wraps a read-only array
+        features = FeatureCache(policy).features(obs)
+    assert torch.equal(features, FeatureCache(policy).features(demo.obs))
 
 
 def test_fit_on_an_aggregate_equals_the_fit_on_its_concatenation(task, demo):

@@ -222,7 +222,7 @@ def _gather(images: list[np.ndarray], where: list[tuple[int, int]]) -> np.ndarra
     Gathered a batch at a time, so that no copy of a whole aggregate's images is ever made.
     """
     first, last = where[0], where[-1]
-    if first[0] == last[0] and last[1] - first[1] == len(where) - 1:
+    if first[0] == last[0] and last[1] - first[1] == len(where) - 1 and images[first[0]].flags.writeable:
         return images[first[0]][first[1] : last[1] + 1]  # consecutive rows of one array: a view
     by_array: dict[int, list[int]] = {}
     for a, row in where:
