@@ -77,10 +77,11 @@ class Aggregate:
     (:meth:`~metadagger.imitation.bc.FeatureCache.features_of`).
 
     Args:
-        parts: the datasets, in order (at least one; same image shape and label layout).
+        parts: the datasets, in order (at least one; same image shape and label layout); an
+            aggregate among them contributes its parts.
     """
 
-    def __init__(self, parts: Sequence[Dataset]) -> None:
+    def __init__(self, parts: Sequence[Dataset | Aggregate]) -> None:
         parts = tuple(part for item in parts for part in item.parts)
         if not parts:
             raise ValueError("an Aggregate needs at least one dataset")
