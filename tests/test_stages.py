@@ -124,6 +124,10 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
         assert 0.0 <= errors["function"]["mean"] <= 1.0 and errors["weight"]["mean"] >= 0.0
     assert summary["noise_ceiling"]["heads_per_seed"] == 3 and summary["noise_ceiling"]["function"] is not None
     assert {r["kind"] for r in summary["scaling"]} == {"dm", "sam", "tam", "ridge"}
+    for row in summary["scaling"]:  # the 100% point is the run's own mapper, not fitted again
+        full = row["fraction"] == 1.0
+        assert (row["function"] == summary["methods"][row["kind"]]["function"]["mean"]) if full else row["train_pairs"] < summary["train_pairs"]
+        assert layout.diagnostics_scaling(row["kind"], row["fraction"]).exists() != full
     log = [json.loads(line) for line in layout.diagnostics_log.read_text().splitlines()]
     assert all(row["reproduced"] for line in log for row in line["entries"].get("states", {}).get("rows", []))
     before = layout.diagnostics_log.read_bytes()

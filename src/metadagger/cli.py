@@ -150,15 +150,18 @@ def train_mapper_cmd(
     kind: str = typer.Option("all", "--kind", help=f"A mapper kind ({', '.join(kind_names())}) or all."),
     overrides: list[str] = SET,
     rebuild: bool = REBUILD,
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
 ) -> None:
-    """Train mappers on the run's kept pairs (curves.csv and curves.png beside each)."""
+    """Train mappers on the run's kept pairs (curves.csv and curves.png beside each), one kind
+    per worker."""
     from metadagger.layout import RunLayout
     from metadagger.pipeline import load_run, stage_mappers
 
+    options = _options(rebuild, executor, workers, address)  # before any work
     kinds = kind_names() if kind == "all" else (kind,)
-    from metadagger.runner import StageOptions
-
-    for path in stage_mappers(RunLayout(out), load_run(out, overrides), kinds, StageOptions(rebuild=rebuild)):
+    for path in stage_mappers(RunLayout(out), load_run(out, overrides), kinds, options):
         typer.echo(f"wrote {path}")
 
 

@@ -30,7 +30,7 @@ from metadagger.evaluation.tensorboard import (Scalar, benchmark_scalars, ground
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import get_kind
-from metadagger.mapping.train import mapper_stamp, train_mapper
+from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
 from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
 from metadagger.metal.export import export_run
 from metadagger.metal.groundtruth import groundtruth_changes, train_groundtruth
@@ -120,9 +120,10 @@ def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | N
     task = run_task(config)
     head = _current_groundtruth(layout, config, task).head_vector()
     split = _current_split(layout, config, task)
+    jobs = [MapperJob(split=split, config=config.mapper_config(kind), out_dir=layout.mapper_dir(kind), pistar_head=head)
+            for kind in kinds]
+    train_mappers(jobs, rebuild=options.rebuild, options=options)
     for kind in kinds:
-        train_mapper(split, config.mapper_config(kind), layout.mapper_dir(kind), pistar_head=head, rebuild=options.rebuild,
-                     progress=options.progress)
         plot_curves(layout.mapper_curves(kind), layout.mapper_curves_figure(kind))
     _log(layout, config, lambda: {f"mapper/{kind}": mapper_scalars(layout, kind) for kind in kinds})
     return [layout.mapper(kind) for kind in kinds]

@@ -15,7 +15,8 @@ from metadagger.mapping import train as train_module
 from metadagger.mapping.mappers import Mapper, load_mapper
 from metadagger.mapping.registry import kind_names
 from metadagger.evaluation.curves import plot_curves
-from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, evaluate_mapping, paper_config, train_mapper
+from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, MapperJob, evaluate_mapping, paper_config, train_mapper, train_mappers
+from metadagger.runner import StageOptions
 
 KINDS = kind_names()
 STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "modes": ["modes"], "conditioned": ["ridge"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
@@ -106,6 +107,30 @@ def test_training_twice_gives_identical_files(tmp_path, split):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     other = train_mapper(split, dataclasses.replace(config, seed=1), tmp_path / "c", progress=False)
     assert not np.array_equal(other.map_batch(split.w_bc_val), load_mapper(tmp_path / "a" / "mapper.safetensors").map_batch(split.w_bc_val))
+
+
+def test_parallel_fits_equal_the_drivers_and_resume(tmp_path, split, pistar_head, monkeypatch):
+    kinds = ("tam", "dm", "ridge", "pistar-head")
+    configs = {kind: tiny_config(kind, epochs=5, ae_epochs=5) for kind in kinds}
+    for kind in kinds:
+        train_mapper(split, configs[kind], tmp_path / "driver" / kind, pistar_head=pistar_head, progress=False)
+    jobs = [MapperJob(split=split, config=configs[kind], out_dir=tmp_path / "pool" / kind, pistar_head=pistar_head) for kind in kinds]
+    mappers = train_mappers(jobs, options=StageOptions(workers=2, progress=False))
+    assert [m.kind for m in mappers] == list(kinds)  # in the jobs' order, whatever finished first
+    for kind in kinds:
+        for name in ("mapper.safetensors", "curves.csv"):
+            assert (tmp_path / "pool" / kind / name).read_bytes() == (tmp_path / "driver" / kind / name).read_bytes(), (kind, name)
+    # finished mappers are loaded, not refitted; a stale one is refused before any fit starts
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a fit ran")
+
+    monkeypatch.setattr(train_module, "fit_mapper", no_fit)
+    again = train_mappers(jobs, options=StageOptions(workers=2, progress=False))
+    np.testing.assert_array_equal(again[0].map_batch(split.w_bc_val), mappers[0].map_batch(split.w_bc_val))
+    (tmp_path / "pool" / "dm" / "mapper.safetensors").unlink()  # dm is due, tam is stale
+    stale = dataclasses.replace(jobs[0], config=tiny_config("tam", epochs=6, ae_epochs=5))
+    with pytest.raises(UserError, match="made from other inputs"):
+        train_mappers([jobs[1], stale], options=StageOptions(workers=2, progress=False))
 
 
 def test_resume_loads_instead_of_training(trained, split, monkeypatch):

@@ -36,7 +36,7 @@ from metadagger.layout import RunLayout
 from metadagger.mapping.diagnostics import canonical_heads, function_error, memorisation, pairwise_spread, weight_error
 from metadagger.mapping.mappers import Mapper
 from metadagger.mapping.registry import get_kind
-from metadagger.mapping.train import MapperConfig, train_mapper
+from metadagger.mapping.train import MapperConfig, MapperJob, mapper_stamp, train_mappers
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairSplit
 from metadagger.plotting import plt, save_figure
@@ -169,21 +169,31 @@ def noise_ceiling(layout: RunLayout, split: PairSplit, config: DiagnoseConfig, *
 
 
 def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, MapperConfig], fractions: tuple[float, ...],
-                  features: list[torch.Tensor], *, seed: int, outputs: int, discrete: bool, progress: bool) -> list[dict[str, Any]]:
+                  features: list[torch.Tensor], *, seed: int, outputs: int, discrete: bool, trained: dict[str, Mapper] | None = None,
+                  options: StageOptions = StageOptions()) -> list[dict[str, Any]]:
     """Each learned kind of ``configs`` trained on nested shares of the training pairs (one order
-    from ``seed``): its mean function- and weight-space error on the validation pairs."""
+    from ``seed``; the fits in parallel on ``options``' executor): its mean function- and
+    weight-space error on the validation pairs. A point made from the very pairs and config of
+    a mapper in ``trained`` (the run's own, at 100%) takes that mapper instead of a new fit."""
     order = np.random.default_rng(seed).permutation(len(split.train_seeds))
+    points = [(kind, fraction, max(2, int(round(fraction * len(order))))) for kind in configs for fraction in sorted(fractions)]
+    subsets = {count: split.with_train_rows(torch.from_numpy(np.sort(order[:count]))) for _, _, count in points}
+    mappers: dict[int, Mapper] = {}
+    jobs = {}
+    for number, (kind, fraction, count) in enumerate(points):
+        same = (trained or {}).get(kind)
+        if same is not None and same.stamp == mapper_stamp(subsets[count], configs[kind]):
+            mappers[number] = same
+        else:
+            jobs[number] = MapperJob(split=subsets[count], config=configs[kind], out_dir=layout.diagnostics_scaling(kind, fraction),
+                                     name=f"{kind} on {count} pairs")
+    mappers.update(zip(jobs, train_mappers(list(jobs.values()), rebuild=True, options=options)))
     rows = []
-    for kind in configs:
-        for fraction in sorted(fractions):
-            count = max(2, int(round(fraction * len(order))))
-            take = torch.from_numpy(np.sort(order[:count]))
-            subset = split.with_train_rows(take)
-            mapper = train_mapper(subset, configs[kind], layout.diagnostics_scaling(kind, fraction), rebuild=True, progress=progress)
-            errors = _errors(torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)), subset, features,
-                             outputs=outputs, discrete=discrete)
-            rows.append({"kind": kind, "fraction": fraction, "train_pairs": count, "function": errors["function"]["mean"],
-                         "weight": errors["weight"]["mean"]})
+    for number, (kind, fraction, count) in enumerate(points):
+        errors = _errors(torch.from_numpy(mappers[number].map_batch(split.w_bc_val, split.context_val)), subsets[count], features,
+                         outputs=outputs, discrete=discrete)
+        rows.append({"kind": kind, "fraction": fraction, "train_pairs": count, "function": errors["function"]["mean"],
+                     "weight": errors["weight"]["mean"]})
     return rows
 
 
@@ -202,7 +212,7 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
         scaling_configs: learned kind -> its training config, for the scaling curve.
         split_seed: orders the nested training subsets of the scaling curve.
         outputs, discrete: layer n's outputs and whether they are class logits.
-        options: executor and progress of the per-seed work.
+        options: executor and progress of the per-seed work and of the scaling curve's fits.
     """
     if len(split.val_seeds) < 1:
         raise UserError("the diagnostics need validation pairs; raise pairs.val_fraction")
@@ -218,7 +228,7 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
             floor = ceiling[space]["mean"] if ceiling[space] else math.nan
             errors[f"{space}_over_ceiling"] = errors[space]["mean"] / floor if floor and floor > 0 else math.nan
     scaling = scaling_curve(layout, split, scaling_configs, config.scaling, features, seed=split_seed,
-                            outputs=outputs, discrete=discrete, progress=options.progress)
+                            outputs=outputs, discrete=discrete, trained=mappers, options=options)
     summary = {"task": task.name, "discrete": discrete, "train_pairs": len(split.train_seeds), "val_pairs": len(split.val_seeds),
                "states_per_seed": config.states, "noise_ceiling": ceiling, "methods": methods, "scaling": scaling,
                "kinds": {kind: get_kind(kind).label for kind in mappers}}

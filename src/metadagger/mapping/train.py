@@ -14,7 +14,8 @@ import functools
 import io
 import json
 import math
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,10 +31,13 @@ from metadagger.layout import CURVES_FILE, MAPPER_FILE
 from metadagger.mapping.mappers import ARCH_FIELDS, Mapper, Standardizer, build_networks, load_mapper
 from metadagger.mapping.registry import Route, get_kind, kind_names
 from metadagger.metal.store import PairSplit
-from metadagger.progress import progress_bar
+from metadagger.parallel import default_workers, make_executor
+from metadagger.progress import note, progress_bar
+from metadagger.runner import StageOptions
 from metadagger.stamps import data_fingerprint, describe_changes, stamp_of
 
-__all__ = ["CURVE_COLUMNS", "MapperConfig", "evaluate_mapping", "fit_mapper", "paper_config", "train_mapper"]
+__all__ = ["CURVE_COLUMNS", "MapperConfig", "MapperJob", "evaluate_mapping", "fit_mapper", "fit_mapper_job", "paper_config", "train_mapper",
+           "train_mappers"]
 
 CURVE_COLUMNS = ("model", "epoch", "train_loss", "val_loss", "train_mse_weights", "val_mse_weights")
 """``curves.csv`` columns. ``*_loss``: the model's own MSE (standardised weights, or latent codes
@@ -140,21 +144,95 @@ def train_mapper(
         UserError: too few training pairs, a missing or mis-sized ``pistar_head``, or (without
             ``rebuild``) an existing mapper in ``out_dir`` made from another config or other pairs.
     """
-    out_dir = Path(out_dir)
-    path = out_dir / MAPPER_FILE
-    stamp = mapper_stamp(split, config, pistar_head)
-    if path.exists():
-        existing = load_mapper(path)
-        changes = describe_changes(existing.stamp, stamp)
-        if not changes:
-            return existing
-        if not rebuild:
-            raise UserError(f"{path} holds a mapper made from other inputs ({'; '.join(changes)}); "
-                            "pass --rebuild to retrain it, or run `metadagger reproduce`")
-    mapper, rows = fit_mapper(split, config, pistar_head=pistar_head, progress=progress)
-    mapper.stamp = stamp
-    _write_curves(out_dir / CURVES_FILE, rows)
-    mapper.save(path)  # last: its presence means every artifact of this stage is complete
+    job = MapperJob(split=split, config=config, out_dir=Path(out_dir), pistar_head=pistar_head)
+    return train_mappers([job], rebuild=rebuild, options=StageOptions(workers=1, progress=progress))[0]
+
+
+@dataclass(frozen=True)
+class MapperJob:
+    """One mapper to train, as :func:`train_mappers` hands it to a worker (picklable)."""
+
+    split: PairSplit
+    config: MapperConfig
+    out_dir: Path
+    """Receives ``mapper.safetensors`` and ``curves.csv`` (written by the driver)."""
+    pistar_head: np.ndarray | torch.Tensor | None = None
+    """pi*'s head vector, required by the ``pistar-head`` control."""
+    name: str = ""
+    """How progress names the job (default: its kind)."""
+
+
+def train_mappers(jobs: Sequence[MapperJob], *, rebuild: bool = False, options: StageOptions = StageOptions()) -> list[Mapper]:
+    """:func:`train_mapper` for every job, the ones to train in parallel, one job per worker.
+
+    Each fit is a function of its job alone (one torch thread, its own seeded generators), so a
+    mapper is the same to the bit whichever worker, or the driver, fits it. The driver loads the
+    jobs whose mapper is up to date, checks every stale one against ``rebuild`` before any work,
+    and writes each new mapper as its fit arrives, so a killed stage keeps the finished ones.
+
+    Returns:
+        The mappers, in the order of ``jobs``.
+    """
+    mappers = [_up_to_date(job, rebuild=rebuild) for job in jobs]
+    # longest fits first, so no worker starts a long one when the others are about to finish
+    pending = sorted((i for i, mapper in enumerate(mappers) if mapper is None), key=lambda i: -_fit_cost(jobs[i]))
+    if len(pending) == 1 or (options.executor == "local" and options.workers == 1):
+        for i in pending:  # in the driver, with the fit's own progress bars
+            mappers[i] = _save(jobs[i], *fit_mapper(jobs[i].split, jobs[i].config, pistar_head=jobs[i].pistar_head,
+                                                    progress=options.progress))
+    elif pending:
+        workers = min(options.workers or default_workers(), len(pending)) if options.executor == "local" else options.workers
+        started = time.monotonic()
+        with make_executor(options.executor, workers=workers, address=options.address) as pool:
+            for done, (i, mapper, rows) in enumerate(pool.imap_unordered(fit_mapper_job, [(i, jobs[i]) for i in pending]), 1):
+                mappers[i] = _save(jobs[i], mapper, rows)
+                note(f"mappers: {jobs[i].name or jobs[i].config.kind} trained ({done}/{len(pending)} in "
+                     f"{time.monotonic() - started:.0f}s)", enabled=options.progress)
+    return [mapper for mapper in mappers if mapper is not None]
+
+
+def fit_mapper_job(item: tuple[int, MapperJob]) -> tuple[int, Mapper, list[dict[str, Any]]]:
+    """A worker's part of :func:`train_mappers`: the numbered job's mapper and curve rows, in memory."""
+    number, job = item
+    mapper, rows = fit_mapper(job.split, job.config, pistar_head=job.pistar_head, progress=False)
+    return number, mapper, rows
+
+
+def _fit_cost(job: MapperJob) -> int:
+    """Adam epochs times training rows, roughly the job's fit time (0 for closed forms and controls;
+    each autoencoder stage counted at about twice h's rows or networks)."""
+    kind = get_kind(job.config.kind)
+    if kind.route is None or kind.closed_form is not None:
+        return 0
+    epochs = job.config.epochs + (2 * job.config.ae_epochs if kind.route.encoder is not None else 0)
+    return epochs * len(job.split.train_seeds)
+
+
+def _up_to_date(job: MapperJob, *, rebuild: bool) -> Mapper | None:
+    """The job's existing mapper if it was made from the job's inputs; None if it must be trained.
+
+    Raises:
+        UserError: without ``rebuild``, an existing mapper made from other inputs.
+    """
+    path = job.out_dir / MAPPER_FILE
+    if not path.exists():
+        return None
+    existing = load_mapper(path)
+    changes = describe_changes(existing.stamp, mapper_stamp(job.split, job.config, job.pistar_head))
+    if not changes:
+        return existing
+    if not rebuild:
+        raise UserError(f"{path} holds a mapper made from other inputs ({'; '.join(changes)}); "
+                        "pass --rebuild to retrain it, or run `metadagger reproduce`")
+    return None
+
+
+def _save(job: MapperJob, mapper: Mapper, rows: list[dict[str, Any]]) -> Mapper:
+    """Stamp and write a fitted mapper: its curves, then (last: its presence means the work is
+    complete) ``mapper.safetensors``."""
+    mapper.stamp = mapper_stamp(job.split, job.config, job.pistar_head)
+    _write_curves(job.out_dir / CURVES_FILE, rows)
+    mapper.save(job.out_dir / MAPPER_FILE)
     return mapper
 
 
