@@ -133,6 +133,17 @@ def test_parallel_fits_equal_the_drivers_and_resume(tmp_path, split, pistar_head
         train_mappers([jobs[1], stale], options=StageOptions(workers=2, progress=False))
 
 
+def test_a_user_error_in_a_worker_is_one_short_line(tmp_path, split):
+    one_pair = split.with_train_rows(torch.tensor([0]))
+    jobs = [MapperJob(split=split, config=tiny_config("ridge"), out_dir=tmp_path / "ridge"),
+            MapperJob(split=one_pair, config=tiny_config("dm"), out_dir=tmp_path / "dm", name="dm on 1 pair")]
+    with pytest.raises(UserError) as error:
+        train_mappers(jobs, options=StageOptions(workers=2, progress=False))
+    message = str(error.value)
+    assert "mapper dm on 1 pair (1 training pairs" in message and "at least 2 training pairs" in message
+    assert "\n" not in message and len(message) < 400 and "tensor" not in message
+
+
 def test_resume_loads_instead_of_training(trained, split, monkeypatch):
     mapper, out_dir = trained["dm"]
     before = (out_dir / "curves.csv").stat().st_mtime_ns

@@ -159,7 +159,10 @@ class MapperJob:
     pistar_head: np.ndarray | torch.Tensor | None = None
     """pi*'s head vector, required by the ``pistar-head`` control."""
     name: str = ""
-    """How progress names the job (default: its kind)."""
+    """How progress and errors name the job (default: its kind)."""
+
+    def __repr__(self) -> str:  # what an error from a worker names: not the pairs' tensors
+        return f"mapper {self.name or self.config.kind} ({len(self.split.train_seeds)} training pairs, {self.out_dir})"
 
 
 def train_mappers(jobs: Sequence[MapperJob], *, rebuild: bool = False, options: StageOptions = StageOptions()) -> list[Mapper]:
@@ -183,19 +186,20 @@ def train_mappers(jobs: Sequence[MapperJob], *, rebuild: bool = False, options: 
     elif pending:
         workers = min(options.workers or default_workers(), len(pending)) if options.executor == "local" else options.workers
         started = time.monotonic()
+        number = {jobs[i].out_dir: i for i in pending}
         with make_executor(options.executor, workers=workers, address=options.address) as pool:
-            for done, (i, mapper, rows) in enumerate(pool.imap_unordered(fit_mapper_job, [(i, jobs[i]) for i in pending]), 1):
+            for done, (out_dir, mapper, rows) in enumerate(pool.imap_unordered(fit_mapper_job, [jobs[i] for i in pending]), 1):
+                i = number[out_dir]
                 mappers[i] = _save(jobs[i], mapper, rows)
                 note(f"mappers: {jobs[i].name or jobs[i].config.kind} trained ({done}/{len(pending)} in "
                      f"{time.monotonic() - started:.0f}s)", enabled=options.progress)
     return [mapper for mapper in mappers if mapper is not None]
 
 
-def fit_mapper_job(item: tuple[int, MapperJob]) -> tuple[int, Mapper, list[dict[str, Any]]]:
-    """A worker's part of :func:`train_mappers`: the numbered job's mapper and curve rows, in memory."""
-    number, job = item
+def fit_mapper_job(job: MapperJob) -> tuple[Path, Mapper, list[dict[str, Any]]]:
+    """A worker's part of :func:`train_mappers`: the job's folder, its mapper and curve rows (in memory)."""
     mapper, rows = fit_mapper(job.split, job.config, pistar_head=job.pistar_head, progress=False)
-    return number, mapper, rows
+    return job.out_dir, mapper, rows
 
 
 def _fit_cost(job: MapperJob) -> int:
