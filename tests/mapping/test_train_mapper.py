@@ -131,6 +131,7 @@ def test_parallel_fits_equal_the_drivers_and_resume(tmp_path, split, pistar_head
     stale = dataclasses.replace(jobs[0], config=tiny_config("tam", epochs=6, ae_epochs=5))
     with pytest.raises(UserError, match="made from other inputs"):
         train_mappers([jobs[1], stale], options=StageOptions(workers=2, progress=False))
+    assert not (tmp_path / "pool" / "dm" / "mapper.safetensors").exists()  # the due one was not fitted either
 
 
 def test_a_user_error_in_a_worker_is_one_short_line(tmp_path, split):

@@ -161,8 +161,13 @@ class MapperJob:
     name: str = ""
     """How progress and errors name the job (default: its kind)."""
 
+    @property
+    def label(self) -> str:
+        """The job's name, or its kind."""
+        return self.name or self.config.kind
+
     def __repr__(self) -> str:  # what an error from a worker names: not the pairs' tensors
-        return f"mapper {self.name or self.config.kind} ({len(self.split.train_seeds)} training pairs, {self.out_dir})"
+        return f"mapper {self.label} ({len(self.split.train_seeds)} training pairs, {self.out_dir})"
 
 
 def train_mappers(jobs: Sequence[MapperJob], *, rebuild: bool = False, options: StageOptions = StageOptions()) -> list[Mapper]:
@@ -191,7 +196,7 @@ def train_mappers(jobs: Sequence[MapperJob], *, rebuild: bool = False, options: 
             for done, (out_dir, mapper, rows) in enumerate(pool.imap_unordered(fit_mapper_job, [jobs[i] for i in pending]), 1):
                 i = number[out_dir]
                 mappers[i] = _save(jobs[i], mapper, rows)
-                note(f"mappers: {jobs[i].name or jobs[i].config.kind} trained ({done}/{len(pending)} in "
+                note(f"mappers: {jobs[i].label} trained ({done}/{len(pending)} in "
                      f"{time.monotonic() - started:.0f}s)", enabled=options.progress)
     return [mapper for mapper in mappers if mapper is not None]
 
@@ -203,8 +208,9 @@ def fit_mapper_job(job: MapperJob) -> tuple[Path, Mapper, list[dict[str, Any]]]:
 
 
 def _fit_cost(job: MapperJob) -> int:
-    """Adam epochs times training rows, roughly the job's fit time (0 for closed forms and controls;
-    each autoencoder stage counted at about twice h's rows or networks)."""
+    """Adam epochs times training rows, roughly proportional to the job's fit time: 0 for closed
+    forms and controls; the autoencoder stage (SAM's on twice the rows, TAM's two networks)
+    counted twice."""
     kind = get_kind(job.config.kind)
     if kind.route is None or kind.closed_form is not None:
         return 0
