@@ -4,6 +4,7 @@ overrides, and inputs that changed under a finished run (nothing stale is reused
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -120,13 +121,21 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
     _ok(["diagnose", "--out", run, "--workers", "1"])
     summary = json.loads(layout.diagnostics_summary.read_text())
     assert set(summary["methods"]) == {"bc", "dm", "sam", "tam", "ridge", "mean-da", "pistar-head"}
-    for errors in summary["methods"].values():
+    for name, errors in summary["methods"].items():
         assert 0.0 <= errors["function"]["mean"] <= 1.0 and errors["weight"]["mean"] >= 0.0
+        if name == "bc":
+            assert "function_minus_bc" not in errors
+        else:  # paired over the same validation pairs, so the means subtract
+            difference = errors["function_minus_bc"]
+            assert difference["mean"] == pytest.approx(errors["function"]["mean"] - summary["methods"]["bc"]["function"]["mean"])
+            assert difference["n"] == summary["val_pairs"]
+            assert math.isnan(difference["low"]) if difference["n"] == 1 else difference["low"] <= difference["mean"] <= difference["high"]
     assert summary["noise_ceiling"]["heads_per_seed"] == 3 and summary["noise_ceiling"]["function"] is not None
     assert {r["kind"] for r in summary["scaling"]} == {"dm", "sam", "tam", "ridge"}
     for row in summary["scaling"]:  # the 100% point is the run's own mapper, not fitted again
         full = row["fraction"] == 1.0
         assert (row["function"] == summary["methods"][row["kind"]]["function"]["mean"]) if full else row["train_pairs"] < summary["train_pairs"]
+        assert row["function_minus_bc"]["mean"] == pytest.approx(row["function"] - summary["methods"]["bc"]["function"]["mean"])
         assert layout.diagnostics_scaling(row["kind"], row["fraction"]).exists() != full
     log = [json.loads(line) for line in layout.diagnostics_log.read_text().splitlines()]
     assert all(row["reproduced"] for line in log for row in line["entries"].get("states", {}).get("rows", []))
@@ -134,7 +143,7 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
     _ok(["diagnose", "--out", run, "--workers", "1"])  # nothing left to re-run
     assert layout.diagnostics_log.read_bytes() == before
     _ok(["report", "--out", run])
-    assert "## Does a mapper learn anything?" in layout.report.read_text()
+    assert "## Does a mapper learn anything?" in layout.report.read_text() and "minus w_BC's (95%)" in layout.report.read_text()
 
 
 def test_diagnose_refuses_bad_settings_in_one_line(finished):

@@ -1,6 +1,8 @@
 import pytest
 
-from metadagger.imitation.metrics import summarize, wilson_interval
+import math
+
+from metadagger.imitation.metrics import mean_interval, summarize, wilson_interval
 
 
 def test_wilson_matches_known_values():
@@ -8,6 +10,17 @@ def test_wilson_matches_known_values():
     assert lo == pytest.approx(0.4902, abs=1e-3)
     assert hi == pytest.approx(0.9433, abs=1e-3)
     assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+def test_mean_interval_is_the_normal_interval_of_the_mean():
+    # mean 2, sample sd 1 (values 1, 2, 3), n 3: half-width 1.96 / sqrt(3)
+    stat = mean_interval([1.0, 2.0, 3.0])
+    assert stat["mean"] == 2.0 and stat["n"] == 3
+    assert stat["high"] - stat["mean"] == pytest.approx(1.96 / math.sqrt(3)) and stat["mean"] - stat["low"] == pytest.approx(1.96 / math.sqrt(3))
+    one = mean_interval([0.5])
+    assert one["mean"] == 0.5 and math.isnan(one["low"]) and math.isnan(one["high"])
+    with pytest.raises(ValueError):
+        mean_interval([])
 
 
 def test_summarize_counts_and_means():

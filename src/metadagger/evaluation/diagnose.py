@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from metadagger.errors import UserError
+from metadagger.imitation.metrics import mean_interval
 from metadagger.io import load_tensors, save_tensors, write_json
 from metadagger.layout import RunLayout
 from metadagger.mapping.diagnostics import canonical_heads, function_error, memorisation, pairwise_spread, weight_error
@@ -131,20 +132,31 @@ def _features(layout: RunLayout, seed: int) -> torch.Tensor:
     return load_tensors(layout.diagnostics_seed("states", seed), what=f"state sample of seed {seed}")["features"]
 
 
+def _function_errors(predicted: torch.Tensor, split: PairSplit, features: list[torch.Tensor], *, outputs: int,
+                     discrete: bool) -> torch.Tensor:
+    """Function-space error of each validation pair's predicted head against its w_DA."""
+    return torch.tensor([function_error(p, t, f, outputs=outputs, discrete=discrete)
+                         for p, t, f in zip(predicted, split.w_da_val, features)], dtype=torch.float64)
+
+
 def _errors(predicted: torch.Tensor, split: PairSplit, features: list[torch.Tensor], *, outputs: int,
-            discrete: bool) -> dict[str, Any]:
+            discrete: bool, bc: torch.Tensor | None = None) -> dict[str, Any]:
+    """Weight- and function-space errors and memorisation of ``predicted``; with ``bc`` (w_BC's
+    function-space error per pair) also the paired difference to it with its 95% interval."""
     truth = split.w_da_val
     weights = weight_error(predicted, truth, outputs=outputs, discrete=discrete)
     raw = weight_error(predicted, truth, outputs=outputs, discrete=False)
-    functions = torch.tensor([function_error(p, t, f, outputs=outputs, discrete=discrete)
-                              for p, t, f in zip(predicted, truth, features)], dtype=torch.float64)
+    functions = _function_errors(predicted, split, features, outputs=outputs, discrete=discrete)
     if discrete:  # distances between heads that choose the same actions are 0
         ratios = memorisation(canonical_heads(predicted, outputs), canonical_heads(truth, outputs),
                               canonical_heads(split.w_da_train, outputs))
     else:
         ratios = memorisation(predicted, truth, split.w_da_train)
-    return {"weight": _mean_sd(weights), "weight_raw": _mean_sd(raw), "function": _mean_sd(functions),
-            "memorisation_median": float(ratios.median()), "memorisation_below_half": float((ratios < 0.5).to(torch.float64).mean())}
+    errors = {"weight": _mean_sd(weights), "weight_raw": _mean_sd(raw), "function": _mean_sd(functions),
+              "memorisation_median": float(ratios.median()), "memorisation_below_half": float((ratios < 0.5).to(torch.float64).mean())}
+    if bc is not None:
+        errors["function_minus_bc"] = mean_interval((functions - bc).tolist())
+    return errors
 
 
 def _mean_sd(values: torch.Tensor) -> dict[str, float]:
@@ -169,12 +181,13 @@ def noise_ceiling(layout: RunLayout, split: PairSplit, config: DiagnoseConfig, *
 
 
 def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, MapperConfig], fractions: tuple[float, ...],
-                  features: list[torch.Tensor], *, seed: int, outputs: int, discrete: bool, trained: dict[str, Mapper] | None = None,
-                  options: StageOptions = StageOptions()) -> list[dict[str, Any]]:
+                  features: list[torch.Tensor], *, seed: int, outputs: int, discrete: bool, bc: torch.Tensor,
+                  trained: dict[str, Mapper] | None = None, options: StageOptions = StageOptions()) -> list[dict[str, Any]]:
     """Each learned kind of ``configs`` trained on nested shares of the training pairs (one order
     from ``seed``; the fits in parallel on ``options``' executor): its mean function- and
-    weight-space error on the validation pairs. A point made from the very pairs and config of
-    a mapper in ``trained`` (the run's own, at 100%) takes that mapper instead of a new fit."""
+    weight-space error on the validation pairs, and its function-space error's paired difference
+    to ``bc`` (w_BC's, per pair). A point made from the very pairs and config of a mapper in
+    ``trained`` (the run's own, at 100%) takes that mapper instead of a new fit."""
     order = np.random.default_rng(seed).permutation(len(split.train_seeds))
     points = [(kind, fraction, max(2, int(round(fraction * len(order))))) for kind in configs for fraction in sorted(fractions)]
     subsets = {count: split.with_train_rows(torch.from_numpy(np.sort(order[:count]))) for _, _, count in points}
@@ -191,9 +204,9 @@ def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, Mapper
     rows = []
     for number, (kind, fraction, count) in enumerate(points):
         errors = _errors(torch.from_numpy(mappers[number].map_batch(split.w_bc_val, split.context_val)), subsets[count], features,
-                         outputs=outputs, discrete=discrete)
+                         outputs=outputs, discrete=discrete, bc=bc)
         rows.append({"kind": kind, "fraction": fraction, "train_pairs": count, "function": errors["function"]["mean"],
-                     "weight": errors["weight"]["mean"]})
+                     "weight": errors["weight"]["mean"], "function_minus_bc": errors["function_minus_bc"]})
     return rows
 
 
@@ -219,16 +232,17 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
     collect_seed_data(task, layout, pairs, config, split, options)
     features = [_features(layout, seed) for seed in split.val_seeds]
     ceiling = noise_ceiling(layout, split, config, outputs=outputs, discrete=discrete)
+    bc = _function_errors(split.w_bc_val, split, features, outputs=outputs, discrete=discrete)
     methods = {"bc": _errors(split.w_bc_val, split, features, outputs=outputs, discrete=discrete)}
     for kind, mapper in mappers.items():
         methods[kind] = _errors(torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)), split, features,
-                                outputs=outputs, discrete=discrete)
+                                outputs=outputs, discrete=discrete, bc=bc)
     for errors in methods.values():
         for space in ("weight", "function"):
             floor = ceiling[space]["mean"] if ceiling[space] else math.nan
             errors[f"{space}_over_ceiling"] = errors[space]["mean"] / floor if floor and floor > 0 else math.nan
     scaling = scaling_curve(layout, split, scaling_configs, config.scaling, features, seed=split_seed,
-                            outputs=outputs, discrete=discrete, trained=mappers, options=options)
+                            outputs=outputs, discrete=discrete, bc=bc, trained=mappers, options=options)
     summary = {"task": task.name, "discrete": discrete, "train_pairs": len(split.train_seeds), "val_pairs": len(split.val_seeds),
                "states_per_seed": config.states, "noise_ceiling": ceiling, "methods": methods, "scaling": scaling,
                "kinds": {kind: get_kind(kind).label for kind in mappers}}

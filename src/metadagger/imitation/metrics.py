@@ -1,9 +1,9 @@
-"""Summary statistics of evaluation rollouts: success rates with Wilson intervals, means."""
+"""Summary statistics: success rates with Wilson intervals, means with normal intervals."""
 
 from __future__ import annotations
 
 import math
-from typing import Iterable, Mapping
+from typing import Iterable, Mapping, Sequence
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -15,6 +15,17 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
     return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def mean_interval(values: Sequence[float], z: float = 1.96) -> dict[str, float]:
+    """The mean of ``values`` with its normal interval (95% for ``z=1.96``): mean ± z * sd / sqrt(n),
+    the sd with Bessel's correction; ``low`` and ``high`` are NaN for fewer than two values."""
+    n = len(values)
+    if n == 0:
+        raise ValueError("mean_interval needs at least one value")
+    mean = math.fsum(values) / n
+    half = z * math.sqrt(math.fsum((v - mean) ** 2 for v in values) / (n - 1) / n) if n > 1 else math.nan
+    return {"mean": mean, "low": mean - half, "high": mean + half, "n": n}
 
 
 def summarize(rows: Iterable[Mapping[str, float]]) -> dict[str, float]:
