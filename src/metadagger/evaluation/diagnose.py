@@ -22,6 +22,7 @@ resume like any mapper. Results: ``diagnostics/mapping.json`` and ``diagnostics/
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,9 @@ from metadagger.metal.store import PairSplit
 from metadagger.plotting import plt, save_figure
 from metadagger.runner import RowLog, SeedJob, StageOptions, drive, plan
 from metadagger.tasks.base import Task
+
+#: Line styles of the constant controls in the scaling figure (one each, in turn).
+CONTROL_DASHES = ("-.", ":", (0, (5, 2, 1, 2, 1, 2)))
 
 #: Fit seed of the m-th refit of a noise-ceiling seed: ``seed + REFIT_STRIDE * m``.
 REFIT_STRIDE = 1_000_003
@@ -252,17 +256,23 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
 
 
 def plot_scaling(scaling: list[dict[str, Any]], methods: dict[str, Any], path: Path) -> Path:
-    """Validation function-space error against training pairs, one line per learned kind, the
-    controls as horizontal lines."""
-    fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
+    """Validation function-space error against training pairs (log scale, ticks at the curve's
+    points), one line per learned kind; w_BC and the controls as horizontal lines, each its own dash."""
+    fig, ax = plt.subplots(figsize=(8.0, 4.2), layout="constrained")
     for kind in dict.fromkeys(r["kind"] for r in scaling):
         rows = [r for r in scaling if r["kind"] == kind]
         ax.plot([r["train_pairs"] for r in rows], [r["function"] for r in rows], marker="o", label=get_kind(kind).label)
+    dashes = itertools.cycle(CONTROL_DASHES)
     for name, errors in methods.items():
-        if name == "bc" or not get_kind(name).learned:
-            label = "BC (no mapping)" if name == "bc" else get_kind(name).label
-            ax.axhline(errors["function"]["mean"], ls="--", lw=1, color="grey" if name == "bc" else None, label=label)
+        if name == "bc":
+            ax.axhline(errors["function"]["mean"], ls="--", lw=1, color="grey", label="BC (no mapping)")
+        elif not get_kind(name).learned:
+            ax.axhline(errors["function"]["mean"], ls=next(dashes), lw=1, color="black", label=get_kind(name).label)
+    counts = sorted({r["train_pairs"] for r in scaling})
+    ax.set_xscale("log")
+    ax.set_xticks(counts, [str(c) for c in counts])
+    ax.minorticks_off()
     ax.set_xlabel("training pairs")
     ax.set_ylabel("validation function-space error")
-    ax.legend(fontsize="small")
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return save_figure(fig, path)
