@@ -1,6 +1,6 @@
-import pytest
-
 import math
+
+import pytest
 
 from metadagger.imitation.metrics import mean_interval, summarize, wilson_interval
 
