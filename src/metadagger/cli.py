@@ -55,13 +55,14 @@ def user_errors(fn: F) -> F:
 TASK = typer.Option("carracing", "--task", help="Task name: carracing, fetch, or one an installed package adds.")
 PRESET = typer.Option("quick", "--preset", help="Preset from configs/<task>.yaml (quick, paper or ci) or from --presets.")
 PRESETS_FILE = typer.Option(None, "--presets", help="YAML file of your own presets (same layout as configs/<task>.yaml).")
+BUILTIN_PRESET = typer.Option("quick", "--preset", help="Preset from configs/<task>.yaml (quick, paper or ci).")
 
 
 @app.command()
 @user_errors
 def demo(
     task: str = TASK,
-    preset: str = PRESET,
+    preset: str = BUILTIN_PRESET,
     out: Path = typer.Option(Path("runs/demo"), "--out", help="Run folder to write to."),
     rounds: Optional[int] = typer.Option(None, "--rounds", help="Override the preset's DAgger rounds."),
     epochs: Optional[int] = typer.Option(None, "--epochs", help="Override the preset's BC epochs per fit."),

@@ -1,5 +1,6 @@
 """The MetaL DAgger pipeline as stages over one run folder:
-groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> report.
+groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> benchmark -> report; diagnose, tune
+and export run on their own.
 
 Each stage reads the run's config and the previous stages' artifacts, checks that those are
 complete and made from today's config (their stamps, :mod:`metadagger.stamps`), and skips the work
