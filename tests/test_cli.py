@@ -62,7 +62,8 @@ def test_missing_run_and_missing_groundtruth(tmp_path):
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "pi* not found")
 
 
-@pytest.mark.parametrize("command", [["pairs"], ["evaluate", "--protocol", "mdm"]], ids=["pairs", "evaluate"])
+@pytest.mark.parametrize("command", [["pairs"], ["evaluate", "--protocol", "mdm"], ["bench", "pairs", "--seeds", "1"]],
+                         ids=["pairs", "evaluate", "bench-pairs"])
 def test_corrupt_checkpoint_is_a_clear_error(tmp_path, command):
     # a run folder whose pi* is garbage: the stage reports it before looking for work
     (tmp_path / "config.yaml").write_text("task: carracing\n")
@@ -136,6 +137,35 @@ def test_out_that_is_a_file_is_an_error(tmp_path):
     existing.write_text("keep me")
     _fails_cleanly(["groundtruth", "--out", str(existing)], f"{existing} is a file, not a")
     assert existing.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("command", [["expert", "--seeds", "0"], ["bench", "env", "--steps", "1", "--seeds", "0"],
+                                     ["bench", "bc", "--images", "10", "--epochs", "1"]])
+def test_an_output_file_that_is_a_folder_is_refused_before_any_work(tmp_path, command):
+    started = time.perf_counter()
+    _fails_cleanly([*command, "--out", str(tmp_path)], f"--out {tmp_path} is a folder")
+    assert time.perf_counter() - started < 5.0
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc, where no folder can be made")
+def test_a_run_folder_that_cannot_be_made_is_one_line(tmp_path):
+    _fails_cleanly(["groundtruth", "--out", "/proc/metadagger-run"], "cannot create folder /proc/metadagger-run")
+
+
+def test_a_corrupt_json_artifact_is_named(tmp_path):
+    init_run(tmp_path, "carracing", "ci")
+    layout = RunLayout(tmp_path)
+    layout.pairs_summary.parent.mkdir(parents=True)
+    layout.pairs_summary.write_text("{x")
+    _fails_cleanly(["report", "--out", str(tmp_path)], "the pairs summary is corrupt", str(layout.pairs_summary))
+
+
+def test_a_table_without_its_columns_is_named(tmp_path):
+    init_run(tmp_path, "carracing", "ci")
+    table = RunLayout(tmp_path).eval_table("mdm")
+    table.parent.mkdir(parents=True)
+    table.write_text("garbage\n")
+    _fails_cleanly(["report", "--out", str(tmp_path)], f"the table is corrupt or unreadable: {table} (no column method, seed)")
 
 
 def test_evaluate_protocol_errors(tmp_path):

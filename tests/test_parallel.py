@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -17,6 +19,7 @@ from metadagger.errors import CheckpointError, UserError
 from metadagger.parallel import Executor, LocalExecutor, WorkerError, check_executor_options, make_executor
 
 ITEMS = list(range(12))
+GCS_WAIT = "RAY_gcs_server_port_wait_time_s"
 
 
 def _square(x: int) -> int:
@@ -130,6 +133,46 @@ def test_an_unreachable_ray_address_fails_at_once(closed_port: int, scheme: str)
     with pytest.raises(UserError, match=f"cannot reach a Ray cluster at '{address}' .*'ray://HEAD:10001'"):
         make_executor("ray", address=address)
     assert time.monotonic() - start < 15
+
+
+def test_auto_is_checked_before_any_work_like_any_address(closed_port: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
+    from ray._private import services
+
+    monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{closed_port}")  # what "auto" connects to first
+    with pytest.raises(UserError, match=f"cannot reach a Ray cluster at '127.0.0.1:{closed_port}' \\(found for 'auto'\\)"):
+        check_executor_options("ray", None, "auto")
+    monkeypatch.delenv("RAY_ADDRESS")
+
+    def no_cluster(address: str) -> str:
+        raise ConnectionError("Could not find any running Ray instance.")
+
+    monkeypatch.setattr(services, "canonicalize_bootstrap_address", no_cluster)
+    with pytest.raises(UserError, match="no Ray cluster found for address 'auto': RAY_ADDRESS is not set and no `ray start`"):
+        check_executor_options("ray", None, "auto")
+
+
+def test_connecting_bounds_how_long_ray_tries_the_cluster(monkeypatch: pytest.MonkeyPatch) -> None:
+    ray = pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
+    seen = []
+
+    def init(**kwargs) -> None:  # a port that answers but is no Ray head: Ray's retries end in ConnectionError
+        seen.append(os.environ.get(GCS_WAIT))
+        raise ConnectionError(f"Failed to connect to Ray cluster at {kwargs['address']}")
+
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.delenv(GCS_WAIT, raising=False)
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        address = f"127.0.0.1:{server.getsockname()[1]}"
+        with pytest.raises(UserError, match=f"^cannot connect to Ray at '{address}' \\(Failed to connect"):
+            make_executor("ray", address=address)
+        assert seen == ["3"] and GCS_WAIT not in os.environ  # 3 tries of about a second, not Ray's 20
+        monkeypatch.setenv(GCS_WAIT, "40")  # a wait the user chose is kept
+        with pytest.raises(UserError):
+            make_executor("ray", address=address)
+    assert seen == ["3", "40"] and os.environ[GCS_WAIT] == "40"
 
 
 def test_a_ray_address_without_a_port_is_a_user_error() -> None:

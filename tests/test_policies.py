@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import save_tensors
-from metadagger.policies import Policy, PolicyNet, load_policy, make_policy
+from metadagger.io import load_tensors, read_metadata, save_tensors
+from metadagger.policies import Policy, PolicyNet, load_policy, make_policy, tensor_mismatch
 
 SMALL = {"conv_channels": (4, 8), "kernel_sizes": (3, 3), "hidden": (16,)}
 
@@ -160,11 +160,37 @@ def test_metadata_that_does_not_rebuild_raises_checkpoint_error(tmp_path):
     arch = dict(policy.arch, hidden=[32])  # tensors no longer fit this architecture
     metadata = {"format": "metadagger.policy/1", "arch": json.dumps(arch), "task": "toy"}
     save_tensors(tmp_path / "bad.safetensors", policy.net.state_dict(), metadata=metadata)
-    with pytest.raises(CheckpointError, match="does not rebuild"):
+    with pytest.raises(CheckpointError, match=r"trunk\.5\.weight has shape \(16, 128\), expected \(32, 128\)"):
         load_policy(tmp_path / "bad.safetensors")
+    save_tensors(tmp_path / "no-arch.safetensors", policy.net.state_dict(), metadata={"format": "metadagger.policy/1"})
+    with pytest.raises(CheckpointError, match="does not rebuild"):
+        load_policy(tmp_path / "no-arch.safetensors")
     save_tensors(tmp_path / "other.safetensors", {"x": torch.zeros(1)})
     with pytest.raises(CheckpointError, match="not a metadagger policy"):
         load_policy(tmp_path / "other.safetensors")
+
+
+def test_tensors_that_do_not_fit_the_recorded_architecture_are_named_in_one_line(tmp_path):
+    path = small_policy().save(tmp_path / "p.safetensors")
+    tensors = load_tensors(path)
+    tensors["head.weight"] = torch.zeros(3, 3)
+    del tensors["trunk.0.bias"]
+    tensors["extra"] = torch.zeros(1)
+    save_tensors(path, tensors, metadata=read_metadata(path))
+    with pytest.raises(CheckpointError) as info:
+        load_policy(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert f"policy checkpoint {path} does not fit the architecture its metadata records (" in message
+    assert "missing tensor(s) trunk.0.bias; unexpected tensor(s) extra; head.weight has shape (3, 3), expected (5, 16)" in message
+    assert message.endswith("restore the file, or delete it and re-run the command that wrote it "
+                            "(for a run's pi*: metadagger groundtruth --out RUN)")
+
+
+def test_tensor_mismatch_lists_a_few_names_and_counts_the_rest():
+    expected = {f"t{i}": torch.zeros(2) for i in range(5)}
+    assert tensor_mismatch(expected, expected) == ""
+    assert tensor_mismatch({}, expected) == "missing tensor(s) t0, t1, t2 and 2 more"
 
 
 @pytest.mark.parametrize(

@@ -78,9 +78,13 @@ def test_train_mapper_on_incomplete_pairs_refuses_and_reproduce_rebuilds(finishe
 def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
     before = {kind: layout.mapper(kind).read_bytes() for kind in ("dm", "mean-da")}
+    config = layout.config.read_bytes()
     _refused(["pairs", "--out", layout.root, "--set", "pairs.dagger_rounds=2"], "dagger_rounds: 1 -> 2", "--rebuild")
-    _refused(["train-mapper", "--out", layout.root, "--kind", "dm"], "no current pair", "dagger_rounds: 1 -> 2")
-    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root])
+    assert layout.config.read_bytes() == config  # a refused command leaves the run's config as it was
+    _refused(["train-mapper", "--out", layout.root, "--kind", "dm", "--set", "pairs.dagger_rounds=2"], "no current pair",
+             "dagger_rounds: 1 -> 2")
+    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root, "--set", "pairs.dagger_rounds=2"])
+    assert "  dagger_rounds: 2\n" in layout.config.read_text()  # the config reproduce ran with
     records = (layout.pairs_dir / "pairs.jsonl").read_text()
     assert records.count('"dagger_rounds":2') == 4  # every pair made again with two rounds
     assert layout.mapper("dm").read_bytes() != before["dm"]  # trained on the new pairs
@@ -148,3 +152,13 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
 
 def test_diagnose_refuses_bad_settings_in_one_line(finished):
     _refused(["diagnose", "--out", finished, "--set", "diagnose.scaling=[0, 1]"], "diagnose.scaling")
+
+
+def test_a_damaged_pair_file_is_named_by_train_mapper_and_collected_again_by_pairs(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    pair = sorted(layout.pairs_dir.glob("*.safetensors"))[0]
+    pair.write_bytes(pair.read_bytes()[:100])
+    _refused(["train-mapper", "--out", layout.root, "--kind", "dm"], f"pair file {pair} is corrupt or not a safetensors file (",
+             f"; run `metadagger pairs --out {layout.root}`, which collects that pair again")
+    _ok(["pairs", "--out", layout.root])
+    assert pair.read_bytes() == (finished / "pairs" / pair.name).read_bytes()

@@ -15,7 +15,7 @@ import numpy as np
 
 import metadagger  # noqa: F401  (registers the metadagger ids)
 from metadagger.errors import UserError
-from metadagger.io import write_json
+from metadagger.io import read_json, write_json
 
 #: task -> (our base env id, the upstream id it reproduces)
 ENV_PAIRS = {"carracing": ("metadagger/CarRacing-v0", "CarRacing-v3")}
@@ -214,12 +214,12 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     one machine only).
     """
     import dataclasses
-    import json
     import tempfile
 
     from metadagger.layout import RunLayout
     from metadagger.metal.pairs import collect_pairs
     from metadagger.pipeline import load_run, run_task
+    from metadagger.policies import load_policy
     from metadagger.runner import StageOptions
 
     run = Path(run)
@@ -229,6 +229,11 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
         raise UserError(f"bench pairs needs --target-kept >= 1 and --nodes >= 1, got {target_kept} and {list(nodes)}")
     if seeds < 1 or len(config.pairs.seeds) < seeds:
         raise UserError(f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}")
+    if not layout.groundtruth.is_file():
+        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {run}` first")
+    load_policy(layout.groundtruth)  # a corrupt pi* is reported under its own path, not the scratch copies'
+    run_summary = layout.pairs_summary
+    run_kept = read_json(run_summary, "the run's pairs summary") if run_summary.is_file() else None
     pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]))
     task = run_task(config)
     timings: dict[str, float] = {}
@@ -241,8 +246,7 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
             start = time.perf_counter()
             summary = collect_pairs(task, scratch, pairs_config, StageOptions(workers=n, progress=False))
             timings[str(n)] = time.perf_counter() - start
-    run_summary = layout.pairs_summary
-    kept_source = json.loads(run_summary.read_text()) if run_summary.is_file() else summary
+    kept_source = summary if run_kept is None else run_kept
     kept_share = kept_source["kept"] / kept_source["seeds"] if kept_source["seeds"] else 0.0
     best = str(max(workers))
     pairs_per_hour = 3600.0 * seeds / timings[best]
@@ -255,7 +259,7 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
         "pairs_per_hour": {k: 3600.0 * seeds / v for k, v in timings.items()},
         "speedup": {k: timings[str(min(workers))] / v for k, v in timings.items()},
         "kept_share": kept_share,
-        "kept_share_from": "run" if run_summary.is_file() else "bench",
+        "kept_share_from": "bench" if run_kept is None else "run",
         "target_kept": target_kept,
         "minutes_for_target_kept": minutes,
         "extrapolated": {

@@ -88,9 +88,11 @@ def expert(
     """Measure the task's expert (acting through the learner's action space) on seeds."""
     from metadagger.config import parse_seeds
     from metadagger.evaluation.expert import evaluate_expert, expert_table
-    from metadagger.io import write_json
+    from metadagger.io import check_output_file, write_json
     from metadagger.tasks import make_task
 
+    if out is not None:
+        check_output_file(out, "--out")
     rows = evaluate_expert(make_task(task), parse_seeds(seeds))
     typer.echo(expert_table(rows))
     if out is not None:
@@ -383,7 +385,9 @@ def bench_env_cmd(
     """Steps per second of our env against upstream's, on the same seeds and actions."""
     from metadagger.bench import bench_env, write_bench
     from metadagger.config import parse_seeds
+    from metadagger.io import check_output_file
 
+    check_output_file(out, "--out")
     result = bench_env(task, seeds=parse_seeds(seeds), steps=steps)
     write_bench(result, out)
     typer.echo({k: v for k, v in result.items() if not isinstance(v, (dict, list))})
@@ -399,7 +403,9 @@ def bench_bc_cmd(
 ) -> None:
     """Full BC fit vs head-only refit on cached trunk features, and inference latency."""
     from metadagger.bench import bench_bc, write_bench
+    from metadagger.io import check_output_file
 
+    check_output_file(out, "--out")
     result = bench_bc(images=images, epochs=epochs)
     write_bench(result, out)
     typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
@@ -418,7 +424,9 @@ def bench_pairs_cmd(
     """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
     pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
     from metadagger.bench import bench_pairs, write_bench
+    from metadagger.io import check_output_file
 
+    check_output_file(json_out, "--json")
     result = bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes)
     write_bench(result, json_out)
     typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))

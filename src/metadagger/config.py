@@ -9,9 +9,11 @@ dataclass and reports unknown or mistyped keys as one clear :class:`UserError` l
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import types
 import typing
+from collections import Counter
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -22,14 +24,19 @@ from metadagger.errors import UserError
 
 T = TypeVar("T")
 PRESETS = ("quick", "paper", "ci")
+SEED_FIELD = re.compile(r"(\w+_)?seed")
+"""Names of the int config fields that hold a seed (``seed``, ``split_seed``)."""
+SEEDS_FIELD = re.compile(r"(\w+_)?seeds")
+"""Names of the tuple-of-int config fields that hold seeds (``seeds``, ``eval_seeds``); a string
+value is a seed list (:func:`parse_seeds`)."""
 
 
 def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
     """Parse ``"0-99"`` (inclusive range), ``"1,5,9"``, ``"3"`` or a list into a tuple of seeds."""
     if isinstance(text, int):
-        return (text,)
+        return check_seeds((text,), f"bad seed list {text!r}")
     if not isinstance(text, str):
-        return tuple(int(s) for s in text)
+        return check_seeds(tuple(int(s) for s in text), f"bad seed list {text!r}")
     seeds: list[int] = []
     for part in text.replace(" ", "").split(","):
         m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
@@ -38,9 +45,44 @@ def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
         lo = int(m.group(1))
         hi = int(m.group(2)) if m.group(2) is not None else lo
         seeds.extend(range(lo, hi + 1))
-    if len(set(seeds)) != len(seeds):
-        raise UserError(f"bad seed list {text!r}: a seed appears twice; list each seed once")
+    return check_seeds(seeds, f"bad seed list {text!r}")
+
+
+def check_seeds(seeds: typing.Sequence[int], what: str) -> tuple[int, ...]:
+    """``seeds`` as a tuple, checked to be non-negative and distinct (``what`` names them in the error)."""
+    negative = [s for s in seeds if s < 0]
+    if negative:
+        raise UserError(f"{what}: seed {negative[0]} is negative; use seeds >= 0")
+    repeated = [s for s, n in Counter(seeds).items() if n > 1]
+    if repeated:
+        raise UserError(f"{what}: seed {repeated[0]} appears twice; list each seed once")
     return tuple(seeds)
+
+
+def read_yaml_mapping(path: str | Path, what: str, fix: str) -> dict[str, Any]:
+    """The mapping in the YAML file ``path`` (described as ``what``); a file that cannot be read, is
+    not UTF-8 text, is not valid YAML or holds no mapping is a :class:`UserError` naming it and ``fix``."""
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        problem = exc.strerror
+    except UnicodeDecodeError as exc:
+        problem = f"not UTF-8 text: byte {exc.object[exc.start]:#04x} at offset {exc.start}"
+    except yaml.YAMLError as exc:
+        problem = _yaml_problem(exc)
+    else:
+        if isinstance(data, dict):
+            return data
+        problem = f"expected a mapping, got {type(data).__name__}"
+    raise UserError(f"{path} is not a readable YAML {what} ({problem}); {fix}")
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """A YAML parser's error as one line: its problem and, when known, its line and column."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+    return " ".join(f"{problem}{where}".split())
 
 
 def load_preset(task: str, preset: str, presets_file: str | Path | None = None) -> dict[str, Any]:
@@ -57,20 +99,18 @@ def load_preset(task: str, preset: str, presets_file: str | Path | None = None) 
         except FileNotFoundError:
             raise UserError(f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)") from None
         where = f"metadagger/configs/{task}.yaml"
-    else:
-        try:
-            text = Path(presets_file).read_text()
-        except OSError as exc:
-            raise UserError(f"cannot read presets file {presets_file} ({exc.strerror}); pass an existing YAML file") from None
-        where = str(presets_file)
-    try:
         presets = yaml.safe_load(text).get("presets")
-    except (yaml.YAMLError, AttributeError):
-        presets = None
-    if not isinstance(presets, dict):
-        raise UserError(f"{where} must be YAML with a top-level 'presets:' mapping of preset names to stage sections")
+    else:
+        where = str(presets_file)
+        presets = read_yaml_mapping(presets_file, "presets file", "fix it or pass another (layout: docs/custom_task.md)").get("presets")
+    if not isinstance(presets, dict) or not presets:
+        raise UserError(f"{where} has no presets: expected a top-level 'presets:' mapping of preset names to stage sections "
+                        "(see docs/custom_task.md)")
     if preset not in presets:
-        raise UserError(f"{where} has no preset {preset!r}: expected one of {', '.join(sorted(presets))}")
+        raise UserError(f"{where} has no preset {preset!r}: expected one of {', '.join(map(str, presets))}; pass one with --preset")
+    if not isinstance(presets[preset], dict):
+        raise UserError(f"{where}: preset {preset!r} is {presets[preset]!r}, not a mapping of stage sections; "
+                        f"give it sections, e.g. {preset}: {{pairs: {{dagger_rounds: 4}}}}")
     return presets[preset]
 
 
@@ -87,14 +127,16 @@ def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise UserError(f"{where}: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(fields)}")
-    kwargs = {name: _coerce(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    kwargs = {name: _coerce(hints[name], value, f"{where}.{name}", name) for name, value in data.items()}
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise UserError(f"{where}: {exc}") from None
 
 
-def _coerce(hint: Any, value: Any, where: str) -> Any:
+def _coerce(hint: Any, value: Any, where: str, field: str = "") -> Any:
+    """``value`` as type ``hint`` of config field ``field`` (at ``where``); the seeds of
+    :data:`SEED_FIELD` and :data:`SEEDS_FIELD` fields are checked to be >= 0 and distinct."""
     origin = typing.get_origin(hint)
     if dataclasses.is_dataclass(hint):
         return value if isinstance(value, hint) else build(hint, value, where=where)
@@ -102,20 +144,27 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
         args = [a for a in typing.get_args(hint) if a is not type(None)]
         if value is None:
             return None
-        return _coerce(args[0], value, where) if len(args) == 1 else value
+        return _coerce(args[0], value, where, field) if len(args) == 1 else value
     if origin is tuple:
-        if isinstance(value, (str, int)) and typing.get_args(hint)[:1] == (int,):
-            return parse_seeds(value)
-        if not isinstance(value, (list, tuple)):
-            raise UserError(f"{where}: expected a list, got {value!r}")
         args = typing.get_args(hint)
         inner = args[0] if args else Any
-        return tuple(_coerce(inner, v, where) for v in value)
+        seed_list = inner is int and SEEDS_FIELD.fullmatch(field) is not None
+        if seed_list and isinstance(value, (str, int)) and not isinstance(value, bool):
+            try:
+                return parse_seeds(value)
+            except UserError as exc:
+                raise UserError(f"{where}: {exc}") from None
+        if not isinstance(value, (list, tuple)):
+            raise UserError(f"{where}: expected a list of {getattr(inner, '__name__', inner)}, got {value!r}")
+        items = tuple(_coerce(inner, v, where) for v in value)
+        return check_seeds(items, where) if seed_list else items
     if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise UserError(f"{where}: expected a finite number, got {value!r}")
         return float(value)
     if hint in (int, float, str, bool) and not isinstance(value, hint) or (hint is int and isinstance(value, bool)):
         raise UserError(f"{where}: expected {hint.__name__}, got {value!r}")
-    return value
+    return check_seeds((value,), where)[0] if hint is int and SEED_FIELD.fullmatch(field) else value
 
 
 #: Metadata of a config field added after runs were made with its default behaviour: stamps leave

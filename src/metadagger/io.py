@@ -29,7 +29,8 @@ _UMASK = _current_umask()
 
 
 def _make_folder(folder: Path) -> None:
-    """Create ``folder`` and its parents; a file in the way is a :class:`UserError` naming it."""
+    """Create ``folder`` and its parents; a file in the way, or a place where no folder can be
+    made, is a :class:`UserError` naming it."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
@@ -37,6 +38,25 @@ def _make_folder(folder: Path) -> None:
         raise UserError(
             f"cannot create folder {folder}: {blocker} is a file, not a folder; choose another output path or move that file"
         ) from None
+    except OSError as exc:
+        raise UserError(f"cannot create folder {folder} ({exc.strerror}); choose an output path you can write to") from None
+
+
+def check_output_file(path: str | Path, option: str) -> None:
+    """Make sure ``path`` (given as ``option``) can be written as a file, before any work that ends
+    by writing it: not a folder, and under a writable folder (nothing is created here)."""
+    path = Path(path)
+    if path.is_dir():
+        raise UserError(f"{option} {path} is a folder; give a file path such as {path / 'result.json'}")
+    nearest = next(p for p in (path.parent.absolute(), *path.parent.absolute().parents) if p.exists())
+    if not nearest.is_dir():
+        raise UserError(f"{option} {path}: {nearest} is a file, not a folder; choose another output path or move that file")
+    try:
+        fd, trial = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=nearest)
+    except OSError as exc:
+        raise UserError(f"{option} {path}: cannot write in {nearest} ({exc.strerror}); choose an output path you can write to") from None
+    os.close(fd)
+    os.unlink(trial)
 
 
 def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
@@ -89,6 +109,26 @@ def write_text(path: str | Path, text: str) -> Path:
 def write_json(path: str | Path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON atomically."""
     return write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n")
+
+
+def read_json(path: str | Path, what: str) -> Any:
+    """The JSON document at ``path`` (an artifact described as ``what``); a missing, unreadable or
+    corrupt file is a :class:`UserError` naming it."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise UserError(f"{what} not found: {path}; re-run the stage that writes it (`metadagger reproduce` resumes a run)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise corrupt_artifact(what, path, exc.strerror if isinstance(exc, OSError) else str(exc)) from None
+
+
+def corrupt_artifact(what: str, path: str | Path, reason: str) -> UserError:
+    """The error for an artifact that exists but cannot be read: it names the file, why, and the fix."""
+    return UserError(
+        f"{what} is corrupt or unreadable: {path} ({reason}); delete it and re-run the stage that writes it "
+        "(`metadagger reproduce` resumes a run)"
+    )
 
 
 def _json_default(obj: Any) -> Any:

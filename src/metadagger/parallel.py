@@ -14,6 +14,7 @@ Example:
 from __future__ import annotations
 
 import abc
+import contextlib
 import multiprocessing
 import os
 import pickle
@@ -41,6 +42,9 @@ _IN_FLIGHT_PER_WORKER = 2
 # Seconds to wait for a Ray cluster's port to accept a connection: a live head answers in
 # milliseconds, while Ray keeps retrying an unreachable one (Ray Client for 30 s, HOST:PORT longer).
 _CONNECT_TIMEOUT_S = 3.0
+# Ray's setting for how many times (about a second apart) ray.init tries a cluster's GCS: by
+# default 20, each failed try logging a warning that no Ray log level silences.
+_GCS_WAIT_VAR = "RAY_gcs_server_port_wait_time_s"
 _INSTALL_RAY = 'pip install -c constraints.txt -e ".[ray]"'
 _ADDRESS_HINT = "expected 'ray://HEAD:10001' (Ray Client), 'HEAD:6379' (on a cluster node) or 'auto'"
 
@@ -284,7 +288,8 @@ class RayExecutor(Executor[Any]):
             # num_cpus may only be given when starting a local instance, not when connecting.
             num_cpus = workers if address is None else None
             try:
-                ray.init(address=address, num_cpus=num_cpus, include_dashboard=False)
+                with _bounded_gcs_wait(address):
+                    ray.init(address=address, num_cpus=num_cpus, include_dashboard=False)
             except ConnectionError as exc:  # e.g. "auto" with no cluster running
                 raise UserError(f"cannot connect to Ray at {address!r} ({exc}); {_ADDRESS_HINT}") from None
         if workers is None:
@@ -326,20 +331,52 @@ def _import_ray() -> Any:
     return ray
 
 
-def _check_reachable(address: str | None) -> None:
-    """Raise UserError unless ``address`` (``ray://HOST:PORT`` or ``HOST:PORT``) accepts a TCP
-    connection within a few seconds; ``None`` and ``"auto"`` are left to Ray."""
-    if address is None or address == "auto":
+@contextlib.contextmanager
+def _bounded_gcs_wait(address: str | None) -> Iterator[None]:
+    """Connecting to ``address``, let ray.init try the cluster's GCS :data:`_CONNECT_TIMEOUT_S`
+    times instead of Ray's 20, so a port that answers but is no Ray head fails with a few of Ray's
+    warnings, not twenty; a local instance, or a number the user set, is left alone."""
+    if address is None or _GCS_WAIT_VAR in os.environ:
+        yield
         return
-    host, _, port = address.removeprefix("ray://").rpartition(":")
+    os.environ[_GCS_WAIT_VAR] = str(int(_CONNECT_TIMEOUT_S))
+    try:
+        yield
+    finally:
+        del os.environ[_GCS_WAIT_VAR]
+
+
+def _check_reachable(address: str | None) -> None:
+    """Raise UserError unless ``address`` (``ray://HOST:PORT``, ``HOST:PORT``, or ``"auto"``: the
+    cluster Ray finds for it) accepts a TCP connection within a few seconds; ``None`` (a local
+    instance) needs no check."""
+    if address is None:
+        return
+    target = _auto_address() if address == "auto" else address
+    host, _, port = target.removeprefix("ray://").rpartition(":")
     if not host or not port.isdigit():
-        raise UserError(f"bad Ray address {address!r}; {_ADDRESS_HINT}")
+        raise UserError(f"bad Ray address {target!r}; {_ADDRESS_HINT}")
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=_CONNECT_TIMEOUT_S).close()
     except OSError as exc:
+        found = f" (found for {address!r})" if target != address else ""
         raise UserError(
-            f"cannot reach a Ray cluster at {address!r} ({exc.strerror or exc}); "
+            f"cannot reach a Ray cluster at {target!r}{found} ({exc.strerror or exc}); "
             f"check that its head is running (ray start --head) and the host and port: {_ADDRESS_HINT}"
+        ) from None
+
+
+def _auto_address() -> str:
+    """The cluster ``ray.init(address="auto")`` connects to: ``RAY_ADDRESS``, else one started on
+    this node by ``ray start`` (found by Ray's own lookup)."""
+    from ray._private.services import canonicalize_bootstrap_address
+
+    try:
+        return os.environ.get("RAY_ADDRESS") or canonicalize_bootstrap_address("auto")
+    except ConnectionError:
+        raise UserError(
+            "no Ray cluster found for address 'auto': RAY_ADDRESS is not set and no `ray start` runs on this node; "
+            f"start one (ray start --head) or pass its address: {_ADDRESS_HINT}"
         ) from None
 
 

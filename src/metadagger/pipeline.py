@@ -14,7 +14,6 @@ scalars from its artifacts (:mod:`metadagger.evaluation.tensorboard`).
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
@@ -28,6 +27,7 @@ from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
 from metadagger.evaluation.tensorboard import (Scalar, benchmark_scalars, groundtruth_scalars, mapper_scalars, pairs_scalars,
                                                table_scalars, write_tensorboard)
+from metadagger.io import read_json
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import get_kind
@@ -39,7 +39,7 @@ from metadagger.metal.pairs import collect_pairs, pair_status
 from metadagger.metal.store import PairSplit, PairStore
 from metadagger.parallel import default_workers
 from metadagger.policies import Policy, load_policy
-from metadagger.run import RunConfig, init_run, load_run
+from metadagger.run import RunConfig, init_run, load_run, records_config, save_run
 from metadagger.runner import StageOptions
 from metadagger.stamps import describe_changes
 from metadagger.tasks import make_task
@@ -60,6 +60,7 @@ def _log(layout: RunLayout, config: RunConfig, runs: Callable[[], Mapping[str, l
         write_tensorboard(layout, runs())
 
 
+@records_config
 def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Train pi* (skipped when done and made from this config)."""
     # pi*'s rollouts use this machine's cores (a local pool) whatever executor the per-seed stages use
@@ -82,6 +83,7 @@ def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Po
     return pistar
 
 
+@records_config
 def stage_pairs(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Collect the pairs of every seed not stored yet (with ``options.rebuild``, also the stale ones)."""
     task = run_task(config)
@@ -96,6 +98,7 @@ def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSpli
     and pair settings."""
     missing, changes = pair_status(task, layout, config.pairs)
     if missing:
+        PairStore(layout.pairs_dir).check_readable(missing, fix=f"run `metadagger pairs --out {layout.root}`, which collects that pair again")
         why = f"made from other inputs ({'; '.join(changes)})" if changes else "not collected"
         raise UserError(
             f"{len(missing)} of {len(config.pairs.seeds)} seeds of pairs.seeds have no current pair (e.g. {missing[0]}: {why}); "
@@ -111,6 +114,7 @@ def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSpli
     return split
 
 
+@records_config
 def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | None = None,
                   options: StageOptions = StageOptions()) -> list[Path]:
     """Train the mappers of ``kinds`` (default: the kinds the run uses, ``config.mapper_kinds``)
@@ -130,6 +134,7 @@ def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | N
     return [layout.mapper(kind) for kind in kinds]
 
 
+@records_config
 def stage_tune(layout: RunLayout, config: RunConfig, kind: str, *, trials: int, seed: int = 0, apply: bool = False,
                options: StageOptions = StageOptions()) -> TuneResult:
     """Search mapper ``kind``'s hyperparameters (:mod:`metadagger.mapping.tune`): trials train on
@@ -143,7 +148,7 @@ def stage_tune(layout: RunLayout, config: RunConfig, kind: str, *, trials: int, 
     result = tune_mapper(split, config.mapper_config(kind), study=layout.tune_study(kind), summary=layout.tune_summary(kind),
                          trials=trials, seed=seed, base_overrides=config.mappers.get(kind) or {}, options=options)
     if apply:
-        load_run(layout.root, [result.set_item])  # validated and written back like any --set
+        save_run(layout.root, load_run(layout.root, [result.set_item]))  # validated like any --set
     return result
 
 
@@ -174,6 +179,7 @@ def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
     return tuple(seeds)
 
 
+@records_config
 def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
                    options: StageOptions = StageOptions()) -> list[dict]:
     """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``): the missing
@@ -188,6 +194,7 @@ def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int]
     return rows
 
 
+@records_config
 def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
               options: StageOptions = StageOptions()) -> list[dict]:
     """The MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) on the config's unseen seeds (or on
@@ -204,6 +211,7 @@ def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | No
     return rows
 
 
+@records_config
 def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
                     methods: Sequence[str] | None = None, options: StageOptions = StageOptions()) -> list[dict]:
     """Success against expert queries on the config's unseen seeds (or ``seeds``), for its methods
@@ -227,6 +235,7 @@ def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int
     return rows
 
 
+@records_config
 def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOptions = StageOptions()) -> dict:
     """The mapping diagnostics of every kind and control of ``evaluate.methods`` on the run's
     validation pairs (:mod:`metadagger.evaluation.diagnose`)."""
@@ -241,6 +250,7 @@ def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOption
                             outputs=pistar.net.head.out_features, discrete=pistar.discrete, options=options)
 
 
+@records_config
 def stage_export(layout: RunLayout, config: RunConfig, *, what: str, name: str, seeds: Sequence[int] | None = None,
                  options: StageOptions = StageOptions()) -> dict:
     """The run's ``what`` episodes (demos, dagger, pairs-data) of ``seeds`` (default: the pair
@@ -255,7 +265,7 @@ def stage_export(layout: RunLayout, config: RunConfig, *, what: str, name: str, 
 def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:
     """Expert queries spent on pi* and on the pairs of ``pairs.seeds`` (each pair's demonstration
     and DAgger rounds)."""
-    metrics = json.loads(layout.groundtruth_metrics.read_text()) if layout.groundtruth_metrics.is_file() else {}
+    metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics") if layout.groundtruth_metrics.is_file() else {}
     seeds = set(config.pairs.seeds)
     records = PairStore(layout.pairs_dir).records() if layout.pairs_dir.is_dir() else []
     return {"pistar": int(metrics.get("expert_queries", 0)),

@@ -16,7 +16,7 @@ import inspect
 import json
 import subprocess
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 import torch
@@ -313,13 +313,37 @@ def load_policy(path: str | Path) -> Policy:
         )
     try:
         net = PolicyNet(**json.loads(metadata["arch"]))
-        net.load_state_dict(tensors, strict=True)
-    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+    except (KeyError, TypeError, ValueError) as exc:
         message = str(exc).splitlines()[0]
         raise CheckpointError(
             f"policy checkpoint {path} does not rebuild ({type(exc).__name__}: {message}); re-save it with this metadagger version"
         ) from None
+    mismatch = tensor_mismatch(tensors, net.state_dict())
+    if mismatch:
+        raise CheckpointError(
+            f"policy checkpoint {path} does not fit the architecture its metadata records ({mismatch}); restore the file, or "
+            "delete it and re-run the command that wrote it (for a run's pi*: metadagger groundtruth --out RUN)"
+        )
+    net.load_state_dict(tensors, strict=True)
     return Policy(net=net, task=metadata.get("task", ""))
+
+
+def tensor_mismatch(found: Mapping[str, torch.Tensor], expected: Mapping[str, torch.Tensor]) -> str:
+    """How the tensors ``found`` in a checkpoint differ from the ``expected`` ones (a module's
+    ``state_dict()``) in names and shapes, as one line; "" when they fit."""
+    missing = [name for name in expected if name not in found]
+    unexpected = [name for name in found if name not in expected]
+    shapes = [f"{name} has shape {tuple(found[name].shape)}, expected {tuple(tensor.shape)}"
+              for name, tensor in expected.items() if name in found and found[name].shape != tensor.shape]
+    parts = [f"{what}{_first_few(names)}" for what, names in
+             (("missing tensor(s) ", missing), ("unexpected tensor(s) ", unexpected), ("", shapes)) if names]
+    return "; ".join(parts)
+
+
+def _first_few(items: list[str], limit: int = 3) -> str:
+    """``items`` joined by commas, cut to the first ``limit`` and a count of the rest."""
+    shown = ", ".join(items[:limit])
+    return shown if len(items) <= limit else f"{shown} and {len(items) - limit} more"
 
 
 def make_policy(task: Task, *, seed: int, **arch_overrides: Any) -> Policy:

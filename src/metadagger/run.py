@@ -2,27 +2,29 @@
 
 ``metadagger groundtruth --task T --preset P --out RUN`` creates it from a preset; ``metadagger
 pairs --out RUN`` and the later stages read it back, so a run is described by its folder alone.
-Every command also takes ``--set section.key=value`` overrides (the value read as YAML), validated
-by the same builder as the presets; the config a command ran with is written back to the folder.
+The stage commands also take ``--set section.key=value`` overrides (the value read as YAML), validated
+by the same builder as the presets; the config a stage runs with is written back to the folder
+(:func:`records_config`), and put back as it was when the stage refuses.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Concatenate, ParamSpec, Sequence, TypeVar
 
 import yaml
 
-from metadagger.config import build, dump_yaml, load_preset, to_dict
+from metadagger.config import build, dump_yaml, load_preset, read_yaml_mapping, to_dict
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark import BenchmarkConfig
 from metadagger.evaluation.diagnose import DiagnoseConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.evaluation.tensorboard import require_tensorboard
-from metadagger.io import write_text
+from metadagger.io import atomic_write, write_text
 from metadagger.layout import RunLayout
 from metadagger.mapping.registry import kind_names, learned_names
 from metadagger.mapping.train import MapperConfig, paper_config
@@ -31,6 +33,10 @@ from metadagger.metal.pairs import PairConfig
 
 LOGS = ("none", "tensorboard")
 """Values of :attr:`RunConfig.log`."""
+CHOSEN_AT_START = ("task", "preset")
+"""Config keys a run takes from ``--task``/``--preset`` when it starts, never from ``--set``."""
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -124,6 +130,9 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
         keys = path.strip().split(".")
         if not sep or not all(keys):
             raise UserError(f"bad --set {item!r}: expected section.key=value, e.g. --set pairs.dagger_rounds=4")
+        if keys[0] in CHOSEN_AT_START:
+            raise UserError(f"bad --set {item!r}: the {keys[0]} is chosen with --{keys[0]}, not --set, and a run keeps the one it "
+                            f"started with; pass --{keys[0]} instead (with a new --out for a started run)")
         try:
             value = yaml.safe_load(text)
         except yaml.YAMLError as exc:
@@ -150,7 +159,8 @@ def resolve_config(task: str, preset: str, presets_file: str | Path | None = Non
 def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path | None = None,
              overrides: Sequence[str] = ()) -> RunConfig:
     """Create ``<run>/config.yaml`` from a preset and ``overrides``, or read the existing one (of
-    the same task and preset) with ``overrides`` applied; the result is written back."""
+    the same task and preset) with ``overrides`` applied; an existing run's file is updated by the
+    stage that runs with the result (:func:`records_config`)."""
     layout = RunLayout(run)
     if layout.root.exists() and not layout.root.is_dir():
         raise UserError(f"--out {run} is a file, not a run folder; pass a folder path")
@@ -163,23 +173,47 @@ def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path |
             )
         return config
     config = resolve_config(task, preset, presets_file, overrides)
-    write_text(layout.config, dump_yaml(config))
+    save_run(run, config)
     return config
 
 
 def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
-    """Read a run's config with ``overrides`` applied (and written back when they change it); a
-    missing or broken file is a :class:`UserError`."""
+    """Read a run's config with ``overrides`` applied (the file is left as it is: the stage that
+    runs with the result writes it, :func:`records_config`); a missing or broken file is a
+    :class:`UserError`."""
     path = RunLayout(run).config
     if not path.is_file():
         raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise UserError(f"{path} is not valid YAML ({exc}); fix or delete it") from None
-    if not isinstance(data, dict):
-        raise UserError(f"{path} must be a mapping of config sections; fix or delete it")
-    config = build(RunConfig, apply_overrides(data, overrides), where=str(path) + (" with --set" if overrides else ""))
-    if overrides and dump_yaml(config) != path.read_text():
-        write_text(path, dump_yaml(config))
-    return config
+    return build(RunConfig, apply_overrides(run_data(path), overrides), where=str(path) + (" with --set" if overrides else ""))
+
+
+def run_data(path: Path) -> dict[str, Any]:
+    """The mapping in a run's ``config.yaml`` at ``path``, not yet validated; an unreadable file is
+    a :class:`UserError` naming it."""
+    return read_yaml_mapping(path, "config", "restore it or start a new run folder (--out)")
+
+
+def save_run(run: str | Path, config: RunConfig) -> None:
+    """Write ``config`` as the run's ``config.yaml``."""
+    write_text(RunLayout(run).config, dump_yaml(config))
+
+
+def records_config(stage: Callable[Concatenate[RunLayout, RunConfig, P], R]) -> Callable[Concatenate[RunLayout, RunConfig, P], R]:
+    """``stage(layout, config, ...)`` run with ``config`` as the run's ``config.yaml``: written first
+    when the file says otherwise (``--set`` overrides), and put back as it was when the stage
+    refuses (a :class:`UserError`), so a refused command leaves the run's config unchanged. A
+    folder without a ``config.yaml`` (a config made in code) gets none."""
+
+    @functools.wraps(stage)
+    def wrapper(layout: RunLayout, config: RunConfig, *args: P.args, **kwargs: P.kwargs) -> R:
+        before = layout.config.read_bytes() if layout.config.is_file() else None
+        if before is None or before == dump_yaml(config).encode():
+            return stage(layout, config, *args, **kwargs)
+        save_run(layout.root, config)
+        try:
+            return stage(layout, config, *args, **kwargs)
+        except UserError:
+            atomic_write(layout.config, lambda tmp: tmp.write_bytes(before))
+            raise
+
+    return wrapper

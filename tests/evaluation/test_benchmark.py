@@ -133,6 +133,19 @@ def test_config_errors():
         BenchmarkConfig(grids={"dagger-random": [0.1]})
     with pytest.raises(UserError, match="benchmark.grids has unknown"):
         BenchmarkConfig(grids={**CONFIG.grids, "dagger-x": [0.5]})
+    with pytest.raises(UserError, match="benchmark.methods must not be empty; allowed: bc, mdm, dagger"):
+        BenchmarkConfig(methods=())
+    with pytest.raises(UserError, match="benchmark.grids.dagger-random is missing or empty"):
+        dataclasses.replace(CONFIG, methods=("dagger-random",), grids={"dagger-random": []})
+
+
+def test_mdi_on_a_run_without_an_mdi_protocol_is_refused_before_any_work(tmp_path):
+    layout = RunLayout(tmp_path / "run")
+    with pytest.raises(UserError) as info:
+        _run(layout, dataclasses.replace(CONFIG, methods=("bc", "mdi")))
+    assert str(info.value) == (f"benchmark method mdi needs an mdi section, but run {layout.root} has none; "
+                               "drop mdi from --methods (or benchmark.methods), or add an mdi section")
+    assert not layout.root.exists()
 
 
 def test_matching_table_picks_the_cheapest_setting_that_reaches_dagger(tmp_path):

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from metadagger.cli import app
 from metadagger.errors import UserError
-from metadagger.evaluation.rows import read_csv
+from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
 from metadagger.evaluation.tensorboard import INSTALL, groundtruth_scalars, require_tensorboard
 from metadagger.layout import RunLayout
 from metadagger.metal.store import PairStore
@@ -109,7 +109,7 @@ def test_pair_scalars_equal_the_records_and_summary(run):
 
 def test_mapper_scalars_are_its_curves_autoencoders_included(run):
     for kind, models in (("dm", ["dm"]), ("sam", ["sigma_all", "h"])):
-        rows = read_csv(run.mapper_curves(kind))
+        rows = read_csv(run.mapper_curves(kind), columns=CURVE_COLUMNS)
         assert list(dict.fromkeys(r["model"] for r in rows)) == models
         scalars = _read(run, f"mapper/{kind}")
         for model in models:

@@ -8,8 +8,8 @@ import torch
 
 import metadagger
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import save_tensors
-from metadagger.mapping.mappers import Mapper, Standardizer, load_mapper
+from metadagger.io import load_tensors, read_metadata, save_tensors
+from metadagger.mapping.mappers import Mapper, Standardizer, build_networks, load_mapper
 
 
 def test_standardizer_fit_transform_inverse(rng):
@@ -75,3 +75,21 @@ def test_truncated_mapper_file_is_a_checkpoint_error(tmp_path):
     path.write_bytes(path.read_bytes()[:-8])
     with pytest.raises(CheckpointError, match="corrupt"):
         load_mapper(path)
+
+
+def test_tensors_that_do_not_fit_the_recorded_networks_are_named_in_one_line(tmp_path):
+    arch = {"hidden": [8], "latent": 2, "ae_hidden": [8], "batchnorm": False, "dropout": 0.0, "ae_dropout": 0.0}
+    scalers = {name: Standardizer(mean=torch.zeros(4), std=torch.ones(4)) for name in ("bc", "da")}
+    mapper = Mapper(kind="dm", dim=4, networks=build_networks("dm", 4, **arch), scalers=scalers, config={"kind": "dm", **arch})
+    path = mapper.save(tmp_path / "m.safetensors")
+    tensors = load_tensors(path)
+    shape = tuple(tensors["networks.dm.0.0.weight"].shape)
+    tensors["networks.dm.0.0.weight"] = torch.zeros(3, 3)
+    del tensors["networks.dm.1.bias"]
+    save_tensors(path, tensors, metadata=read_metadata(path))
+    with pytest.raises(CheckpointError) as info:
+        load_mapper(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert message == (f"mapper file {path} does not match its own metadata (missing tensor(s) networks.dm.1.bias; "
+                       f"networks.dm.0.0.weight has shape (3, 3), expected {shape}); delete it and re-run train-mapper")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -181,7 +182,7 @@ def test_bad_pair_files_are_checkpoint_errors(tmp_path: Path) -> None:
     store.pair_path(2).write_bytes(b"not safetensors")
     with pytest.raises(CheckpointError, match=r"pair file .*1\.safetensors is not a valid pair .*same length"):
         store.load([1])
-    with pytest.raises(CheckpointError, match=r"corrupt .*2\.safetensors"):
+    with pytest.raises(CheckpointError, match=r"2\.safetensors is corrupt"):
         store.load([2])
     with pytest.raises(CheckpointError, match="seed 7 has no record"):
         store.load([7])
@@ -189,6 +190,34 @@ def test_bad_pair_files_are_checkpoint_errors(tmp_path: Path) -> None:
     with pytest.raises(CheckpointError, match=r"3\.safetensors holds vectors of length 8, but seed 0 has length 6"):
         store.load([0, 3])
     assert store.done_seeds() == {0, 3}
+
+
+@pytest.mark.parametrize(
+    ("damage", "problem"),
+    [
+        (lambda path: path.write_bytes(path.read_bytes()[:100]), r"is corrupt or not a safetensors file \(.+\)"),
+        (lambda path: path.write_bytes(b"x\n"), r"is corrupt or not a safetensors file \(.+\)"),
+        (lambda path: path.write_bytes(b""), r"is corrupt or not a safetensors file \(.+\)"),
+        (lambda path: save_tensors(path, {"a": torch.zeros(DIM), "w_da": torch.zeros(DIM)}),
+         r"is not a valid pair \(it holds tensors \['a', 'w_da'\], expected w_bc, w_da and optionally context\)"),
+        (lambda path: save_tensors(path, {"w_bc": torch.zeros(DIM), "w_da": torch.zeros(DIM, dtype=torch.float64)}),
+         r"is not a valid pair \(w_da must be a non-empty 1-D float32 tensor, got torch.float64"),
+        (lambda path: path.unlink(), "is missing"),
+    ],
+    ids=["truncated", "garbage", "empty", "other-tensors", "other-dtype", "deleted"],
+)
+def test_a_recorded_seed_whose_file_does_not_load_is_named_with_the_fix(tmp_path: Path, damage, problem: str) -> None:
+    store = PairStore(tmp_path)
+    _fill(store, [0, 1, 2])
+    damage(store.pair_path(1))
+    assert store.done_seeds() == {0, 2}  # redone by the next collection
+    store.check_readable([7, 0, 2])  # unrecorded seeds and readable files pass
+    fix = "run `metadagger pairs --out RUN`, which collects that pair again"
+    with pytest.raises(CheckpointError) as info:
+        store.check_readable([0, 1, 2], fix=fix)
+    message = str(info.value)
+    assert re.fullmatch(f"pair file {re.escape(str(store.pair_path(1)))} {problem}.*; {re.escape(fix)}", message)
+    assert "\n" not in message
 
 
 def test_a_garbled_complete_line_is_a_checkpoint_error(tmp_path: Path) -> None:

@@ -83,6 +83,8 @@ class BenchmarkConfig:
         if not self.seeds:
             raise UserError("benchmark.seeds must not be empty")
         known = ("bc", "mdm", "dagger", *GATED, "mdi")
+        if not self.methods:
+            raise UserError(f"benchmark.methods must not be empty; allowed: {', '.join(known)}")
         unknown = [m for m in self.methods if m not in known]
         if unknown:
             raise UserError(f"benchmark.methods has unknown method(s) {unknown}; allowed: {', '.join(known)}")
@@ -286,8 +288,15 @@ def run_benchmark(
         meta_queries: expert queries spent on meta-training (``pistar``, ``pairs``), for the report.
         options: rebuild (redo rows made from other inputs; else they are an error), executor,
             workers, progress: as for every stage.
+
+    Raises:
+        UserError: ``config.methods`` has ``mdi`` but the run has no MDI protocol; or, without
+            ``rebuild``, rows made from other inputs.
     """
-    with_mdi = mdi is not None and "mdi" in config.methods
+    with_mdi = "mdi" in config.methods
+    if with_mdi and mdi is None:
+        raise UserError(f"benchmark method mdi needs an mdi section, but run {layout.root} has none; "
+                        "drop mdi from --methods (or benchmark.methods), or add an mdi section")
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
     stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi.mapper if with_mdi else None)

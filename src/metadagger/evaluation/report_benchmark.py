@@ -5,12 +5,12 @@ meta-training cost in expert queries against what MDM saves per new seed."""
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
 from metadagger.evaluation.benchmark import MDM_PREFIX, plot_queries
 from metadagger.evaluation.tables import markdown_table, method_label, pct
+from metadagger.io import read_json
 from metadagger.layout import RunLayout
 
 FIGURE = "queries.png"
@@ -22,7 +22,7 @@ def benchmark_section(layout: RunLayout) -> list[str]:
     """Markdown lines of the benchmark section; [] if the run has no benchmark summary."""
     if not layout.benchmark_summary.is_file():
         return []
-    summary = json.loads(layout.benchmark_summary.read_text())
+    summary = read_json(layout.benchmark_summary, "the benchmark summary")
     entries = summary["entries"]
     if not entries:
         return []

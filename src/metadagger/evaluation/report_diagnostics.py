@@ -3,11 +3,11 @@
 
 from __future__ import annotations
 
-import json
 import math
 
 from metadagger.evaluation.diagnose import plot_scaling
 from metadagger.evaluation.tables import markdown_table, method_label, method_order
+from metadagger.io import read_json
 from metadagger.layout import RunLayout
 
 FIGURE = "diagnostics_scaling.png"
@@ -36,7 +36,7 @@ def diagnostics_section(layout: RunLayout) -> list[str]:
     """Function- and weight-space errors beside the noise ceiling, memorisation, data scaling."""
     if not layout.diagnostics_summary.is_file():
         return []
-    s = json.loads(layout.diagnostics_summary.read_text())
+    s = read_json(layout.diagnostics_summary, "the diagnostics summary")
     function = "action mismatch rate" if s["discrete"] else "mean squared action error"
     ceiling = s["noise_ceiling"]
     lines = ["## Does a mapper learn anything?", "",

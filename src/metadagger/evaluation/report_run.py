@@ -4,11 +4,11 @@ controls'). Built only from the run's JSON and CSV files."""
 
 from __future__ import annotations
 
-import json
 
 from metadagger.evaluation.curves import plot_curves
-from metadagger.evaluation.rows import read_csv
+from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
 from metadagger.evaluation.tables import markdown_table, method_label, pct
+from metadagger.io import read_json
 from metadagger.layout import RunLayout
 from metadagger.mapping.registry import get_kind, kind_names
 
@@ -17,7 +17,7 @@ def groundtruth_section(layout: RunLayout) -> list[str]:
     """pi*'s success on its own and on unseen seeds, and the expert queries it cost."""
     if not layout.groundtruth_metrics.is_file():
         return []
-    m = json.loads(layout.groundtruth_metrics.read_text())
+    m = read_json(layout.groundtruth_metrics, "pi*'s metrics")
     cells = []
     for key, name in (("own_seeds", "its own (training) seeds"), ("unseen_seeds", "unseen seeds")):
         s = m[key]
@@ -42,7 +42,7 @@ def pairs_section(layout: RunLayout) -> list[str]:
     """The four outcomes of the per-seed pairs and how many were kept."""
     if not layout.pairs_summary.is_file():
         return []
-    s = json.loads(layout.pairs_summary.read_text())
+    s = read_json(layout.pairs_summary, "the pairs summary")
     cells = [(name.replace("_", " ").replace("/", ", "), count, pct(s["shares"][name])) for name, count in s["outcomes"].items()]
     return ["## Pairs (w_BC, w_DA)", "", f"{s['seeds']} seeds, {s['kept']} pairs kept.", ""] + markdown_table(("outcome", "seeds", "share"), cells) + [""]
 
@@ -53,7 +53,7 @@ def mappers_section(layout: RunLayout) -> list[str]:
     finals = {}
     for kind in kind_names():
         if layout.mapper_curves(kind).is_file():
-            rows = [r for r in read_csv(layout.mapper_curves(kind)) if r["val_mse_weights"] != ""]
+            rows = [r for r in read_csv(layout.mapper_curves(kind), columns=CURVE_COLUMNS) if r["val_mse_weights"] != ""]
             if rows:
                 finals[kind] = rows[-1]
     if not finals:

@@ -21,15 +21,14 @@ docs/tensorboard.md lists every tag.
 from __future__ import annotations
 
 import functools
-import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from metadagger.errors import UserError
-from metadagger.evaluation.rows import read_csv
-from metadagger.io import atomic_folder
+from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
+from metadagger.io import atomic_folder, read_json
 from metadagger.layout import RunLayout
 from metadagger.metal.store import OUTCOME_KEYS, PairStore
 
@@ -69,7 +68,7 @@ def groundtruth_scalars(layout: RunLayout) -> list[Scalar]:
     ``select/successes`` at step = epoch for each check of ``groundtruth.select_seeds``, and
     ``select/chosen_epoch`` at step 0.
     """
-    metrics = json.loads(layout.groundtruth_metrics.read_text())
+    metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics")
     rounds = metrics["rounds"]
     fits = [metrics.get("bc_epoch_losses"), *(r.get("dagger/epoch_losses") for r in rounds)]
     out = [("loss", loss, k * len(losses) + epoch) for k, losses in enumerate(fits) if losses
@@ -93,7 +92,7 @@ def pairs_scalars(layout: RunLayout, seeds: Iterable[int]) -> list[Scalar]:
     for record in (r for r in PairStore(layout.pairs_dir).records() if r["seed"] in wanted):
         out += [(f"{outcome}/{key}", record[outcome][key], record["seed"]) for outcome in ("bc", "da") for key in OUTCOME_KEYS]
         out.append(("kept", record["kept"], record["seed"]))
-    return out + [(f"summary/{tag}", value, 0) for tag, value in _leaves(json.loads(layout.pairs_summary.read_text()))]
+    return out + [(f"summary/{tag}", value, 0) for tag, value in _leaves(read_json(layout.pairs_summary, "the pairs summary"))]
 
 
 def mapper_scalars(layout: RunLayout, kind: str) -> list[Scalar]:
@@ -101,7 +100,7 @@ def mapper_scalars(layout: RunLayout, kind: str) -> list[Scalar]:
     ``<model>/val_loss`` of every network it trains (autoencoders, then h; or DM's MLP) and
     ``train_mse_weights`` / ``val_mse_weights`` of the whole mapping (a control's at step 0)."""
     out = []
-    for row in read_csv(layout.mapper_curves(kind)):
+    for row in read_csv(layout.mapper_curves(kind), columns=CURVE_COLUMNS):
         out += [(f"{row['model']}/{key}", row[key], row["epoch"]) for key in ("train_loss", "val_loss")]
         out += [(key, row[key], row["epoch"]) for key in ("train_mse_weights", "val_mse_weights")]
     return out
@@ -128,7 +127,7 @@ def benchmark_scalars(layout: RunLayout) -> list[Scalar]:
     """:func:`table_scalars` of ``benchmark/queries.csv``; ``<method>/success_vs_queries``: the
     success rate of each of the method's settings at step = its mean expert queries per seed
     (rounded), so TensorBoard draws success against queries; ``meta_training_queries/<what>``."""
-    summary = json.loads(layout.benchmark_summary.read_text())
+    summary = read_json(layout.benchmark_summary, "the benchmark summary")
     out = table_scalars(layout.benchmark_table)
     out += [(f"{e['method']}/success_vs_queries", e["success_rate"], round(e["mean_queries"])) for e in summary["entries"]]
     return out + [(f"meta_training_queries/{what}", n, 0) for what, n in summary["meta_training_queries"].items()]

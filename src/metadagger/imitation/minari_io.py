@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 import gymnasium as gym
 import numpy as np
@@ -140,11 +140,22 @@ def _same_space(a: gym.Space, b: gym.Space) -> bool:
     return False
 
 
+def _episodes(dataset: Any, name: str) -> Iterator[Any]:
+    """The episodes of the Minari ``dataset`` named ``name``; data files that cannot be read (a
+    truncated or damaged download or export) are a :class:`UserError` naming them."""
+    try:
+        yield from dataset.iterate_episodes()
+    except Exception as err:  # h5py and pyarrow raise several types for damaged files
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise UserError(f"Minari dataset {name!r} is damaged: its data in {dataset.storage.data_path} cannot be read ({reason}); "
+                        f"download or export it again (delete this copy first with `minari delete {name}`)") from None
+
+
 def read_demonstrations(name: str, *, observation_space: gym.Space, action_space: gym.Space) -> Dataset:
     """The (observation, expert label) rows of the Minari dataset ``name``.
 
     Raises:
-        UserError: the dataset is missing, or its spaces differ from the learner's.
+        UserError: the dataset is missing or its data cannot be read, or its spaces differ from the learner's.
     """
     minari = _minari()
     try:
@@ -159,7 +170,7 @@ def read_demonstrations(name: str, *, observation_space: gym.Space, action_space
                             "use a dataset of a task with the same spaces")
     discrete = isinstance(action_space, gym.spaces.Discrete)
     obs, labels = [], []
-    for episode in dataset.iterate_episodes():
+    for episode in _episodes(dataset, name):
         infos = episode.infos or {}
         if "expert_label" in infos:
             keep = np.asarray(infos["queried"], dtype=bool)[:-1] if "queried" in infos else slice(None)

@@ -24,6 +24,7 @@ from torch import nn
 from metadagger.errors import CheckpointError, UserError
 from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.mapping.registry import get_kind
+from metadagger.policies import tensor_mismatch
 from metadagger.version import __version__
 
 __all__ = ["ARCH_FIELDS", "Mapper", "Standardizer", "build_networks", "cached_mapper", "load_mapper"]
@@ -259,6 +260,10 @@ def load_mapper(path: str | Path) -> Mapper:
         # A throwaway generator: rebuilding must not consume the caller's global torch RNG.
         arch = {field: config[field] for field in ARCH_FIELDS}
         networks = build_networks(kind, dim, context_dim=context_dim, **arch, generator=torch.Generator().manual_seed(0))
+        mismatch = tensor_mismatch({k: v for k, v in tensors.items() if k.startswith("networks.")},
+                                   {f"networks.{name}.{k}": v for name, net in networks.items() for k, v in net.state_dict().items()})
+        if mismatch:
+            raise ValueError(mismatch)
         for name, net in networks.items():
             prefix = f"networks.{name}."
             net.load_state_dict({k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}, strict=True)

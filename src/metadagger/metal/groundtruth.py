@@ -9,7 +9,6 @@ per-round checkpoints, so a killed run resumes after its last finished fit.
 from __future__ import annotations
 
 import functools
-import json
 import shutil
 from dataclasses import dataclass, field
 
@@ -22,7 +21,7 @@ from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import collect
 from metadagger.imitation.selection import EpochSelector
-from metadagger.io import write_json
+from metadagger.io import read_json, write_json
 from metadagger.layout import RunLayout
 from metadagger.policies import Policy, load_policy, make_policy
 from metadagger.stamps import describe_changes, stamp_of
@@ -84,7 +83,7 @@ def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout
     pi* put there by hand, without a stamp: downstream stamps still record its fingerprint)."""
     if not layout.groundtruth_stamp.is_file():
         return []
-    return describe_changes(json.loads(layout.groundtruth_stamp.read_text()), groundtruth_stamp(task, config))
+    return describe_changes(read_json(layout.groundtruth_stamp, "pi*'s stamp"), groundtruth_stamp(task, config))
 
 
 def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, *, rebuild: bool = False,
@@ -109,7 +108,7 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     if changes:
         shutil.rmtree(layout.groundtruth_dir)
     if layout.groundtruth.is_file() and layout.groundtruth_metrics.is_file():
-        return json.loads(layout.groundtruth_metrics.read_text())
+        return read_json(layout.groundtruth_metrics, "pi*'s metrics")
     write_json(layout.groundtruth_stamp, groundtruth_stamp(task, config))
     task = task.groundtruth_task()  # a family's pi* learns its nominal member (docs/families.md)
 

@@ -26,9 +26,10 @@ from typing import Any
 
 import numpy as np
 import torch
+from safetensors.torch import load_file
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import load_tensors, save_tensors
+from metadagger.io import save_tensors
 from metadagger.jsonl import append_line, read_lines
 
 __all__ = ["OUTCOME_KEYS", "PairSplit", "PairStore"]
@@ -37,6 +38,7 @@ OUTCOME_KEYS = ("success", "reward", "steps", "expert_queries")
 """Keys every ``bc`` and ``da`` outcome in a record must have."""
 
 _JSONL = "pairs.jsonl"
+_RECOLLECT = "run metadagger pairs, which collects that pair again"
 
 
 @dataclass(frozen=True, eq=False)  # eq=False: == on tensors is elementwise, not a bool
@@ -135,9 +137,8 @@ class PairStore:
         """
         seed = _check_seed(seed)
         _check_vectors(w_bc, w_da)
-        if context is not None and (not isinstance(context, torch.Tensor) or context.dtype != torch.float32 or context.ndim != 1):
-            raise ValueError(f"context must be a 1-D float32 tensor, got {getattr(context, 'dtype', type(context).__name__)} "
-                             f"of shape {tuple(getattr(context, 'shape', ()))}")
+        if context is not None:
+            _check_context(context)
         line = _record_line(seed, record)
         self.root.mkdir(parents=True, exist_ok=True)
         for stale in self.root.glob(f".{seed}.safetensors.*.tmp"):
@@ -145,6 +146,15 @@ class PairStore:
         tensors = {"w_bc": w_bc, "w_da": w_da} | ({} if context is None else {"context": context})
         save_tensors(self.pair_path(seed), tensors, metadata={"seed": str(seed)})
         append_line(self.jsonl_path, line)
+
+    def check_readable(self, seeds: Iterable[int], *, fix: str = _RECOLLECT) -> None:
+        """Raise a :class:`CheckpointError` for the first of ``seeds`` that has a record but whose
+        file is missing, corrupt or not a pair (the seeds :meth:`done_seeds` leaves out for that):
+        the file, what is wrong with it, then ``fix``."""
+        recorded = self._latest_records()
+        for seed in seeds:
+            if seed in recorded:
+                self._read_pair(seed, fix=fix)
 
     def records(self) -> list[dict[str, Any]]:
         """Return the last record of every seed, sorted by seed.
@@ -283,14 +293,36 @@ class PairStore:
                 )
         return files
 
-    def _read_pair(self, seed: int) -> dict[str, torch.Tensor]:
+    def _read_pair(self, seed: int, *, fix: str = _RECOLLECT) -> dict[str, torch.Tensor]:
         path = self.pair_path(seed)
-        tensors = load_tensors(path, what=f"pair file of seed {seed}")
         try:
-            _check_vectors(tensors.get("w_bc"), tensors.get("w_da"))
+            return _pair_tensors(path)
         except ValueError as exc:
-            raise CheckpointError(f"pair file {path} is not a valid pair ({exc}); delete it and re-run metadagger pairs") from None
-        return tensors
+            raise CheckpointError(f"pair file {path} {exc}; {fix}") from None
+
+
+def _pair_tensors(path: Path) -> dict[str, torch.Tensor]:
+    """The tensors of a pair file; a ValueError says what is wrong with the file."""
+    if not path.is_file():
+        raise ValueError("is missing")
+    try:
+        tensors = load_file(str(path))
+    except Exception as exc:  # safetensors raises several types for corrupt headers
+        raise ValueError(f"is corrupt or not a safetensors file ({exc})") from None
+    try:
+        _check_pair(tensors)
+    except ValueError as exc:
+        raise ValueError(f"is not a valid pair ({exc})") from None
+    return tensors
+
+
+def _check_pair(tensors: Mapping[str, Any]) -> None:
+    """Raise a ValueError unless ``tensors`` are a pair: ``w_bc``, ``w_da`` and optionally ``context``."""
+    if not {"w_bc", "w_da"} <= tensors.keys() <= {"w_bc", "w_da", "context"}:
+        raise ValueError(f"it holds tensors {sorted(tensors)}, expected w_bc, w_da and optionally context")
+    _check_vectors(tensors["w_bc"], tensors["w_da"])
+    if "context" in tensors:
+        _check_context(tensors["context"])
 
 
 def _stacked(files: list[dict[str, torch.Tensor]]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -311,6 +343,12 @@ def _check_vectors(w_bc: Any, w_da: Any) -> None:
             raise ValueError(f"{name} must be a non-empty 1-D float32 tensor, got {w.dtype} of shape {tuple(w.shape)}")
     if w_bc.shape != w_da.shape:
         raise ValueError(f"w_bc and w_da must have the same length, got {w_bc.shape[0]} and {w_da.shape[0]}")
+
+
+def _check_context(context: Any) -> None:
+    if not isinstance(context, torch.Tensor) or context.dtype != torch.float32 or context.ndim != 1:
+        raise ValueError(f"context must be a 1-D float32 tensor, got {getattr(context, 'dtype', type(context).__name__)} "
+                         f"of shape {tuple(getattr(context, 'shape', ()))}")
 
 
 def _record_line(seed: int, record: Mapping[str, Any]) -> bytes:

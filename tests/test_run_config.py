@@ -1,0 +1,117 @@
+"""Bad run configs, presets files and --set values: one clear line before any work, and a refused
+command leaves the run's config.yaml as it was."""
+
+from __future__ import annotations
+
+import pytest
+from test_stages import _refused
+
+from metadagger.errors import UserError
+from metadagger.evaluation.report import build_report
+from metadagger.layout import RunLayout
+from metadagger.run import RunConfig, init_run, load_run, records_config, resolve_config
+
+
+@pytest.fixture
+def run(tmp_path) -> RunLayout:
+    """A started CarRacing ci run: its config.yaml and nothing else."""
+    init_run(tmp_path / "run", "carracing", "ci")
+    return RunLayout(tmp_path / "run")
+
+
+@pytest.mark.parametrize(("text", "problem"), [
+    (b"\x00\xff\xfe garbage", "not UTF-8 text: byte 0xff at offset 1"),
+    (b"task: carracing\npairs: {seeds: [1, 2}\n", "but got '}' at line 2, column 21"),
+    (b"- carracing\n", "expected a mapping, got list"),
+])
+def test_an_unreadable_config_yaml_is_one_line_for_stages_and_report(run, text, problem):
+    run.config.write_bytes(text)
+    for call in (lambda: load_run(run.root), lambda: build_report(run)):
+        with pytest.raises(UserError) as error:
+            call()
+        message = str(error.value)
+        assert "\n" not in message
+        assert f"{run.config} is not a readable YAML config (" in message and problem in message and "start a new run folder" in message
+    _refused(["pairs", "--out", run.root], "is not a readable YAML config", problem)
+    _refused(["report", "--out", run.root], "is not a readable YAML config", problem)
+
+
+@pytest.mark.parametrize(("text", "needles"), [
+    ("presets: {mine: 5}\n", ("preset 'mine' is 5, not a mapping of stage sections", "mine: {pairs:")),
+    ("presets: {mine: }\n", ("preset 'mine' is None, not a mapping of stage sections",)),
+    ("presets: {}\n", ("has no presets: expected a top-level 'presets:' mapping", "docs/custom_task.md")),
+    ("presets: {small: {}}\n", ("has no preset 'mine': expected one of small; pass one with --preset",)),
+    ("presets: [\n", ("is not a readable YAML presets file (", "at line 2, column 1")),
+])
+def test_a_bad_presets_file_is_one_line(tmp_path, text, needles):
+    presets = tmp_path / "p.yaml"
+    presets.write_text(text)
+    _refused(["config", "show", "--presets", presets, "--preset", "mine"], *needles)
+    _refused(["reproduce", "--presets", presets, "--preset", "mine", "--out", tmp_path / "run"], *needles)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(("override", "needle"), [
+    ("split_seed=-1", "split_seed: seed -1 is negative; use seeds >= 0"),
+    ("pairs.bc.seed=-1", "pairs.bc.seed: seed -1 is negative"),
+    ("mappers.dm.seed=-2", "mappers.dm.seed: seed -2 is negative"),
+    ("evaluate.seeds=[-1]", "evaluate.seeds: seed -1 is negative"),
+    ("benchmark.seeds=[-1]", "benchmark.seeds: seed -1 is negative"),
+    ("pairs.seeds=[2000, 2000]", "pairs.seeds: seed 2000 appears twice; list each seed once"),
+    ("groundtruth.select_seeds=[7, 7]", "groundtruth.select_seeds: seed 7 appears twice"),
+    ("pairs.seeds=2000-2001,2001", "pairs.seeds: bad seed list '2000-2001,2001': seed 2001 appears twice"),
+    ("pairs.bc.lr=.inf", "pairs.bc.lr: expected a finite number, got inf"),
+    ("mappers.dm.lr=.inf", "mappers.dm.lr: expected a finite number, got inf"),
+    ("pairs.bc.lr=.nan", "pairs.bc.lr: expected a finite number, got nan"),
+    ("diagnose.scaling=[-.inf]", "diagnose.scaling: expected a finite number, got -inf"),
+    ("mappers.dm.hidden=bogus", "mappers.dm.hidden: expected a list of int, got 'bogus'"),
+    ("task=fetch", "bad --set 'task=fetch': the task is chosen with --task, not --set"),
+    ("preset=bogus", "bad --set 'preset=bogus': the preset is chosen with --preset, not --set"),
+])
+def test_bad_field_values_are_refused_when_the_config_is_built(override, needle):
+    with pytest.raises(UserError, match="^[^\n]*$") as error:
+        resolve_config("carracing", "ci", overrides=[override])
+    assert needle in str(error.value)
+    _refused(["config", "show", "--task", "carracing", "--preset", "ci", "--set", override], needle)
+
+
+def test_seed_fields_still_take_seed_lists_and_counts_are_not_seeds():
+    config = resolve_config("carracing", "ci", overrides=["pairs.seeds=1000-1002,1007", "evaluate.seeds=5000",
+                                                          "diagnose.noise_seeds=0"])
+    assert config.pairs.seeds == (1000, 1001, 1002, 1007) and config.evaluate.seeds == (5000,)
+    assert config.diagnose.noise_seeds == 0
+
+
+def test_a_run_config_naming_its_task_and_preset_still_loads(run):
+    assert "task: carracing\npreset: ci\n" in run.config.read_text()
+    assert (load_run(run.root).task, load_run(run.root).preset) == ("carracing", "ci")
+
+
+@pytest.mark.parametrize(("args", "needle"), [
+    (["groundtruth", "--task", "carracing", "--preset", "ci", "--set", "task=fetch"], "bad --set 'task=fetch'"),
+    (["groundtruth", "--task", "fetch", "--preset", "ci"], "holds task 'carracing' preset 'ci', not 'fetch' 'ci'"),
+    (["pairs", "--set", "pairs.dagger_rounds=4"], "pi* not found"),
+    (["evaluate", "--protocol", "mdi", "--set", "evaluate.oneshot=false"], "has no mdi section"),
+])
+def test_a_refused_command_leaves_config_yaml_as_it_was(run, args, needle):
+    before = run.config.read_bytes()
+    _refused([*args, "--out", run.root], needle)
+    assert run.config.read_bytes() == before
+
+
+def test_a_stage_writes_the_config_it_runs_with_and_puts_it_back_when_it_refuses(run):
+    before = run.config.read_bytes()
+    changed = load_run(run.root, ["pairs.dagger_rounds=4"])
+    seen = []
+
+    @records_config
+    def stage(layout: RunLayout, config: RunConfig, *, refuse: bool) -> None:
+        seen.append(load_run(layout.root).pairs.dagger_rounds)
+        if refuse:
+            raise UserError("refused")
+
+    with pytest.raises(UserError, match="refused"):
+        stage(run, changed, refuse=True)
+    assert run.config.read_bytes() == before
+    stage(run, changed, refuse=False)
+    assert seen == [4, 4] and load_run(run.root) == changed
