@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,6 +16,7 @@ import pytest
 import torch
 from toy_task import CorridorTask
 
+from metadagger.errors import CheckpointError
 from metadagger.evaluation.report_run import groundtruth_section
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import collect
@@ -81,6 +83,18 @@ def test_groundtruth_resumes_from_round_checkpoints(gt_run, tmp_path):
     assert all(r["dagger/final_loss"] is None for r in metrics["rounds"])  # nothing refitted
     assert metrics["bc_epoch_losses"] is None and all(r["dagger/epoch_losses"] is None for r in metrics["rounds"])
     assert groundtruth_path(tmp_path).read_bytes() == groundtruth_path(gt_run).read_bytes()
+
+
+def test_a_damaged_finished_groundtruth_is_named_and_retrained_once_deleted(gt_run, tmp_path):
+    shutil.copytree(gt_run, tmp_path / "run")
+    layout = RunLayout(tmp_path / "run")
+    intact = layout.groundtruth.read_bytes()
+    layout.groundtruth.write_bytes(intact[:100])
+    with pytest.raises(CheckpointError, match=f"policy checkpoint is corrupt or not a safetensors file: {layout.groundtruth}"):
+        train_groundtruth(CorridorTask(), GT, layout, rebuild=True, progress=False)
+    layout.groundtruth.unlink()
+    train_groundtruth(CorridorTask(), GT, layout, progress=False)
+    assert layout.groundtruth.read_bytes() == intact
 
 
 def test_keep_rules():

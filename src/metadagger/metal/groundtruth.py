@@ -100,6 +100,8 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     Raises:
         UserError: the run's pi* (finished or not) was made from another config and ``rebuild``
             is off; the message names the fields that differ.
+        CheckpointError: the finished pi* cannot be read back (deleting it retrains it, resuming
+            from its round checkpoints).
     """
     changes = groundtruth_changes(task, config, layout)
     if changes and not rebuild:
@@ -108,6 +110,7 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     if changes:
         shutil.rmtree(layout.groundtruth_dir)
     if layout.groundtruth.is_file() and layout.groundtruth_metrics.is_file():
+        load_policy(layout.groundtruth)  # a damaged pi* is named here rather than reused
         return read_json(layout.groundtruth_metrics, "pi*'s metrics")
     write_json(layout.groundtruth_stamp, groundtruth_stamp(task, config))
     task = task.groundtruth_task()  # a family's pi* learns its nominal member (docs/families.md)
