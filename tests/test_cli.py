@@ -168,6 +168,24 @@ def test_a_table_without_its_columns_is_named(tmp_path):
     _fails_cleanly(["report", "--out", str(tmp_path)], f"the table is corrupt or unreadable: {table} (no column method, seed)")
 
 
+@pytest.mark.parametrize("command", [["evaluate", "--seeds", ""], ["benchmark", "--seeds", ""], ["export", "--what", "demos",
+                                     "--format", "minari", "--name", "ns/x-v0", "--seeds", ""]], ids=["evaluate", "benchmark", "export"])
+def test_an_empty_seed_option_is_refused_not_read_as_the_default(tmp_path, command):
+    init_run(tmp_path, "carracing", "ci")
+    _fails_cleanly([command[0], "--out", str(tmp_path), *command[1:]], "bad seed list ''")
+
+
+def test_an_empty_benchmark_method_list_is_refused(tmp_path):
+    init_run(tmp_path, "carracing", "ci")
+    _fails_cleanly(["benchmark", "--out", str(tmp_path), "--methods", ""], "benchmark.methods must not be empty")
+
+
+def test_demo_from_a_missing_dataset_writes_nothing(tmp_path):
+    pytest.importorskip("minari")
+    _fails_cleanly(["demo", "--demos", "no-such/dataset-v0", "--out", str(tmp_path / "d")], "cannot load Minari dataset 'no-such/dataset-v0'")
+    assert not (tmp_path / "d").exists()
+
+
 def test_evaluate_protocol_errors(tmp_path):
     _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "xyz"], "unknown protocol 'xyz'", "mdm, mdi, all")
     (tmp_path / "config.yaml").write_text("task: carracing\n")

@@ -243,7 +243,7 @@ def evaluate(
     config = load_run(out, overrides)
     if protocol == "mdi" and config.mdi is None:
         raise UserError(f"run {out} (task {config.task}) has no mdi section; use --protocol mdm")
-    chosen = parse_seeds(seeds) if seeds else None
+    chosen = parse_seeds(seeds) if seeds is not None else None
     if protocol in ("mdm", "all"):
         rows = stage_evaluate(layout, config, seeds=chosen, options=options)
         tables = ("mdm", "oneshot") if config.evaluate.oneshot else ("mdm",)
@@ -277,8 +277,8 @@ def benchmark(
     config = load_run(out, overrides)
     if config.benchmark is None:
         raise UserError(f"run {out} has no benchmark section; add one with --set 'benchmark={{seeds: 5000-5009}}' or use a preset that has one")
-    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods else None
-    rows = stage_benchmark(layout, config, seeds=parse_seeds(seeds) if seeds else None, methods=chosen, options=options)
+    chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods is not None else None
+    rows = stage_benchmark(layout, config, seeds=parse_seeds(seeds) if seeds is not None else None, methods=chosen, options=options)
     typer.echo(f"benchmark: {len(rows)} rows on {len({r['seed'] for r in rows})} seeds; wrote {layout.benchmark_table}, "
                f"{layout.benchmark_summary}, {layout.benchmark_figure}")
 
@@ -329,7 +329,7 @@ def export(
     check_export(what, fmt, name)
     options = _options(False, executor, workers, address)
     summary = stage_export(RunLayout(out), load_run(out, overrides), what=what, name=name,
-                           seeds=parse_seeds(seeds) if seeds else None, options=options)
+                           seeds=parse_seeds(seeds) if seeds is not None else None, options=options)
     checked = f", {summary['checked']} re-run pairs equal to the stored ones" if what != "demos" else ""
     typer.echo(f"export: {summary['episodes']} episodes, {summary['steps']} steps{checked}; wrote Minari dataset {name} "
                f"({summary['dataset']}); read it with minari.load_dataset({name!r})")

@@ -84,10 +84,10 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
     """Run the demo and write its artifacts under ``<out>/demo/``."""
     out = Path(out)
     folder = RunLayout(out).demo_dir
-    write_text(folder / "config.yaml", dump_yaml(config))
     task = make_task(config.task, max_episode_steps=config.max_episode_steps)
 
-    data = _demonstrations(task, config, progress=progress)
+    data = _demonstrations(task, config, progress=progress)  # a dataset that does not fit is refused before anything is written
+    write_text(folder / "config.yaml", dump_yaml(config))
     demo_queries = len(data)
 
     policy = make_policy(task, seed=config.seed)

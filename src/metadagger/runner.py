@@ -153,8 +153,9 @@ def plan(seeds: Sequence[int], stamps: Mapping[str, Stamp], log: SeedLog, *, reb
     if stale and not rebuild:
         method, (old, which) = next(iter(stale.items()))
         changes = "; ".join(describe_changes(old, stamps[method])) or "stamp format"
+        of_method = f" of {method!r}" if len(stamps) > 1 else ""  # a stage of one kind of work needs no name for it
         raise UserError(
-            f"{what} of {method!r} on {len(which)} seed(s) (e.g. {which[0]}) was made from other inputs ({changes}); "
+            f"{what}{of_method} on {len(which)} seed(s) (e.g. {which[0]}) was made from other inputs ({changes}); "
             f"{fix}"
         )
     return todo

@@ -161,8 +161,9 @@ def read_demonstrations(name: str, *, observation_space: gym.Space, action_space
     try:
         dataset = minari.load_dataset(name)
     except (FileNotFoundError, ValueError) as err:
-        raise UserError(f"cannot load Minari dataset {name!r} from {datasets_root()} ({err}); list the local ones with "
-                        "`minari list local` or set MINARI_DATASETS_PATH") from None
+        reason = str(err).split(". Use download=True")[0]  # the library's hint names an argument the CLI has not got
+        raise UserError(f"cannot load Minari dataset {name!r} from {datasets_root()} ({reason}); list the local ones with "
+                        "`minari list local`, download it with `minari download NAME`, or set MINARI_DATASETS_PATH") from None
     for what, theirs, ours in (("observation", dataset.observation_space, observation_space),
                                ("action", dataset.action_space, action_space)):
         if not _same_space(theirs, ours):
