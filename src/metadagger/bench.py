@@ -217,9 +217,9 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     import tempfile
 
     from metadagger.layout import RunLayout
+    from metadagger.metal.groundtruth import load_groundtruth
     from metadagger.metal.pairs import collect_pairs
     from metadagger.pipeline import load_run, run_task
-    from metadagger.policies import load_policy
     from metadagger.runner import StageOptions
 
     run = Path(run)
@@ -229,9 +229,7 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
         raise UserError(f"bench pairs needs --target-kept >= 1 and --nodes >= 1, got {target_kept} and {list(nodes)}")
     if seeds < 1 or len(config.pairs.seeds) < seeds:
         raise UserError(f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}")
-    if not layout.groundtruth.is_file():
-        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {run}` first")
-    load_policy(layout.groundtruth)  # a corrupt pi* is reported under its own path, not the scratch copies'
+    load_groundtruth(layout)  # a missing or corrupt pi* is named under its own path, not the scratch copies'
     run_summary = layout.pairs_summary
     run_kept = read_json(run_summary, "the run's pairs summary") if run_summary.is_file() else None
     pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]))

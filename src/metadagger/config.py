@@ -77,6 +77,12 @@ def read_yaml_mapping(path: str | Path, what: str, fix: str) -> dict[str, Any]:
     raise UserError(f"{path} is not a readable YAML {what} ({problem}); {fix}")
 
 
+def read_run_data(path: str | Path) -> dict[str, Any]:
+    """The mapping in a run's ``config.yaml`` at ``path``, not yet validated; an unreadable file is
+    a :class:`UserError` naming it."""
+    return read_yaml_mapping(path, "config", "restore it or start a new run folder (--out)")
+
+
 def _yaml_problem(exc: yaml.YAMLError) -> str:
     """A YAML parser's error as one line: its problem and, when known, its line and column."""
     mark = getattr(exc, "problem_mark", None)

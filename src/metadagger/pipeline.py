@@ -34,11 +34,11 @@ from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
 from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
 from metadagger.metal.export import export_run
-from metadagger.metal.groundtruth import groundtruth_changes, train_groundtruth
+from metadagger.metal.groundtruth import groundtruth_changes, load_groundtruth, train_groundtruth
 from metadagger.metal.pairs import collect_pairs, pair_status
 from metadagger.metal.store import PairSplit, PairStore
 from metadagger.parallel import default_workers
-from metadagger.policies import Policy, load_policy
+from metadagger.policies import Policy
 from metadagger.run import RunConfig, init_run, load_run, records_config, save_run
 from metadagger.runner import StageOptions
 from metadagger.stamps import describe_changes
@@ -73,9 +73,7 @@ def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOption
 
 def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Policy:
     """pi*, checked to exist, to load and to be made from this run's config."""
-    if not layout.groundtruth.is_file():
-        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
-    pistar = load_policy(layout.groundtruth)  # a corrupt file is named even when no work is left
+    pistar = load_groundtruth(layout)  # a corrupt file is named even when no work is left
     changes = groundtruth_changes(task, config.groundtruth, layout)
     if changes:
         raise UserError(f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "

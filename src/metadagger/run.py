@@ -17,7 +17,7 @@ from typing import Any, Callable, Concatenate, ParamSpec, Sequence, TypeVar
 
 import yaml
 
-from metadagger.config import build, dump_yaml, load_preset, read_yaml_mapping, to_dict
+from metadagger.config import build, dump_yaml, load_preset, read_run_data, to_dict
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark import BenchmarkConfig
 from metadagger.evaluation.diagnose import DiagnoseConfig
@@ -184,13 +184,7 @@ def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     path = RunLayout(run).config
     if not path.is_file():
         raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")
-    return build(RunConfig, apply_overrides(run_data(path), overrides), where=str(path) + (" with --set" if overrides else ""))
-
-
-def run_data(path: Path) -> dict[str, Any]:
-    """The mapping in a run's ``config.yaml`` at ``path``, not yet validated; an unreadable file is
-    a :class:`UserError` naming it."""
-    return read_yaml_mapping(path, "config", "restore it or start a new run folder (--out)")
+    return build(RunConfig, apply_overrides(read_run_data(path), overrides), where=str(path) + (" with --set" if overrides else ""))
 
 
 def save_run(run: str | Path, config: RunConfig) -> None:

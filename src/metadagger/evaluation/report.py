@@ -13,8 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import yaml
-
+from metadagger.config import read_run_data
 from metadagger.errors import UserError
 from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.report_diagnostics import diagnostics_section
@@ -46,5 +45,5 @@ def build_report(layout: RunLayout) -> Path:
 
 
 def _title(layout: RunLayout) -> str:
-    config = yaml.safe_load(layout.config.read_text()) or {}
+    config = read_run_data(layout.config)
     return f"# MetaL DAgger report: {config.get('task', '?')}, preset {config.get('preset', '?')} (`{layout.root.name}`)"

@@ -12,12 +12,12 @@ from __future__ import annotations
 import statistics
 from typing import Any
 
+from metadagger.config import read_run_data
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order, rate
 from metadagger.layout import RunLayout
 from metadagger.plotting import plt, save_figure
-from metadagger.run import run_data
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
 
@@ -61,7 +61,7 @@ def family_section(layout: RunLayout) -> list[str]:
 def _run_task(layout: RunLayout) -> Task | None:
     if not layout.config.is_file():
         return None
-    config = run_data(layout.config)
+    config = read_run_data(layout.config)
     if "task" not in config:
         return None
     steps = {"max_episode_steps": config["max_episode_steps"]} if "max_episode_steps" in config else {}

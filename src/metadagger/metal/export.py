@@ -19,6 +19,7 @@ from metadagger.errors import UserError
 from metadagger.imitation.minari_io import RecordedEpisode, check_new_dataset_name, write_dataset
 from metadagger.imitation.rollouts import rollout
 from metadagger.layout import RunLayout
+from metadagger.metal.groundtruth import load_groundtruth
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairStore
 from metadagger.parallel import in_order, make_executor
@@ -78,8 +79,8 @@ def export_run(task: Task, layout: RunLayout, config: PairConfig, *, what: str, 
     check_export(what, "minari", name)
     if not seeds:
         raise UserError("no seeds to export; pass --seeds or give the run pair seeds")
-    if what != "demos" and not layout.groundtruth.is_file():
-        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+    if what != "demos":
+        load_groundtruth(layout)  # a missing or corrupt pi* is named before any work
     stored = _stored_pairs(task, layout, config, seeds) if what != "demos" else {}
     jobs = [ExportJob(task=task, groundtruth=str(layout.groundtruth), seed=s, methods=(what,), config=config, what=what)
             for s in seeds]

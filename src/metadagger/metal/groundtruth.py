@@ -142,6 +142,13 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     return metrics
 
 
+def load_groundtruth(layout: RunLayout) -> Policy:
+    """The run's pi*; a missing or unreadable file is a :class:`UserError` naming it and the fix."""
+    if not layout.groundtruth.is_file():
+        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+    return load_policy(layout.groundtruth)
+
+
 @functools.lru_cache(maxsize=2)
 def cached_groundtruth(path: str) -> Policy:
     """pi* loaded once per worker process (callers copy it before changing it)."""

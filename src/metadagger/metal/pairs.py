@@ -27,7 +27,7 @@ from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.io import write_json
 from metadagger.layout import RunLayout
 from metadagger.metal.context import CONTEXT_PARTS, seed_context
-from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
+from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth, load_groundtruth
 from metadagger.metal.store import PairStore
 from metadagger.runner import SeedJob, StageOptions, drive, plan
 from metadagger.stamps import describe_changes, file_fingerprint, stamp_of
@@ -189,8 +189,7 @@ def collect_pairs(
 ) -> dict[str, Any]:
     """Collect the pairs of every seed not stored yet (and, with ``options.rebuild``, of every seed whose
     pair was made from another pi* or other settings), then write and return the outcome summary."""
-    if not layout.groundtruth.is_file():
-        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+    load_groundtruth(layout)  # a missing or corrupt pi* is named before any work
     store = PairStore(layout.pairs_dir)
     stamps = {"pair": pair_stamp(task, layout, config)}
     todo = plan(config.seeds, stamps, store, rebuild=options.rebuild, what="the pair",
