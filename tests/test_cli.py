@@ -11,7 +11,7 @@ import torch
 from toy_task import TINY_PRESETS, CorridorTask, RunCorridorTask
 from typer.testing import CliRunner
 
-from metadagger.cli import app
+from metadagger.cli import app, main
 from metadagger.errors import UserError
 from metadagger.layout import RunLayout
 from metadagger.policies import make_policy
@@ -36,6 +36,36 @@ def _fails_cleanly(args: list[str], *needles: str) -> str:
 def test_unknown_task_is_one_clear_line():
     out = _fails_cleanly(["expert", "--task", "nope", "--seeds", "0"], "unknown task 'nope'", "carracing")
     assert len([line for line in out.splitlines() if line.strip()]) == 1
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["pairs", "--out", "RUN", "--workers", "abc"], ["'--workers'", "integer", "`metadagger pairs --help`"]),
+    (["pairs"], ["Missing option '--out'", "`metadagger pairs --help`"]),
+    (["pairz"], ["No such command 'pairz'", "`metadagger --help`"]),
+    (["pairs", "--out", "RUN", "--bogus"], ["No such option: --bogus", "`metadagger pairs --help`"]),
+])
+def test_command_line_usage_errors_are_one_line(capsys, args, needles):
+    with pytest.raises(SystemExit) as exit_:
+        main(args)
+    assert exit_.value.code == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), captured.err
+    for needle in needles:
+        assert needle in lines[0]
+
+
+def test_help_and_a_finished_command_exit_as_usual(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["pairs", "--help"])
+    assert exit_.value.code == 0 and "--workers" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_:
+        main(["config", "show", "--task", "carracing", "--preset", "quick"])
+    assert exit_.value.code == 0 and "pairs:" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_:
+        main(["expert", "--task", "nope", "--seeds", "0"])
+    assert exit_.value.code == 2 and capsys.readouterr().err.startswith("error: unknown task 'nope'")
 
 
 def test_bad_seed_list_names_the_value():

@@ -1,6 +1,7 @@
 """The ``metadagger`` command line: thin wrappers that build a config and call the library.
 
-A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stderr and exit code 2.
+A :class:`~metadagger.errors.UserError`, and a usage error of the command line itself, becomes one
+``error: ...`` line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -443,10 +444,34 @@ def config_show(task: str = TASK, preset: str = PRESET, presets: Optional[Path] 
     typer.echo(dump_yaml(resolve_config(task, preset, presets, overrides)), nl=False)
 
 
-def main() -> None:
-    """Console-script entry point."""
-    app()
+def main(argv: Optional[list[str]] = None) -> None:
+    """Console-script entry point (``argv``: the arguments, default the process's).
 
+    The command line's own usage errors (an unknown command or option, a missing option, a value
+    that is not a number) are one ``error: ...`` line and exit code 2, like a :class:`UserError`.
+    """
+    import importlib
+    import sys
+
+    # Click's exceptions, from wherever this Typer takes them (Click itself, or its own copy)
+    click_errors = importlib.import_module(typer.BadParameter.__module__)
+    try:
+        code = app(args=argv, prog_name="metadagger", standalone_mode=False)
+    except getattr(click_errors, "NoArgsIsHelpError", ()):
+        sys.exit(2)  # building the error printed the help
+    except click_errors.UsageError as exc:
+        command = exc.ctx.command_path if exc.ctx is not None else "metadagger"
+        message = " ".join(exc.format_message().split())
+        message += "" if message.endswith((".", "?")) else "."
+        typer.secho(f"error: {message} See `{command} --help` for the usage.", err=True, fg=typer.colors.RED)
+        sys.exit(2)
+    except click_errors.ClickException as exc:
+        typer.secho(f"error: {' '.join(exc.format_message().split())}", err=True, fg=typer.colors.RED)
+        sys.exit(exc.exit_code)
+    except click_errors.Abort:
+        typer.echo("Aborted!", err=True)
+        sys.exit(1)
+    sys.exit(code if isinstance(code, int) else 0)
 
 if __name__ == "__main__":
     main()
