@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from metadagger import parallel
 from metadagger.errors import CheckpointError, UserError
 from metadagger.parallel import Executor, LocalExecutor, WorkerError, check_executor_options, make_executor
 
@@ -135,6 +136,16 @@ def test_an_unreachable_ray_address_fails_at_once(closed_port: int, scheme: str)
     assert time.monotonic() - start < 15
 
 
+@pytest.mark.parametrize("scheme", ["ray://", ""], ids=["ray-client", "host-port"])
+def test_a_port_that_never_answers_fails_within_seconds(silent_port: int, scheme: str) -> None:
+    pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
+    address = f"{scheme}127.0.0.1:{silent_port}"
+    start = time.monotonic()
+    with pytest.raises(UserError, match=f"'{address}' accepts connections but does not answer as a Ray cluster within 3 s"):
+        make_executor("ray", address=address)
+    assert time.monotonic() - start < 15
+
+
 def test_auto_is_checked_before_any_work_like_any_address(closed_port: int, monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
     from ray._private import services
@@ -161,6 +172,7 @@ def test_connecting_bounds_how_long_ray_tries_the_cluster(monkeypatch: pytest.Mo
         raise ConnectionError(f"Failed to connect to Ray cluster at {kwargs['address']}")
 
     monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(parallel, "_answers_grpc", lambda target: True)  # e.g. a gRPC service that is not Ray's
     monkeypatch.delenv(GCS_WAIT, raising=False)
     with socket.socket() as server:
         server.bind(("127.0.0.1", 0))

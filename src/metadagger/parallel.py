@@ -356,14 +356,37 @@ def _check_reachable(address: str | None) -> None:
     host, _, port = target.removeprefix("ray://").rpartition(":")
     if not host or not port.isdigit():
         raise UserError(f"bad Ray address {target!r}; {_ADDRESS_HINT}")
+    found = f" (found for {address!r})" if target != address else ""
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=_CONNECT_TIMEOUT_S).close()
     except OSError as exc:
-        found = f" (found for {address!r})" if target != address else ""
         raise UserError(
             f"cannot reach a Ray cluster at {target!r}{found} ({exc.strerror or exc}); "
             f"check that its head is running (ray start --head) and the host and port: {_ADDRESS_HINT}"
         ) from None
+    if not _answers_grpc(f"{host}:{port}"):
+        raise UserError(
+            f"{target!r}{found} accepts connections but does not answer as a Ray cluster within {_CONNECT_TIMEOUT_S:.0f} s; "
+            f"check the host and port (a head's GCS port, or its Ray Client port for ray://): {_ADDRESS_HINT}"
+        )
+
+
+def _answers_grpc(target: str) -> bool:
+    """Whether ``target`` (``HOST:PORT``) completes a gRPC handshake within :data:`_CONNECT_TIMEOUT_S`,
+    as a Ray head's GCS and Ray Client server do at once; ray.init would wait minutes on a port
+    that accepts connections but never answers. True without grpcio (Ray without its client extra)."""
+    try:
+        import grpc
+    except ImportError:
+        return True
+    channel = grpc.insecure_channel(target)
+    try:
+        grpc.channel_ready_future(channel).result(timeout=_CONNECT_TIMEOUT_S)
+        return True
+    except grpc.FutureTimeoutError:
+        return False
+    finally:
+        channel.close()
 
 
 def _auto_address() -> str:
