@@ -473,5 +473,6 @@ def main(argv: Optional[list[str]] = None) -> None:
         sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)
 
+
 if __name__ == "__main__":
     main()
