@@ -47,10 +47,15 @@ def user_errors(fn: F) -> F:
         try:
             return fn(*args, **kwargs)
         except UserError as exc:
-            typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
+            _print_error(str(exc))
             raise typer.Exit(code=2) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def _print_error(message: str) -> None:
+    """``message`` as the one ``error: ...`` line on stderr."""
+    typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
 
 
 TASK = typer.Option("carracing", "--task", help="Task name: carracing, fetch, or one an installed package adds.")
@@ -459,14 +464,12 @@ def main(argv: Optional[list[str]] = None) -> None:
         code = app(args=argv, prog_name="metadagger", standalone_mode=False)
     except getattr(click_errors, "NoArgsIsHelpError", ()):
         sys.exit(2)  # building the error printed the help
-    except click_errors.UsageError as exc:
-        command = exc.ctx.command_path if exc.ctx is not None else "metadagger"
+    except click_errors.ClickException as exc:  # a UsageError (exit code 2) names its command
         message = " ".join(exc.format_message().split())
-        message += "" if message.endswith((".", "?")) else "."
-        typer.secho(f"error: {message} See `{command} --help` for the usage.", err=True, fg=typer.colors.RED)
-        sys.exit(2)
-    except click_errors.ClickException as exc:
-        typer.secho(f"error: {' '.join(exc.format_message().split())}", err=True, fg=typer.colors.RED)
+        ctx = getattr(exc, "ctx", None)
+        if ctx is not None:
+            message += f"{'' if message.endswith(('.', '?')) else '.'} See `{ctx.command_path} --help` for the usage."
+        _print_error(message)
         sys.exit(exc.exit_code)
     except click_errors.Abort:
         typer.echo("Aborted!", err=True)
