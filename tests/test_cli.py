@@ -68,6 +68,23 @@ def test_help_and_a_finished_command_exit_as_usual(capsys):
     assert exit_.value.code == 2 and capsys.readouterr().err.startswith("error: unknown task 'nope'")
 
 
+def test_an_interrupt_exits_130_and_a_bug_is_its_own_traceback(monkeypatch, capsys):
+    def interrupted(*_):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("metadagger.run.resolve_config", interrupted)
+    with pytest.raises(SystemExit) as exit_:
+        main(["config", "show", "--task", "carracing", "--preset", "quick"])
+    assert exit_.value.code == 130 and "Traceback" not in capsys.readouterr().err  # the shell's code for Ctrl-C
+
+    def broken(*_):
+        raise ZeroDivisionError("a bug, not a user error")
+
+    monkeypatch.setattr("metadagger.run.resolve_config", broken)
+    with pytest.raises(ZeroDivisionError, match="a bug, not a user error"):
+        main(["config", "show", "--task", "carracing", "--preset", "quick"])
+
+
 def test_bad_seed_list_names_the_value():
     _fails_cleanly(["expert", "--task", "carracing", "--seeds", "9-3"], "bad seed list '9-3'")
 
