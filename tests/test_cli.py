@@ -90,7 +90,7 @@ def test_bad_seed_list_names_the_value():
 
 
 def test_unknown_preset_names_the_allowed_ones(tmp_path):
-    _fails_cleanly(["groundtruth", "--preset", "huge", "--out", str(tmp_path / "r")], "unknown preset 'huge'", "quick")
+    _fails_cleanly(["groundtruth", "--preset", "huge", "--out", str(tmp_path / "r")], "unknown preset 'huge'", "quick", "--presets FILE")
 
 
 def test_bad_config_value_in_a_run_config(tmp_path):
@@ -256,6 +256,21 @@ def corridor_plugin(monkeypatch):
     plugin = EntryPoint(name="corridor-plugin", value="toy_task:RunCorridorTask", group=tasks.ENTRY_POINT_GROUP)
     monkeypatch.setattr(tasks, "entry_points", lambda group: [plugin] if group == tasks.ENTRY_POINT_GROUP else [])
     return "corridor-plugin"
+
+
+@pytest.mark.parametrize("value, needles", [
+    ("toy_task:RunCorridorTsk", ["module toy_task has no 'RunCorridorTsk'", 'fix the entry point broken = "toy_task:RunCorridorTsk"']),
+    ("toy_tsk:RunCorridorTask", ["needs a missing module (toy_tsk)", 'the entry point broken = "toy_tsk:RunCorridorTask"']),
+])
+def test_a_broken_entry_point_is_named_with_its_fix(monkeypatch, value, needles):
+    from importlib.metadata import EntryPoint
+
+    import metadagger.tasks as tasks
+
+    plugin = EntryPoint(name="broken", value=value, group=tasks.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(tasks, "entry_points", lambda group: [plugin] if group == tasks.ENTRY_POINT_GROUP else [])
+    out = _fails_cleanly(["expert", "--task", "broken", "--seeds", "0"], "task 'broken'", *needles)
+    assert "metadagger[" not in out  # no extra of metadagger's installs a third-party task
 
 
 def test_a_corrupt_mapper_is_named_before_any_work(tmp_path, corridor_plugin):

@@ -82,6 +82,20 @@ def test_seed_fields_still_take_seed_lists_and_counts_are_not_seeds():
     assert config.diagnose.noise_seeds == 0
 
 
+def test_a_partial_nested_section_keeps_the_stage_defaults_it_does_not_name(tmp_path):
+    from metadagger.imitation.bc import BCConfig
+    from metadagger.metal.groundtruth import GroundTruthConfig
+    from metadagger.metal.pairs import PairConfig
+
+    presets = tmp_path / "p.yaml"
+    presets.write_text("presets: {mine: {groundtruth: {bc: {epochs: 5}}, pairs: {bc: {head_init: shared}}}}\n")
+    config = resolve_config("carracing", "mine", presets)
+    stage_bc = GroundTruthConfig().bc
+    assert config.groundtruth.bc == BCConfig(**{**vars(stage_bc), "epochs": 5}) and stage_bc != BCConfig()
+    assert config.pairs.bc == BCConfig(**{**vars(PairConfig().bc), "head_init": "shared"})
+    assert config.pairs.dagger_bc == PairConfig().dagger_bc
+
+
 def test_a_run_config_naming_its_task_and_preset_still_loads(run):
     assert "task: carracing\npreset: ci\n" in run.config.read_text()
     assert (load_run(run.root).task, load_run(run.root).preset) == ("carracing", "ci")

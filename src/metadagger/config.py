@@ -99,7 +99,8 @@ def load_preset(task: str, preset: str, presets_file: str | Path | None = None) 
     check_task(task)
     if presets_file is None:
         if preset not in PRESETS:
-            raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
+            raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}, "
+                            "or pass --presets FILE with presets of your own (see docs/custom_task.md)")
         try:
             text = resources.files("metadagger.configs").joinpath(f"{task}.yaml").read_text()
         except FileNotFoundError:
@@ -123,7 +124,9 @@ def load_preset(task: str, preset: str, presets_file: str | Path | None = None) 
 def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T:
     """Build dataclass ``cls`` from ``data``, recursing into nested dataclass fields.
 
-    Unknown keys and values of the wrong type raise :class:`UserError` naming the key.
+    A nested dataclass field given as a mapping starts from that field's own default (a stage's
+    ``bc`` section from the stage's BC settings, not from ``BCConfig()``), so a section names only
+    what it changes. Unknown keys and values of the wrong type raise :class:`UserError` naming the key.
     """
     where = where or cls.__name__
     if not isinstance(data, typing.Mapping):
@@ -133,11 +136,25 @@ def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise UserError(f"{where}: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(fields)}")
-    kwargs = {name: _coerce(hints[name], value, f"{where}.{name}", name) for name, value in data.items()}
+    kwargs = {name: _coerce(hints[name], _over_default(fields[name], value), f"{where}.{name}", name) for name, value in data.items()}
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise UserError(f"{where}: {exc}") from None
+
+
+def _over_default(field: dataclasses.Field, value: Any) -> Any:
+    """``value``, a mapping of fields, laid over ``field``'s default dataclass; any other value as it is."""
+    default = field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default
+    return _laid_over(default, value)
+
+
+def _laid_over(default: Any, value: Any) -> Any:
+    """A mapping ``value`` laid over the dataclass instance ``default``, at every depth; else ``value``."""
+    if not (isinstance(value, typing.Mapping) and dataclasses.is_dataclass(default) and not isinstance(default, type)):
+        return value
+    merged = {f.name: getattr(default, f.name) for f in dataclasses.fields(default) if f.init}
+    return {**merged, **{name: _laid_over(merged.get(name), item) for name, item in value.items()}}
 
 
 def _coerce(hint: Any, value: Any, where: str, field: str = "") -> Any:

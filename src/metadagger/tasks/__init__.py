@@ -26,6 +26,10 @@ _FACTORIES: dict[str, Callable[[], Task] | str] = {
 }
 
 
+#: The pip extra that installs a built-in task's dependencies (the others need none beyond metadagger's own).
+_EXTRAS = {"fetch": "fetch", "fetch-family": "fetch"}
+
+
 def register_task(name: str, factory: Callable[[], Task]) -> None:
     """Make ``make_task(name)`` (and ``--task name`` on the CLI) build a task with ``factory``."""
     _FACTORIES[name] = factory
@@ -53,13 +57,7 @@ def make_task(name: str, **kwargs) -> Task:
     check_task(name)
     factory = _factories()[name]
     if isinstance(factory, str):
-        module, attr = factory.split(":")
-        try:
-            factory = getattr(importlib.import_module(module), attr)
-        except ImportError as exc:
-            raise UserError(
-                f"task {name!r} needs a missing dependency ({exc.name}); install it with pip install 'metadagger[{name}]'"
-            ) from None
+        factory = _load_factory(name, factory)
     try:
         inspect.signature(factory).bind(**kwargs)
     except TypeError:
@@ -70,6 +68,27 @@ def make_task(name: str, **kwargs) -> Task:
     except ValueError:  # no signature to check (a builtin): let the call tell
         pass
     return factory(**kwargs)
+
+
+def _load_factory(name: str, target: str) -> Callable[..., Task]:
+    """The factory that ``module:attr`` names; a missing module or attribute is a :class:`UserError`."""
+    module, _, attr = target.partition(":")
+    entry_point = f'the entry point {name} = "{target}" (group {ENTRY_POINT_GROUP})'
+    if _FACTORIES.get(name) != target:
+        fix = f"install what the package declaring {entry_point} needs, or fix that entry point"
+    elif name in _EXTRAS:
+        fix = f"install it with pip install 'metadagger[{_EXTRAS[name]}]'"
+    else:
+        fix = "reinstall metadagger with its dependencies"
+    try:
+        factory = importlib.import_module(module)
+    except ImportError as exc:
+        raise UserError(f"task {name!r} needs a missing module ({exc.name}); {fix}") from None
+    for part in attr.split(".") if attr else [""]:
+        if not hasattr(factory, part):
+            raise UserError(f"task {name!r}: module {module} has no {attr!r}; fix {entry_point} to name the task's class as module:name")
+        factory = getattr(factory, part)
+    return factory
 
 
 __all__ = ["LearnerEnv", "Task", "available_tasks", "check_task", "make_task", "register_task"]
