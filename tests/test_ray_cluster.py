@@ -27,14 +27,19 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
+def _without_ray_variables(environ: dict[str, str]) -> dict[str, str]:
+    return {name: value for name, value in environ.items() if not name.startswith("RAY_")}
+
+
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory) -> Iterator[tuple[str, Path]]:
     """``ray start --head`` and one ``ray start --address`` worker node, one CPU each, loopback
-    only; a fresh HOME so no token or state of another Ray instance on this machine is used."""
+    only; a fresh HOME and none of the RAY_ variables so no token or state of another Ray instance
+    on this machine is used (a ``ray.init`` earlier in this process sets RAY_AUTH_MODE=token)."""
     if RAY is None:
         pytest.skip("the ray command is not installed")
     home = tmp_path_factory.mktemp("ray-home")
-    env = {**os.environ, "HOME": str(home), "RAY_USAGE_STATS_ENABLED": "0"}
+    env = {**_without_ray_variables(os.environ), "HOME": str(home), "RAY_USAGE_STATS_ENABLED": "0"}
     address = f"127.0.0.1:{_free_port()}"
     common = ["--node-ip-address", "127.0.0.1", "--num-cpus", "1", "--disable-usage-stats"]
     try:
@@ -47,7 +52,7 @@ def cluster(tmp_path_factory) -> Iterator[tuple[str, Path]]:
 
 
 @pytest.mark.slow
-def test_rows_made_on_a_two_node_cluster_equal_the_local_ones(cluster, tmp_path, monkeypatch):
+def test_rows_made_on_a_two_node_cluster_equal_the_local_ones(cluster, tmp_path):
     address, home = cluster
     runner = CliRunner()
     local, remote = tmp_path / "local", tmp_path / "remote"
@@ -56,10 +61,13 @@ def test_rows_made_on_a_two_node_cluster_equal_the_local_ones(cluster, tmp_path,
     shutil.copytree(local, remote)
     for made_by_workers in ("pairs", "eval", "benchmark", "report"):
         shutil.rmtree(remote / made_by_workers)
-    monkeypatch.setenv("HOME", str(home))  # the driver, too, sees none of this machine's Ray state
-    result = runner.invoke(app, ["reproduce", "--task", "carracing", "--preset", "ci", "--out", str(remote),
-                                 "--executor", "ray", "--address", address])
-    assert result.exit_code == 0, result.output
+    # the driver in a process of its own: no Ray state of this process (an earlier test's local
+    # ray.init) and none of this machine's (a fresh HOME)
+    env = {**_without_ray_variables(os.environ), "HOME": str(home)}
+    result = subprocess.run([sys.executable, "-m", "metadagger.cli", "reproduce", "--task", "carracing", "--preset", "ci",
+                             "--out", str(remote), "--executor", "ray", "--address", address],
+                            env=env, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-3000:]
     for name in COMPARED:
         assert (remote / name).read_bytes() == (local / name).read_bytes(), name
     for pair in sorted((local / "pairs").glob("*.safetensors")):
