@@ -471,7 +471,7 @@ def main(argv: Optional[list[str]] = None) -> None:
             message += f"{'' if message.endswith(('.', '?')) else '.'} See `{ctx.command_path} --help` for the usage."
         _print_error(message)
         sys.exit(exc.exit_code)
-    except typer.Abort:  # Ctrl-C: Click's own Abort, or this Typer's
+    except typer.Abort:  # a refused confirmation, or Ctrl-C under a Typer that leaves it to Click (this one exits 130)
         typer.echo("Aborted!", err=True)
         sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)
