@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import stat
+
 import pytest
 
 from metadagger.io import atomic_folder
@@ -20,6 +22,12 @@ def test_a_folder_is_replaced_whole_and_no_staging_is_left(tmp_path):
     atomic_folder(target, _write({"c": "3"}), staging_in=tmp_path)
     assert sorted(p.name for p in target.iterdir()) == ["c"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_folder_has_the_mode_the_umask_gives_a_new_folder(tmp_path):
+    target = atomic_folder(tmp_path / "ns", _write({"a": "1"}))
+    (tmp_path / "plain").mkdir()
+    assert stat.S_IMODE(target.stat().st_mode) == stat.S_IMODE((tmp_path / "plain").stat().st_mode)
 
 
 def test_a_failed_write_leaves_the_old_folder(tmp_path):

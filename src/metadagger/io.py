@@ -91,6 +91,7 @@ def atomic_folder(path: str | Path, write: Callable[[Path], None], *, staging_in
     staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=staging_root))
     old = staging.with_name(staging.name + ".old")
     try:
+        os.chmod(staging, 0o777 & ~_UMASK)  # mkdtemp makes 0700 folders; artifacts are shared
         write(staging)
         if path.exists():
             path.rename(old)
