@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from metadagger.cli import app
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
-from metadagger.evaluation.tensorboard import INSTALL, groundtruth_scalars, require_tensorboard
+from metadagger.evaluation.tensorboard import INSTALL, benchmark_scalars, groundtruth_scalars, require_tensorboard
 from metadagger.layout import RunLayout
 from metadagger.metal.store import PairStore
 
@@ -146,6 +146,21 @@ def test_benchmark_scalars_equal_its_table_and_summary(run):
     for e in summary["entries"]:
         assert (round(e["mean_queries"]), e["success_rate"]) in scalars[f"benchmark/{e['method']}/success_vs_queries"]
     assert scalars["benchmark/meta_training_queries/pistar"] == [(0, summary["meta_training_queries"]["pistar"])]
+
+
+def test_success_against_queries_runs_from_the_fewest_queries(run, tmp_path):
+    layout = RunLayout(tmp_path / "run")
+    shutil.copytree(run.root, layout.root)
+    summary = json.loads(layout.benchmark_summary.read_text())
+    first = summary["entries"][0]
+    summary["entries"].insert(0, {**first, "mean_queries": first["mean_queries"] + 100})  # a costlier setting listed first
+    layout.benchmark_summary.write_text(json.dumps(summary))
+    curves: dict[str, list[int]] = {}
+    for tag, _, step in benchmark_scalars(layout):
+        if tag.endswith("/success_vs_queries"):
+            curves.setdefault(tag, []).append(step)
+    assert any(len(steps) > 1 for steps in curves.values())
+    assert all(steps == sorted(steps) for steps in curves.values()), curves
 
 
 def test_a_rerun_replaces_the_points_instead_of_adding_to_them(run, presets, tmp_path):

@@ -126,10 +126,12 @@ def table_scalars(path: Path) -> list[Scalar]:
 def benchmark_scalars(layout: RunLayout) -> list[Scalar]:
     """:func:`table_scalars` of ``benchmark/queries.csv``; ``<method>/success_vs_queries``: the
     success rate of each of the method's settings at step = its mean expert queries per seed
-    (rounded), so TensorBoard draws success against queries; ``meta_training_queries/<what>``."""
+    (rounded), in the order of the queries, so TensorBoard draws success against queries;
+    ``meta_training_queries/<what>``."""
     summary = read_json(layout.benchmark_summary, "the benchmark summary")
     out = table_scalars(layout.benchmark_table)
-    out += [(f"{e['method']}/success_vs_queries", e["success_rate"], round(e["mean_queries"])) for e in summary["entries"]]
+    entries = sorted(summary["entries"], key=lambda e: (e["method"], e["mean_queries"]))
+    out += [(f"{e['method']}/success_vs_queries", e["success_rate"], round(e["mean_queries"])) for e in entries]
     return out + [(f"meta_training_queries/{what}", n, 0) for what, n in summary["meta_training_queries"].items()]
 
 
