@@ -181,6 +181,29 @@ def test_connecting_bounds_how_long_ray_tries_the_cluster(monkeypatch: pytest.Mo
     assert seen == ["3", "40"] and os.environ[GCS_WAIT] == "40"
 
 
+def test_a_refused_connection_names_the_token_of_this_machine(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    ray = pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
+
+    def init(**kwargs) -> None:  # how Ray reports a head that refuses this driver's (missing) token
+        raise ConnectionError(f"Failed to connect to Ray cluster at {kwargs['address']}")
+
+    monkeypatch.setattr(ray, "init", init)
+    monkeypatch.setattr(parallel, "_check_reachable", lambda address: None)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    with pytest.raises(UserError) as error:
+        make_executor("ray", address="127.0.0.1:6379")
+    assert "token" not in str(error.value)  # no token here: nothing to say about one
+    (tmp_path / ".ray").mkdir()
+    (tmp_path / ".ray" / "auth_token").write_text("x" * 64)
+    with pytest.raises(UserError, match=r"^cannot connect to Ray at '127\.0\.0\.1:6379' .*set RAY_AUTH_MODE=token[^\n]*$"):
+        make_executor("ray", address="127.0.0.1:6379")
+    monkeypatch.setenv("RAY_AUTH_MODE", "token")
+    with pytest.raises(UserError) as error:
+        make_executor("ray", address="127.0.0.1:6379")
+    assert "RAY_AUTH_MODE" not in str(error.value)
+
+
 def test_a_ray_address_without_a_port_is_a_user_error() -> None:
     pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
     with pytest.raises(UserError, match="bad Ray address 'ray://head'; expected 'ray://HEAD:10001'"):

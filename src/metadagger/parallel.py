@@ -22,6 +22,7 @@ import signal
 import socket
 import threading
 from concurrent import futures
+from pathlib import Path
 from typing import Any, Callable, Generic, Iterable, Iterator, TypeVar
 
 import torch
@@ -291,7 +292,7 @@ class RayExecutor(Executor[Any]):
                 with _bounded_gcs_wait(address):
                     ray.init(address=address, num_cpus=num_cpus, include_dashboard=False)
             except ConnectionError as exc:  # e.g. "auto" with no cluster running
-                raise UserError(f"cannot connect to Ray at {address!r} ({exc}); {_ADDRESS_HINT}") from None
+                raise UserError(f"cannot connect to Ray at {address!r} ({exc}); {_ADDRESS_HINT}{_token_hint()}") from None
         if workers is None:
             workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         super().__init__(workers=workers)
@@ -321,6 +322,17 @@ class RayExecutor(Executor[Any]):
         self._fn_ref = None
         if self._owns_ray:
             self._ray.shutdown()
+
+
+def _token_hint() -> str:
+    """A hint when this machine holds a Ray token the driver does not send: a head started by
+    ``ray start`` beside ``~/.ray/auth_token`` (which any local Ray instance writes) refuses drivers
+    that lack it, and Ray reports that as a failed connection."""
+    token = Path.home() / ".ray" / "auth_token"
+    if not token.is_file() or os.environ.get("RAY_AUTH_MODE") == "token":
+        return ""
+    return (f"; or, if the cluster uses token authentication (this machine has {token}), "
+            "set RAY_AUTH_MODE=token so that the driver sends the token")
 
 
 def _import_ray() -> Any:
