@@ -85,6 +85,11 @@ def test_an_interrupt_exits_130_and_a_bug_is_its_own_traceback(monkeypatch, caps
         main(["config", "show", "--task", "carracing", "--preset", "quick"])
 
 
+def test_a_bad_log_value_names_the_option(tmp_path):
+    _fails_cleanly(["reproduce", "--out", str(tmp_path / "run"), "--log", "bogus"], "--log must be one of none, tensorboard, got 'bogus'")
+    assert not (tmp_path / "run").exists()
+
+
 def test_bad_seed_list_names_the_value():
     _fails_cleanly(["expert", "--task", "carracing", "--seeds", "9-3"], "bad seed list '9-3'")
 

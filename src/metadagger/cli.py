@@ -203,7 +203,7 @@ def tune(
     result = stage_tune(layout, load_run(out, overrides), kind, trials=trials, seed=seed, apply=apply, options=options)
     baseline = "" if result.baseline_value is None else f" (trial 0, the run's settings: {result.baseline_value:.6g})"
     typer.echo(f"{kind}: best of {result.completed} trials is trial {result.best_trial}, validation MSE "
-               f"{result.best_value:.6g}{baseline}; {result.ran} trials ran now")
+               f"{result.best_value:.6g}{baseline}; {result.ran} {'trial' if result.ran == 1 else 'trials'} ran now")
     typer.echo(f"wrote {result.summary} (study: {result.study})")
     if apply:
         typer.echo(f"applied to {layout.config}; retrain with: metadagger train-mapper --out {out} --kind {kind} --rebuild")
@@ -370,7 +370,10 @@ def reproduce(
     resuming finished work and rebuilding what a changed config or input made stale."""
     from metadagger.layout import RunLayout
     from metadagger.pipeline import load_run, reproduce as run_all
+    from metadagger.run import LOGS
 
+    if log is not None and log not in LOGS:
+        raise UserError(f"--log must be one of {', '.join(LOGS)}, got {log!r}")
     overrides = [*overrides, f"log={log}"] if log is not None else overrides
     path = run_all(task, preset, out, presets_file=presets, overrides=overrides, options=_options(False, executor, workers, address))
     typer.echo(path.read_text())
