@@ -332,11 +332,12 @@ def export(
     from metadagger.layout import RunLayout
     from metadagger.pipeline import load_run, stage_export
 
+    seed_list = parse_seeds(seeds) if seeds is not None else None  # a malformed value before the dataset store is read
     check_export(what, fmt, name)
     options = _options(False, executor, workers, address)
-    summary = stage_export(RunLayout(out), load_run(out, overrides), what=what, name=name,
-                           seeds=parse_seeds(seeds) if seeds is not None else None, options=options)
-    checked = f", {summary['checked']} re-run pairs equal to the stored ones" if what != "demos" else ""
+    summary = stage_export(RunLayout(out), load_run(out, overrides), what=what, name=name, seeds=seed_list, options=options)
+    checked = ("" if what == "demos" else f", {summary['checked']} re-run pairs equal to the stored ones" if summary["checked"]
+               else ", no stored pair of these seeds to compare the re-run with")
     typer.echo(f"export: {summary['episodes']} episodes, {summary['steps']} steps{checked}; wrote Minari dataset {name} "
                f"({summary['dataset']}); read it with minari.load_dataset({name!r})")
 

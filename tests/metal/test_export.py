@@ -136,6 +136,7 @@ def test_bad_input_is_one_clear_error(run, datasets):
     (["--what", "states", "--name", "toy/x-v0"], "--what 'states' is not an export; expected one of demos, dagger, pairs-data"),
     (["--what", "demos", "--format", "hdf5", "--name", "toy/x-v0"], "--format 'hdf5' is not supported; expected one of minari"),
     (["--what", "demos", "--name", "x"], "--name 'x' is not a Minari dataset id"),
+    (["--what", "demos", "--name", "toy/x-v0", "--seeds", "abc"], "bad seed list 'abc'"),
 ])
 def test_export_command_refuses_bad_input_before_any_work(tmp_path, args, needle):
     from typer.testing import CliRunner
