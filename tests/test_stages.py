@@ -81,6 +81,8 @@ def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished
     config = layout.config.read_bytes()
     _refused(["pairs", "--out", layout.root, "--set", "pairs.dagger_rounds=2"], "dagger_rounds: 1 -> 2", "--rebuild")
     assert layout.config.read_bytes() == config  # a refused command leaves the run's config as it was
+    # a later option, left out of the stamps at its default
+    _refused(["pairs", "--out", layout.root, "--set", "pairs.bc.head_init=shared"], 'bc.head_init: (default) -> "shared"')
     _refused(["train-mapper", "--out", layout.root, "--kind", "dm", "--set", "pairs.dagger_rounds=2"], "no current pair",
              "dagger_rounds: 1 -> 2")
     _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root, "--set", "pairs.dagger_rounds=2"])

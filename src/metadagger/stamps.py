@@ -55,7 +55,8 @@ def stamp_of(config: Any, *, drop: tuple[str, ...] = ()) -> dict[str, Any]:
 
 def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: str = "") -> list[str]:
     """The fields whose values differ between two stamps, as ``name: old -> new`` (nested fields
-    joined with dots; a ``*_fingerprint`` field reported as ``name: changed``)."""
+    joined with dots; a ``*_fingerprint`` field reported as ``name: changed``; a field one stamp
+    leaves out, as stamps do with a later option at its default, as ``(default)``)."""
     changes = []
     for key in sorted(set(old) | set(new)):
         name = f"{prefix}{key}"
@@ -67,10 +68,13 @@ def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: 
         elif key.endswith("_fingerprint"):
             changes.append(f"{name.removesuffix('_fingerprint')}: {'changed' if a and b else 'missing' if not b else 'new'}")
         else:
-            changes.append(f"{name}: {_short(a)} -> {_short(b)}")
+            changes.append(f"{name}: {_short(old, key)} -> {_short(new, key)}")
     return changes
 
 
-def _short(value: Any) -> str:
+def _short(stamp: Mapping[str, Any], key: str) -> str:
+    if key not in stamp:
+        return "(default)"
+    value = stamp[key]
     text = json.dumps(value) if value is not None else "none"
     return text if len(text) <= 40 else text[:37] + "..."
