@@ -371,10 +371,10 @@ def reproduce(
     resuming finished work and rebuilding what a changed config or input made stale."""
     from metadagger.layout import RunLayout
     from metadagger.pipeline import load_run, reproduce as run_all
-    from metadagger.run import LOGS
+    from metadagger.run import check_log
 
-    if log is not None and log not in LOGS:
-        raise UserError(f"--log must be one of {', '.join(LOGS)}, got {log!r}")
+    if log is not None:
+        check_log(log, "--log")
     overrides = [*overrides, f"log={log}"] if log is not None else overrides
     path = run_all(task, preset, out, presets_file=presets, overrides=overrides, options=_options(False, executor, workers, address))
     typer.echo(path.read_text())

@@ -145,8 +145,9 @@ def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T
 
 def _over_default(field: dataclasses.Field, value: Any) -> Any:
     """``value``, a mapping of fields, laid over ``field``'s default dataclass; any other value as it is."""
-    default = field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default
-    return _laid_over(default, value)
+    if not isinstance(value, typing.Mapping):
+        return value
+    return _laid_over(field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default, value)
 
 
 def _laid_over(default: Any, value: Any) -> Any:

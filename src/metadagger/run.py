@@ -71,8 +71,7 @@ class RunConfig:
     scalars under ``RUN/tb/``, from its artifacts (docs/tensorboard.md; the ``tensorboard`` extra); ``none``: off."""
 
     def __post_init__(self) -> None:
-        if self.log not in LOGS:
-            raise UserError(f"log must be one of {', '.join(LOGS)}, got {self.log!r}")
+        check_log(self.log)
         if self.log == "tensorboard":
             require_tensorboard()  # a missing extra fails now, not after the first stage
         if self.max_episode_steps < 1:
@@ -175,6 +174,12 @@ def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path |
     config = resolve_config(task, preset, presets_file, overrides)
     save_run(run, config)
     return config
+
+
+def check_log(value: str, name: str = "log") -> None:
+    """Raise a :class:`UserError` unless ``value`` is one of :data:`LOGS` (``name``: the key or option that gave it)."""
+    if value not in LOGS:
+        raise UserError(f"{name} must be one of {', '.join(LOGS)}, got {value!r}")
 
 
 def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
