@@ -317,8 +317,15 @@ class RayExecutor(Executor[Any]):
             raise exc.cause from exc
 
     def _shutdown(self, *, cancel: bool, in_flight: list[Any]) -> None:
-        for handle in in_flight:
-            self._ray.cancel(handle, force=True)
+        # Closing the connection this executor opened ends its job, and Ray then stops the job's
+        # tasks. Under a connection the caller opened, the tasks still running are cancelled; one
+        # that finished meanwhile is left alone, since cancelling a task as it completes can abort
+        # the driver (a known Ray race, "Tried to complete task that was not pending", seen here
+        # after a worker's error).
+        if not self._owns_ray and in_flight:
+            _, running = self._ray.wait(in_flight, num_returns=len(in_flight), timeout=0)
+            for handle in running:
+                self._ray.cancel(handle, force=True)
         self._fn_ref = None
         if self._owns_ray:
             self._ray.shutdown()
