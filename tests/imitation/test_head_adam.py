@@ -1,4 +1,4 @@
-"""LinearHeadAdam gives the weights of autograd + torch.optim.Adam to the bit."""
+"""LinearHeadAdam gives the weights of autograd + torch.optim.Adam to the bit, a step or an epoch per call."""
 
 from __future__ import annotations
 
@@ -10,11 +10,6 @@ import torch.nn.functional as F
 from torch import nn
 
 from metadagger.imitation.head_adam import LinearHeadAdam
-
-
-def _batches(n: int, batch_size: int, seed: int) -> list[torch.Tensor]:
-    order = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
-    return [order[s : s + batch_size] for s in range(0, n, batch_size)]
 
 
 def _reference(head: nn.Linear, x: torch.Tensor, y: torch.Tensor, batches: list[torch.Tensor], lr: float,
@@ -31,21 +26,26 @@ def _reference(head: nn.Linear, x: torch.Tensor, y: torch.Tensor, batches: list[
     return losses
 
 
+@pytest.mark.parametrize("per_call", ["step", "epoch"])
 @pytest.mark.parametrize("discrete", [True, False])
 @pytest.mark.parametrize("weight_decay", [0.0, 1e-3])
-def test_same_weights_and_losses_as_autograd_adam(discrete: bool, weight_decay: float) -> None:
+def test_same_weights_and_losses_as_autograd_adam(discrete: bool, weight_decay: float, per_call: str) -> None:
     gen = torch.Generator().manual_seed(1)
     n, width, outputs = 203, 64, 20 if discrete else 3  # 203: the last batch is partial
     x = torch.randn(n, width, generator=gen).relu()
     y = torch.randint(0, outputs, (n,), generator=gen) if discrete else torch.randn(n, outputs, generator=gen)
     head = nn.Linear(width, outputs)
-    batches = _batches(n, 10, seed=3) * 5  # several epochs' worth of steps
+    orders = [torch.randperm(n, generator=torch.Generator().manual_seed(seed)) for seed in range(5)]
+    batches = [order[s : s + 10] for order in orders for s in range(0, n, 10)]  # five epochs' worth of steps
     initial = head.weight.detach().clone()
     expected = copy.deepcopy(head)
     expected_losses = _reference(expected, x, y, batches, 1e-3, weight_decay, discrete)
 
     adam = LinearHeadAdam(head, lr=1e-3, weight_decay=weight_decay, discrete=discrete)
-    losses = [adam.step(x[b], y[b]).item() for b in batches]
+    if per_call == "step":
+        losses = [adam.step(x[b], y[b]).item() for b in batches]
+    else:  # a whole epoch of steps in one call, as fit_bc takes them
+        losses = [loss for order in orders for loss in adam.steps(x, y, order, 10).tolist()]
     adam.write_back()
 
     assert losses == expected_losses

@@ -290,7 +290,7 @@ def fit_bc(
     with ExitStack() as stack:
         optimizer = None if head_adam is not None else torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
         if head_adam is not None:
-            step = head_adam.step
+            step = None
         elif config.batch_shards > 1:
             # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
             pool = stack.enter_context(ThreadPoolExecutor(config.batch_shards, thread_name_prefix="bc-shard",
@@ -305,7 +305,11 @@ def fit_bc(
                     group["lr"] = config.lr_at(epoch)
             total = 0.0
             order = torch.randperm(n, generator=generator)
-            for start in range(0, n, config.batch_size):
+            if head_adam is not None:
+                # one call runs the epoch's steps; the mean is summed in the same order as below
+                for start, loss in zip(range(0, n, config.batch_size), head_adam.steps(inputs, targets, order, config.batch_size).tolist()):
+                    total += loss * min(config.batch_size, n - start)
+            for start in range(0, n, config.batch_size) if step is not None else ():
                 batch = order[start : start + config.batch_size]
                 x = inputs[batch]
                 if config.augment_shift:

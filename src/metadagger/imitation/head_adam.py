@@ -1,21 +1,76 @@
 """Adam steps of a linear head on fixed features, with the gradients written out by hand.
 
 A head-only fit (the pairs', the evaluations', every DAgger round on pi*'s trunk) takes thousands
-of steps on batches of ten 64-wide feature rows, where autograd's graph building and
-``torch.optim.Adam``'s bookkeeping cost several times the arithmetic. :class:`LinearHeadAdam`
-calls the same ATen kernels in the same order as ``loss.backward()`` followed by
-``torch.optim.Adam.step()`` (single-tensor, no amsgrad), so the weights it produces are equal to the
-bit (tests/imitation/test_head_adam.py checks it), at about a third of the time per step.
+of steps on batches of ten 64-wide feature rows, where autograd's graph building,
+``torch.optim.Adam``'s bookkeeping and Python's dispatch of each small operation cost several
+times the arithmetic. :class:`LinearHeadAdam` calls the same ATen kernels in the same order as
+``loss.backward()`` followed by ``torch.optim.Adam.step()`` (single-tensor, no amsgrad), so the
+weights it produces are equal to the bit (tests/imitation/test_head_adam.py checks it). A whole
+epoch of steps runs in one TorchScript function: the interpreter dispatches each kernel without
+Python, which halves the time per step again and changes no number (docs/performance.md).
 """
 
 from __future__ import annotations
 
+import functools
+import warnings
+from typing import Callable
+
 import torch
 from torch import nn
 
-# torch.optim.Adam's defaults, which fit_bc uses
-_BETA1, _BETA2, _EPS = 0.9, 0.999, 1e-8
-_MEAN = 1  # ATen's reduction code for "mean"
+
+def _adam_steps(params: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
+                inputs: torch.Tensor, targets: torch.Tensor, order: torch.Tensor, batch_size: int, out_dim: int,
+                lr: float, weight_decay: float, discrete: bool, steps_before: int) -> torch.Tensor:
+    """Adam steps on consecutive batches of ``order`` (rows of ``inputs`` and ``targets``), updating
+    ``params`` (the head's weight, then its bias, flat) and the moments in place; returns each
+    batch's loss before its step. Compiled by TorchScript (:func:`_compiled_adam_steps`)."""
+    # torch.optim.Adam's defaults, which fit_bc uses, and ATen's reduction code for "mean"
+    # (locals: TorchScript reads no module globals)
+    beta1, beta2, eps, mean = 0.9, 0.999, 1e-8, 1
+    n_weight = params.numel() - out_dim
+    weight = params[:n_weight].view(out_dim, -1)
+    bias = params[n_weight:]
+    grad_weight = grad[:n_weight].view(out_dim, -1)
+    grad_bias = grad[n_weight:]
+    weight_t = weight.t()
+    one = torch.ones(())
+    n_batches = (order.numel() + batch_size - 1) // batch_size
+    losses = torch.empty(n_batches)
+    for i in range(n_batches):
+        rows = order[i * batch_size : (i + 1) * batch_size]
+        features, labels = inputs[rows], targets[rows]
+        outputs = torch.addmm(bias, features, weight_t)
+        if discrete:
+            log_probs = torch.log_softmax(outputs, 1)
+            loss, total_weight = torch.ops.aten.nll_loss_forward(log_probs, labels, None, mean, -100)
+            grad_log_probs = torch.ops.aten.nll_loss_backward(one, log_probs, labels, None, mean, -100, total_weight)
+            grad_outputs = torch.ops.aten._log_softmax_backward_data(grad_log_probs, log_probs, 1, log_probs.dtype)
+        else:
+            loss = torch.ops.aten.mse_loss(outputs, labels, mean)
+            grad_outputs = torch.ops.aten.mse_loss_backward(one, outputs, labels, mean)
+        torch.mm(grad_outputs.t(), features, out=grad_weight)
+        torch.sum(grad_outputs, [0], out=grad_bias)
+        step_grad = grad if weight_decay == 0.0 else grad.add(params, alpha=weight_decay)
+        step = steps_before + i + 1
+        exp_avg.lerp_(step_grad, 1 - beta1)
+        exp_avg_sq.mul_(beta2).addcmul_(step_grad, step_grad, value=1 - beta2)
+        step_size = lr / (1 - beta1**step)
+        denom = (exp_avg_sq.sqrt() / ((1 - beta2**step) ** 0.5)).add_(eps)
+        params.addcdiv_(exp_avg, denom, value=-step_size)
+        losses[i] = loss
+    return losses
+
+
+@functools.cache
+def _compiled_adam_steps() -> Callable[..., torch.Tensor]:
+    """:func:`_adam_steps` compiled once per process, on first use (not at import)."""
+    with warnings.catch_warnings():
+        # torch 2.13 marks TorchScript deprecated in favour of torch.compile, which needs a C++
+        # toolchain at run time and many seconds per process to compile; constraints.txt pins torch.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        return torch.jit.script(_adam_steps)
 
 
 class LinearHeadAdam:
@@ -29,19 +84,13 @@ class LinearHeadAdam:
     """
 
     def __init__(self, head: nn.Linear, *, lr: float, weight_decay: float, discrete: bool):
-        self.head, self.lr, self.weight_decay, self.discrete = head, lr, weight_decay, discrete
-        out_dim, in_dim = head.weight.shape
-        n_weight = out_dim * in_dim
+        self.head, self.lr, self.weight_decay, self.discrete = head, float(lr), float(weight_decay), discrete
         # one flat buffer each for the parameters, their gradient and Adam's two moments: Adam is
         # elementwise, so updating the weight and bias together is the same arithmetic in half the calls
         self._params = torch.cat([head.weight.detach().reshape(-1), head.bias.detach()])
         self._grad = torch.empty_like(self._params)
         self._exp_avg = torch.zeros_like(self._params)
         self._exp_avg_sq = torch.zeros_like(self._params)
-        self._weight, self._bias = self._params[:n_weight].view(out_dim, in_dim), self._params[n_weight:]
-        self._grad_weight, self._grad_bias = self._grad[:n_weight].view(out_dim, in_dim), self._grad[n_weight:]
-        self._weight_t = self._weight.t()
-        self._one = torch.ones(())
         self._steps = 0
 
     @staticmethod
@@ -51,30 +100,22 @@ class LinearHeadAdam:
                 and head.weight.requires_grad and head.bias.requires_grad)
 
     @torch.no_grad()
+    def steps(self, features: torch.Tensor, targets: torch.Tensor, order: torch.Tensor, batch_size: int) -> torch.Tensor:
+        """One Adam step per batch of ``batch_size`` consecutive rows of ``order`` (the last batch
+        may be smaller); returns each batch's loss before its step."""
+        losses = _compiled_adam_steps()(self._params, self._grad, self._exp_avg, self._exp_avg_sq, features, targets,
+                                        order, batch_size, self.head.out_features, self.lr, self.weight_decay,
+                                        self.discrete, self._steps)
+        self._steps += len(losses)
+        return losses
+
     def step(self, features: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
         """One Adam step on a batch; returns the batch's loss (before the step)."""
-        outputs = torch.addmm(self._bias, features, self._weight_t)
-        if self.discrete:
-            log_probs = torch.log_softmax(outputs, 1)
-            loss, total_weight = torch.ops.aten.nll_loss_forward(log_probs, targets, None, _MEAN, -100)
-            grad_log_probs = torch.ops.aten.nll_loss_backward(self._one, log_probs, targets, None, _MEAN, -100, total_weight)
-            grad_outputs = torch.ops.aten._log_softmax_backward_data(grad_log_probs, log_probs, 1, log_probs.dtype)
-        else:
-            loss = torch.ops.aten.mse_loss(outputs, targets, _MEAN)
-            grad_outputs = torch.ops.aten.mse_loss_backward(self._one, outputs, targets, _MEAN)
-        torch.mm(grad_outputs.t(), features, out=self._grad_weight)
-        torch.sum(grad_outputs, 0, out=self._grad_bias)
-        grad = self._grad if self.weight_decay == 0 else self._grad.add(self._params, alpha=self.weight_decay)
-        self._steps += 1
-        self._exp_avg.lerp_(grad, 1 - _BETA1)
-        self._exp_avg_sq.mul_(_BETA2).addcmul_(grad, grad, value=1 - _BETA2)
-        step_size = self.lr / (1 - _BETA1**self._steps)
-        denom = (self._exp_avg_sq.sqrt() / ((1 - _BETA2**self._steps) ** 0.5)).add_(_EPS)
-        self._params.addcdiv_(self._exp_avg, denom, value=-step_size)
-        return loss
+        return self.steps(features, targets, torch.arange(len(features)), len(features))[0]
 
     @torch.no_grad()
     def write_back(self) -> None:
         """Copy the trained weight and bias into ``head``."""
-        self.head.weight.copy_(self._weight)
-        self.head.bias.copy_(self._bias)
+        n_weight = self.head.weight.numel()
+        self.head.weight.copy_(self._params[:n_weight].view_as(self.head.weight))
+        self.head.bias.copy_(self._params[n_weight:])
