@@ -136,3 +136,19 @@ def test_domain_randomized_colours_are_drawn():
 
 def test_env_checker_passes():
     check_env(gym.make("metadagger/CarRacing-v0").unwrapped)
+
+
+def test_the_renderer_runs_opencv_serially_with_the_same_pixels_as_its_thread_pool():
+    import cv2
+
+    actions = smooth_actions(5, STEPS)
+    serial = CarRacingFast()
+    assert cv2.getNumThreads() == 1  # making the renderer turned OpenCV's idle, spinning pool off
+    expected = rollout(serial, 5, actions)["frames"]
+    threaded = CarRacingFast()
+    cv2.setNumThreads(4)  # after the renderer is made: its frames go through the pool
+    try:
+        frames = rollout(threaded, 5, actions)["frames"]
+    finally:
+        cv2.setNumThreads(1)
+    assert all(np.array_equal(a, b) for a, b in zip(frames, expected, strict=True))

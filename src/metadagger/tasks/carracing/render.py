@@ -191,6 +191,11 @@ class StateRenderer:
             raise ValueError(f"supersample must be 1, 2 or 4, got {supersample}")
         self.supersample = supersample
         self.size = STATE_SIZE * supersample
+        # A 96x96 frame is too small to split across threads: OpenCV's pool made no frame
+        # faster, and its idle threads spin (sched_yield) between calls, a third of a core or
+        # more per process, taken from the other workers. The setting is process-wide; serial
+        # calls give the same pixels (docs/performance.md).
+        cv2.setNumThreads(1)
         # Screen pixels -> canvas pixels (geometric mean of the anisotropic x and y scales).
         gain = supersample * math.sqrt(_SX * _SY)
         self._shrink_car = _CV2_GROWTH - _DRAW_GROWTH * gain  # in canvas pixels
