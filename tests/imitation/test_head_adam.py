@@ -43,7 +43,7 @@ def test_same_weights_and_losses_as_autograd_adam(discrete: bool, weight_decay: 
 
     adam = LinearHeadAdam(head, lr=1e-3, weight_decay=weight_decay, discrete=discrete)
     if per_call == "step":
-        losses = [adam.step(x[b], y[b]).item() for b in batches]
+        losses = [adam.steps(x, y, batch, len(batch)).item() for batch in batches]
     else:  # a whole epoch of steps in one call, as fit_bc takes them
         losses = [loss for order in orders for loss in adam.steps(x, y, order, 10).tolist()]
     adam.write_back()

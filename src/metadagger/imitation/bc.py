@@ -290,7 +290,7 @@ def fit_bc(
     with ExitStack() as stack:
         optimizer = None if head_adam is not None else torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
         if head_adam is not None:
-            step = None
+            step = None  # head_adam.steps runs each epoch in one call
         elif config.batch_shards > 1:
             # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
             pool = stack.enter_context(ThreadPoolExecutor(config.batch_shards, thread_name_prefix="bc-shard",
@@ -303,18 +303,21 @@ def fit_bc(
             if optimizer is not None:
                 for group in optimizer.param_groups:
                     group["lr"] = config.lr_at(epoch)
-            total = 0.0
             order = torch.randperm(n, generator=generator)
+            starts = range(0, n, config.batch_size)
             if head_adam is not None:
-                # one call runs the epoch's steps; the mean is summed in the same order as below
-                for start, loss in zip(range(0, n, config.batch_size), head_adam.steps(inputs, targets, order, config.batch_size).tolist()):
-                    total += loss * min(config.batch_size, n - start)
-            for start in range(0, n, config.batch_size) if step is not None else ():
-                batch = order[start : start + config.batch_size]
-                x = inputs[batch]
-                if config.augment_shift:
-                    x = random_shift(x, config.augment_shift, generator)
-                total += step(x, targets[batch]).item() * len(batch)
+                batch_losses = head_adam.steps(inputs, targets, order, config.batch_size).tolist()
+            else:
+                batch_losses = []
+                for start in starts:
+                    batch = order[start : start + config.batch_size]
+                    x = inputs[batch]
+                    if config.augment_shift:
+                        x = random_shift(x, config.augment_shift, generator)
+                    batch_losses.append(step(x, targets[batch]).item())
+            total = 0.0
+            for start, loss in zip(starts, batch_losses, strict=True):
+                total += loss * min(config.batch_size, n - start)
             losses.append(total / n)
             bar.set_postfix(loss=f"{losses[-1]:.4f}")
             if on_epoch is not None:

@@ -109,10 +109,6 @@ class LinearHeadAdam:
         self._steps += len(losses)
         return losses
 
-    def step(self, features: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
-        """One Adam step on a batch; returns the batch's loss (before the step)."""
-        return self.steps(features, targets, torch.arange(len(features)), len(features))[0]
-
     @torch.no_grad()
     def write_back(self) -> None:
         """Copy the trained weight and bias into ``head``."""
