@@ -290,33 +290,35 @@ def fit_bc(
     with ExitStack() as stack:
         optimizer = None if head_adam is not None else torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
         if head_adam is not None:
-            step = None  # head_adam.steps runs each epoch in one call
-        elif config.batch_shards > 1:
-            # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
-            pool = stack.enter_context(ThreadPoolExecutor(config.batch_shards, thread_name_prefix="bc-shard",
-                                                          initializer=torch.set_num_threads, initargs=(torch.get_num_threads(),)))
-            step = _sharded_step(model, params, optimizer, policy.discrete, pool, config.batch_shards)
+            # a whole epoch of head-only steps in one call
+            def epoch_losses(order: torch.Tensor) -> list[float]:
+                return head_adam.steps(inputs, targets, order, config.batch_size).tolist()
         else:
-            step = _autograd_step(model, optimizer, policy.discrete)
+            if config.batch_shards > 1:
+                # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
+                pool = stack.enter_context(ThreadPoolExecutor(config.batch_shards, thread_name_prefix="bc-shard",
+                                                              initializer=torch.set_num_threads, initargs=(torch.get_num_threads(),)))
+                step = _sharded_step(model, params, optimizer, policy.discrete, pool, config.batch_shards)
+            else:
+                step = _autograd_step(model, optimizer, policy.discrete)
+
+            def epoch_losses(order: torch.Tensor) -> list[float]:
+                batch_losses = []
+                for start in range(0, n, config.batch_size):
+                    batch = order[start : start + config.batch_size]
+                    x = inputs[batch]
+                    if config.augment_shift:
+                        x = random_shift(x, config.augment_shift, generator)
+                    batch_losses.append(step(x, targets[batch]).item())
+                return batch_losses
         bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
         for epoch in bar:
             if optimizer is not None:
                 for group in optimizer.param_groups:
                     group["lr"] = config.lr_at(epoch)
             order = torch.randperm(n, generator=generator)
-            starts = range(0, n, config.batch_size)
-            if head_adam is not None:
-                batch_losses = head_adam.steps(inputs, targets, order, config.batch_size).tolist()
-            else:
-                batch_losses = []
-                for start in starts:
-                    batch = order[start : start + config.batch_size]
-                    x = inputs[batch]
-                    if config.augment_shift:
-                        x = random_shift(x, config.augment_shift, generator)
-                    batch_losses.append(step(x, targets[batch]).item())
             total = 0.0
-            for start, loss in zip(starts, batch_losses, strict=True):
+            for start, loss in zip(range(0, n, config.batch_size), epoch_losses(order), strict=True):
                 total += loss * min(config.batch_size, n - start)
             losses.append(total / n)
             bar.set_postfix(loss=f"{losses[-1]:.4f}")
