@@ -12,6 +12,7 @@ from toy_task import CorridorTask
 from metadagger.errors import UserError
 from metadagger.evaluation import benchmark as bench
 from metadagger.evaluation.benchmark import BenchmarkConfig, method_keys, run_benchmark
+from metadagger.evaluation.methods import GateKey
 from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig
@@ -51,9 +52,9 @@ def rows(toy_run) -> list[dict]:
 
 def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
     keys = method_keys(CONFIG, rounds=ROUNDS, kinds=("pistar-head",), mdi=False)
-    assert keys == ["bc@", "mdm-pistar-head@", "dagger@1", "dagger@2", "dagger-random@0", "dagger-random@0.5",
+    assert [key.id for key in keys] == ["bc@", "mdm-pistar-head@", "dagger@1", "dagger@2", "dagger-random@0", "dagger-random@0.5",
                     "dagger-ensemble@0.5", "dagger-safe@0.5", "dagger-novelty@0.5"]
-    assert [f"{r['method']}@{r['setting']}" for r in rows] == keys * len(SEEDS)
+    assert [(r['method'], r['setting']) for r in rows] == [(key.method, key.setting) for key in keys] * len(SEEDS)
     assert tuple(read_csv(toy_run.benchmark_table)[0]) == bench.FIELDS
 
 
@@ -90,10 +91,11 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch):
         return Counting()
 
     monkeypatch.setattr(bench, "make_gate", counting)
+    key = GateKey("dagger-novelty", "0.5", gate="novelty", value=0.5)
     job = bench.BenchmarkJob(task=CorridorTask(), groundtruth=str(toy_run.groundtruth), seed=SEEDS[0],
-                             methods=("dagger-novelty@0.5",), mappers={}, config=CONFIG, rounds=ROUNDS, bc=BC,
+                             methods=(key.id,), keys=(key,), mappers={}, config=CONFIG, rounds=ROUNDS, bc=BC,
                              dagger_bc=BC, early_stop=None, mdi=None)
-    [row] = bench.benchmark_seed(job)["entries"]["dagger-novelty@0.5"]  # in this process: the patch applies
+    [row] = bench.benchmark_seed(job)["entries"][key.id]  # in this process: the patch applies
     demo = collect(CorridorTask(), SEEDS[:1], policy=None)[0].steps
     assert len(selected) == ROUNDS and row["expert_queries"] == demo + sum(selected)
 

@@ -17,11 +17,11 @@ from metadagger.evaluation.report_mdi import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
-from metadagger.imitation.rollouts import collect
+from metadagger.imitation.rollouts import collect, rollout
 from metadagger.io import load_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.context import bc_rollout, seed_context
+from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.policies import load_policy
 from metadagger.run import init_run, load_run
@@ -315,7 +315,7 @@ def test_a_conditioned_initialiser_reads_the_seed_context(toy_run, tmp_path):
     demo = collect(CorridorTask(discrete=False), [seed], policy=None)[0].to_dataset()
     cache, bc = FeatureCache(policy), dataclasses.replace(CONFIG.bc, seed=seed)
     fit_bc(policy, demo, bc, cache=cache)
-    unlabelled = bc_rollout(CorridorTask(discrete=False).make_env(), policy, seed, 3.0)
+    unlabelled = rollout(CorridorTask(discrete=False).make_env(), seed=seed, policy=policy, early_stop=CosineEarlyStop(threshold=3.0))
     policy.load_head_vector(torch.from_numpy(mapper(policy.head_vector().numpy(), seed_context(cache, demo.obs, unlabelled.obs))))
     fit_bc(policy, demo, bc, cache=cache)
     saved = load_tensors(head_dir(tmp_path, "dagger-mdi-conditioned", "oneshot") / f"{seed}.safetensors")["head"]

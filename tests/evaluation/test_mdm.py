@@ -15,11 +15,11 @@ from metadagger.errors import UserError
 from metadagger.evaluation.mdm import EvalConfig, evaluate_run
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.rollouts import collect
+from metadagger.imitation.rollouts import collect, rollout
 from metadagger.io import load_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.context import bc_rollout, seed_context
+from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.policies import load_policy
 from metadagger.runner import StageOptions
@@ -119,7 +119,7 @@ def test_a_conditioned_mapper_reads_the_seed_context_from_the_bc_rollout(toy_run
         cache = FeatureCache(policy)
         fit_bc(policy, demo, dataclasses.replace(BC, seed=seed), cache=cache)
         w = policy.head_vector().numpy().copy()
-        unlabelled = bc_rollout(CorridorTask().make_env(), policy, seed, None)
+        unlabelled = rollout(CorridorTask().make_env(), seed=seed, policy=policy)
         expected = mapper(w, seed_context(cache, demo.obs, unlabelled.obs))
         assert torch.equal(load_tensors(layout.heads("conditioned") / f"{seed}.safetensors")["head"], torch.from_numpy(expected))
         assert table["conditioned", seed]["unlabelled_steps"] == unlabelled.steps == table["bc", seed]["steps"]

@@ -19,9 +19,10 @@ from toy_task import CorridorTask
 from metadagger.errors import CheckpointError
 from metadagger.evaluation.report_run import groundtruth_section
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.rollouts import collect
+from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.rollouts import collect, rollout
 from metadagger.layout import RunLayout
-from metadagger.metal.context import bc_rollout, seed_context
+from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
@@ -184,7 +185,8 @@ def test_each_pair_stores_its_seed_context_from_the_demonstration_and_the_bc_rol
     demo = collect(CorridorTask(), [seed], policy=None)[0].to_dataset()
     cache = FeatureCache(policy)
     fit_bc(policy, demo, dataclasses.replace(PAIRS.bc, seed=seed), cache=cache)
-    unlabelled = bc_rollout(CorridorTask().make_env(), policy, seed, PAIRS.early_stop)
+    stop = None if PAIRS.early_stop is None else CosineEarlyStop(threshold=PAIRS.early_stop)
+    unlabelled = rollout(CorridorTask().make_env(), seed=seed, policy=policy, early_stop=stop)
     assert torch.equal(stored, torch.from_numpy(seed_context(cache, demo.obs, unlabelled.obs)))
     assert stored.shape == (2 * policy.net.feature_dim,)
     split = store.load_split(val_fraction=0.2, seed=0, kept_only=False)

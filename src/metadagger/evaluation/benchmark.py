@@ -22,42 +22,30 @@ the next round, which is deterministic, so nothing is rolled out twice).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
-
-import numpy as np
-import torch
+from typing import Any, Iterator
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
+from metadagger.evaluation.methods import GATED, MDI_METHODS, METHODS, GateKey, MapperKey, MethodKey, RoundKey, ShotKey
 from metadagger.evaluation.rows import write_csv
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.data import Aggregate, Dataset
-from metadagger.imitation.early_stop import CosineEarlyStop
-from metadagger.imitation.gates import GATES, Gate, Labelled, make_gate
-from metadagger.imitation.metrics import summarize
-from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.evaluation.tables import method_label
+from metadagger.imitation.bc import BCConfig
+from metadagger.imitation.gates import Gate, make_gate
+from metadagger.imitation.metrics import summarize
+from metadagger.imitation.rollouts import Trajectory
 from metadagger.io import write_json
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
-from metadagger.metal.context import seed_context
-from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
+from metadagger.metal.method import Round, SeedLearner, bc_head, dagger_rounds, demonstration, map_head, seed_context, seeded
 from metadagger.plotting import plt, save_figure
-from metadagger.policies import Policy
 from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
-#: Gated DAgger methods and the gate each one uses.
-GATED = {f"dagger-{name}": name for name in GATES}
-#: What the MDI protocol's methods are called in the benchmark (its ``dagger`` is a Xavier start).
-MDI_NAMES = {"dagger-mdi": "dagger-mdi", "dagger-bc": "dagger-bc-init", "dagger": "dagger-xavier"}
 #: Columns of ``benchmark/queries.csv``.
 FIELDS = ("method", "setting", "seed", "success", "reward", "steps", "expert_queries")
-MDM_PREFIX = "mdm-"
 
 
 @dataclass(frozen=True)
@@ -82,7 +70,7 @@ class BenchmarkConfig:
     def __post_init__(self) -> None:
         if not self.seeds:
             raise UserError("benchmark.seeds must not be empty")
-        known = ("bc", "mdm", "dagger", *GATED, "mdi")
+        known = tuple(METHODS)
         if not self.methods:
             raise UserError(f"benchmark.methods must not be empty; allowed: {', '.join(known)}")
         unknown = [m for m in self.methods if m not in known]
@@ -109,8 +97,10 @@ class BenchmarkConfig:
 
 @dataclass(frozen=True)
 class BenchmarkJob(SeedJob):
-    """One seed's benchmark; its methods are keys ``method@setting`` (see :func:`method_keys`)."""
+    """One seed's benchmark; its ``methods`` are the ids of its ``keys``."""
 
+    keys: tuple[MethodKey, ...]
+    """The method keys this job runs (:mod:`metadagger.evaluation.methods`)."""
     mappers: dict[str, str]
     """Mapper file of every MDM kind this job runs."""
     config: BenchmarkConfig
@@ -123,141 +113,83 @@ class BenchmarkJob(SeedJob):
     """The run's MDI protocol (``bc`` resolved) when the job runs its methods."""
 
 
-def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...], mdi: bool) -> list[str]:
-    """Every ``method@setting`` the benchmark rows of one seed are made of, in table order."""
-    keys: list[str] = []
-    for method in config.methods:
-        if method == "bc":
-            keys.append("bc@")
-        elif method == "mdm":
-            keys += [f"{MDM_PREFIX}{kind}@" for kind in kinds]
-        elif method == "dagger":
-            keys += [f"dagger@{r}" for r in range(1, rounds + 1)]
-        elif method in GATED:
-            keys += [f"{method}@{value:g}" for value in config.grids[method]]
-        elif method == "mdi" and mdi:
-            keys += [f"{name}@{shot}" for name in MDI_NAMES.values() for shot in ("one-shot", "two-shot")]
-    return keys
+def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...], mdi: bool) -> list[MethodKey]:
+    """Every method key the benchmark rows of one seed are made of, in table order."""
+    return [key for method in config.methods for key in METHODS[method](rounds, kinds, config.grids, mdi)]
 
 
-def _row(key: str, seed: int, traj: Trajectory, queries: int) -> dict[str, Any]:
-    method, setting = key.split("@")
-    return {"method": method, "setting": setting, "seed": seed, "success": bool(traj.success), "reward": float(traj.reward),
+def _row(key: MethodKey, seed: int, traj: Trajectory, queries: int) -> dict[str, Any]:
+    return {"method": key.method, "setting": key.setting, "seed": seed, "success": bool(traj.success), "reward": float(traj.reward),
             "steps": int(traj.steps), "expert_queries": int(queries)}
 
 
 def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
-    """Run the job's ``method@setting`` keys on one seed; returns ``seed`` and ``entries``."""
-    seed = job.seed
-    pistar = cached_groundtruth(job.groundtruth)
-    policy = head_from_groundtruth(pistar, job.bc.head_init_seed(seed))
-    bc = dataclasses.replace(job.bc, seed=seed)
-    dagger_bc = dataclasses.replace(job.dagger_bc, seed=seed)
-    env = job.task.make_env()
-    entries: dict[str, list[dict[str, Any]]] = {}
-    wanted = set(job.methods)
-
-    def run(head: np.ndarray) -> Trajectory:
-        policy.load_head_vector(torch.from_numpy(head))
-        stop = None if job.early_stop is None else CosineEarlyStop(threshold=job.early_stop)
-        return rollout(env, seed=seed, policy=policy, early_stop=stop)
-
-    try:
-        demo = rollout(env, seed=seed, policy=None)
+    """Run the job's method keys on one seed; returns ``seed`` and ``entries`` (by key id)."""
+    seed, keys = job.seed, job.keys
+    rows: dict[MethodKey, dict[str, Any]] = {}
+    with SeedLearner(job.task, job.groundtruth, seed, head_init_seed=job.bc.head_init_seed(seed)) as learner:
+        demo = demonstration(learner)
         data = demo.to_dataset()
-        cache = FeatureCache(policy)
-        fit_bc(policy, data, bc, cache=cache)
-        w_bc = policy.head_vector().numpy().copy()
-        first = run(w_bc)
-        if "bc@" in wanted:
-            entries["bc@"] = [_row("bc@", seed, first, len(data))]
-        mdm = {key: cached_mapper(job.mappers[key.split("@")[0].removeprefix(MDM_PREFIX)])
-               for key in job.methods if key.startswith(MDM_PREFIX)}
-        # w_BC's rollout under the pairs' early stop is the one a context summarises
-        context = seed_context(cache, data.obs, first.obs) if any(m.needs_context for m in mdm.values()) else None
+        w_bc = bc_head(learner, data, seeded(job.bc, seed))
+        # w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round
+        first = learner.roll(w_bc, early_stop=job.early_stop)
+        rows.update({key: _row(key, seed, first, len(data)) for key in keys if type(key) is MethodKey and key.method == "bc"})
+        mdm = {key: cached_mapper(job.mappers[key.kind]) for key in keys if isinstance(key, MapperKey)}
+        context = seed_context(learner.cache, data.obs, first.obs) if any(m.needs_context for m in mdm.values()) else None
         for key, mapper in mdm.items():
-            entries[key] = [_row(key, seed, run(mapper(w_bc, context)), len(data))]
-        if any(k.startswith("dagger@") for k in job.methods):
-            for r, (traj, queries) in enumerate(_gated_rounds(policy, w_bc, first, demo, None, job, dagger_bc, cache, run), 1):
-                if f"dagger@{r}" in wanted:
-                    entries[f"dagger@{r}"] = [_row(f"dagger@{r}", seed, traj, queries)]
-        for key in (k for k in job.methods if k.split("@")[0] in GATED):
-            method, setting = key.split("@")
-            gate = make_gate(GATED[method], float(setting), **job.config.gate_options(method))
-            *_, (traj, queries) = _gated_rounds(policy, w_bc, first, demo, gate, job, dagger_bc, cache, run)
-            entries[key] = [_row(key, seed, traj, queries)]
-        if job.mdi is not None and any(k.split("@")[0] in MDI_NAMES.values() for k in job.methods):
-            entries.update(_mdi_entries(job))
-    finally:
-        env.close()
-    return {"seed": seed, "entries": entries}
+            rows[key] = _row(key, seed, learner.roll(map_head(mapper, w_bc, context), early_stop=job.early_stop), len(data))
+
+        def dagger(gate: Gate | None) -> Iterator[Round]:
+            return dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=job.rounds, fit=seeded(job.dagger_bc, seed),
+                                 gate=gate, early_stop=job.early_stop)
+
+        by_round = {key.round: key for key in keys if isinstance(key, RoundKey)}
+        if by_round:
+            for round_ in dagger(None):
+                if round_.index in by_round:
+                    rows[by_round[round_.index]] = _row(by_round[round_.index], seed, round_.rollout, round_.queries)
+        for key in (k for k in keys if isinstance(k, GateKey)):
+            *_, last = dagger(make_gate(key.gate, key.value, **job.config.gate_options(key.method)))
+            rows[key] = _row(key, seed, last.rollout, last.queries)
+    shots = [key for key in keys if isinstance(key, ShotKey)]
+    if job.mdi is not None and shots:
+        rows.update(_mdi_rows(job, shots))
+    return {"seed": seed, "entries": {key.id: [rows[key]] for key in keys if key in rows}}
 
 
-def _gated_rounds(policy: Policy, w_bc: np.ndarray, first: Trajectory, demo: Trajectory, gate: Gate | None,
-                  job: BenchmarkJob, dagger_bc: BCConfig, cache: FeatureCache,
-                  run: Callable[[np.ndarray], Trajectory]) -> Iterator[tuple[Trajectory, int]]:
-    """R DAgger rounds from w_BC, labelling what ``gate`` selects (every visited state if None);
-    yields, after each round's refit, the rollout of the refitted policy and the cumulative queries.
-    ``first`` is w_BC's own rollout, which round 1 labels."""
-    generator = torch.Generator().manual_seed(job.seed)
-    data = Aggregate([demo.to_dataset()])
-    actions = demo.expert_labels  # on the demonstration the expert acted
-    queries = len(data)
-    policy.load_head_vector(torch.from_numpy(w_bc))
-    traj = first
-    for _ in range(job.rounds):
-        if gate is None:
-            keep = np.ones(traj.steps, dtype=bool)
-        else:
-            labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
-            keep = gate.select(cache.features(traj.obs), _tensor(traj.learner_actions), labelled, generator=generator).numpy()
-        if keep.any():
-            data = data.append(Dataset(obs=traj.obs[keep], labels=traj.expert_labels[keep]))
-            actions = np.concatenate([actions, traj.learner_actions[keep]])
-            queries += int(keep.sum())
-            fit_bc(policy, data, dagger_bc, cache=cache)
-        traj = run(policy.head_vector().numpy().copy())
-        yield traj, queries
-
-
-def _tensor(values: np.ndarray) -> torch.Tensor:
-    return torch.from_numpy(np.ascontiguousarray(values))
-
-
-def _mdi_entries(job: BenchmarkJob) -> dict[str, list[dict[str, Any]]]:
+def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> dict[MethodKey, dict[str, Any]]:
     """Table 6's one- and two-shot outcomes of DAgger-MDI, DAgger-BC and DAgger on this seed."""
     assert job.mdi is not None
-    mdi_job = MDIJob(task=job.task, groundtruth=job.groundtruth, seed=job.seed, methods=tuple(MDI_NAMES),
+    mdi_job = MDIJob(task=job.task, groundtruth=job.groundtruth, seed=job.seed, methods=tuple(MDI_METHODS),
                      mappers={"dagger-mdi": job.mappers["mdi"]}, config=job.mdi, context_early_stop=job.early_stop)
-    out: dict[str, list[dict[str, Any]]] = {}
-    for method, rows in evaluate_mdi_seed(mdi_job)["entries"].items():
-        r = rows[0]
-        name = MDI_NAMES[method]
-        one = {"method": name, "setting": "one-shot", "seed": job.seed, "success": r["one_shot_success"],
-               "reward": r["one_shot_reward"], "steps": r["one_shot_steps"], "expert_queries": r["demo_steps"]}
-        two = {"method": name, "setting": "two-shot", "seed": job.seed, "success": r["two_shot_success"],
-               "reward": r["two_shot_reward"] if r["two_shot_run"] else r["one_shot_reward"],
-               "steps": r["two_shot_steps"] if r["two_shot_run"] else r["one_shot_steps"], "expert_queries": r["expert_queries"]}
-        out[f"{name}@one-shot"], out[f"{name}@two-shot"] = [one], [two]
+    outcomes = {method: rows[0] for method, rows in evaluate_mdi_seed(mdi_job)["entries"].items()}
+    out: dict[MethodKey, dict[str, Any]] = {}
+    for key in keys:
+        r = outcomes[key.mdi_method]
+        two = key.shot == "twoshot" and r["two_shot_run"]
+        out[key] = {"method": key.method, "setting": key.setting, "seed": job.seed,
+                    "success": r["two_shot_success"] if key.shot == "twoshot" else r["one_shot_success"],
+                    "reward": r["two_shot_reward"] if two else r["one_shot_reward"],
+                    "steps": r["two_shot_steps"] if two else r["one_shot_steps"],
+                    "expert_queries": r["expert_queries"] if key.shot == "twoshot" else r["demo_steps"]}
     return out
 
 
 def benchmark_stamps(task: Task, layout: RunLayout, job_settings: dict[str, Any], config: BenchmarkConfig,
-                     keys: list[str], mdi: MDIConfig | None, mdi_mapper: str | None) -> dict[str, Stamp]:
-    """What each ``method@setting`` is made from: the shared fits, pi*, and the method's own inputs."""
+                     keys: list[MethodKey], mdi: MDIConfig | None, mdi_mapper: str | None) -> dict[str, Stamp]:
+    """What each method key's rows are made from: the shared fits, pi*, and the method's own inputs."""
     common = {"protocol": "benchmark", "task": task.name, **job_settings,
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     stamps: dict[str, Stamp] = {}
     for key in keys:
-        method = key.split("@")[0]
         own: dict[str, Any] = {}
-        if method.startswith(MDM_PREFIX):
-            own = {"mapper_fingerprint": file_fingerprint(layout.mapper(method.removeprefix(MDM_PREFIX)))}
-        elif method in GATED:
-            own = {"gate": config.gate_options(method)}
-        elif method in MDI_NAMES.values() and mdi is not None and mdi_mapper is not None:
+        if isinstance(key, MapperKey):
+            own = {"mapper_fingerprint": file_fingerprint(layout.mapper(key.kind))}
+        elif isinstance(key, GateKey):
+            own = {"gate": config.gate_options(key.method)}
+        elif isinstance(key, ShotKey) and mdi is not None and mdi_mapper is not None:
             own = {"mdi": stamp_of(mdi, drop=("seeds", "controls")), "mapper_fingerprint": file_fingerprint(layout.mapper(mdi_mapper))}
-        stamps[key] = {**common, **own}
+        stamps[key.id] = {**common, **own}
     return stamps
 
 
@@ -306,7 +238,9 @@ def run_benchmark(
     mappers = {kind: str(layout.mapper(kind)) for kind in kinds}
     if with_mdi:
         mappers["mdi"] = str(layout.mapper(mdi.mapper))
-    jobs = [BenchmarkJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, mappers=mappers,
+    by_id = {key.id: key for key in keys}
+    jobs = [BenchmarkJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods,
+                         keys=tuple(by_id[m] for m in p.methods), mappers=mappers,
                          config=config, rounds=rounds, bc=bc, dagger_bc=dagger_bc, early_stop=early_stop,
                          mdi=mdi if with_mdi else None) for p in todo]
     drive(benchmark_seed, jobs, log=log, stamps=stamps, options=options, desc="benchmark")

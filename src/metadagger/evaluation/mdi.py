@@ -31,9 +31,8 @@ with pi* on its seed.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -41,17 +40,15 @@ import torch
 
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import write_csv
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.data import Aggregate, Dataset
+from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
-from metadagger.imitation.rollouts import Trajectory, rollout
+from metadagger.imitation.rollouts import Trajectory
 from metadagger.io import save_tensors
 from metadagger.layout import RunLayout
-from metadagger.mapping.mappers import Mapper, cached_mapper
+from metadagger.mapping.mappers import cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
-from metadagger.metal.context import bc_rollout, seed_context
-from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
-from metadagger.policies import Policy
+from metadagger.metal.groundtruth import cached_groundtruth
+from metadagger.metal.method import SeedLearner, bc_head, dagger_rounds, demonstration, map_head, one_shot, seed_context, seeded
 from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
@@ -151,10 +148,6 @@ def head_folder(method: str, shot: str) -> str:
     return f"mdi-{method}-{shot}"
 
 
-def _head(policy: Policy) -> np.ndarray:
-    return policy.head_vector().numpy().copy()
-
-
 def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
     """Accumulated and per-action cosine distance of a rollout, measured as the early stop does
     (with its dead zone on short expert labels); None for discrete actions."""
@@ -167,65 +160,45 @@ def _cosine(task: Task, traj: Trajectory) -> tuple[float | None, float | None]:
     return meter.total, meter.mean
 
 
-def _steps_2_to_5(policy: Policy, demo: Dataset, bc: BCConfig, cache: FeatureCache, mappers: dict[str, Mapper],
-                  methods: tuple[str, ...], context_of: Callable[[], np.ndarray]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Steps 2-5 on a policy whose head is the seed's Xavier head: each of ``methods``' saved
-    initialisation (step 4) and its head after training on the demonstration (step 5).
-    ``mappers``: the initialiser of every DAgger-MDI method among them; ``context_of()``: the
-    seed's context once the policy's head is w_BC (called only for a mapper that reads one)."""
-    xavier = _head(policy)
-    fit_bc(policy, demo, bc, cache=cache)
-    w_bc = _head(policy)
-    context = context_of() if any(mapper.needs_context for mapper in mappers.values()) else None
-    inits = {method: mapper(w_bc, context) for method, mapper in mappers.items()}
-    if "dagger-bc" in methods:
-        inits["dagger-bc"] = w_bc
-    heads = {"dagger": w_bc}  # Xavier head fitted on the demo = step 2's fit
-    for method, init in inits.items():
-        policy.load_head_vector(init)
-        fit_bc(policy, demo, bc, cache=cache)
-        heads[method] = _head(policy)
-    return inits | {"dagger": xavier}, heads
-
-
 def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     """Run Table 6 for the job's methods on one seed; returns ``seed``, ``entries``
     (``{method: [row]}``) and ``heads`` (``{(method, shot): head vector}``)."""
-    config, task, seed = job.config, job.task, job.seed
-    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), config.bc.head_init_seed(seed))
-    bc = dataclasses.replace(config.bc, seed=seed)
-    dagger_bc = dataclasses.replace(config.dagger_bc, seed=seed)
-    stop = CosineEarlyStop(threshold=config.early_stop) if config.early_stop is not None else None
-    env = task.make_env()
+    config, seed = job.config, job.seed
+    fit, refit = seeded(config.bc, seed), seeded(config.dagger_bc, seed)
     entries: dict[str, list[dict[str, Any]]] = {}
     heads: dict[tuple[str, str], np.ndarray] = {}
-
-    def test(head: np.ndarray) -> Trajectory:
-        policy.load_head_vector(head)
-        return rollout(env, seed=seed, policy=policy, early_stop=stop)
-
-    try:
-        demo = rollout(env, seed=seed, policy=None).to_dataset()
-        cache = FeatureCache(policy)
+    with SeedLearner(job.task, job.groundtruth, seed, head_init_seed=config.bc.head_init_seed(seed)) as learner:
+        # steps 1-2: the demonstration and w_BC; DAgger's own start is the seed's fresh Xavier head
+        xavier = learner.head()
+        demo = demonstration(learner)
+        data = demo.to_dataset()
+        w_bc = bc_head(learner, data, fit)
+        # steps 3-4: each method's saved initialisation
         mappers = {method: cached_mapper(path) for method, path in job.mappers.items()}
-
-        def context_of() -> np.ndarray:
-            return seed_context(cache, demo.obs, bc_rollout(env, policy, seed, job.context_early_stop).obs)
-
-        inits, one_shot_heads = _steps_2_to_5(policy, demo, bc, cache, mappers, job.methods, context_of)
+        context = None
+        if any(mapper.needs_context for mapper in mappers.values()):
+            rolled = learner.roll(w_bc, early_stop=job.context_early_stop)
+            context = seed_context(learner.cache, data.obs, rolled.obs)
+        inits = {method: map_head(mapper, w_bc, context) for method, mapper in mappers.items()}
+        if "dagger-bc" in job.methods:
+            inits["dagger-bc"] = w_bc
+        # step 5: each initialisation refitted on the demonstration; for DAgger that is step 2's fit
+        # itself (the Xavier head, the same data and settings), so w_BC is not fitted twice
+        one_shot_heads = {"dagger": w_bc} | {method: one_shot(learner, init, data, fit) for method, init in inits.items()}
+        inits["dagger"] = xavier
         for method in job.methods:
             heads[method, "oneshot"] = one_shot_heads[method]
-            first = final = test(one_shot_heads[method])
+            # steps 6-7: the one-shot test
+            first = final = learner.roll(one_shot_heads[method], early_stop=config.early_stop)
             ran = not first.success
             if ran:
-                # The DAgger round's rollout is the one-shot test itself (same head, seed and early
-                # stop on a deterministic env), so its labelled states are aggregated directly.
-                if config.dagger_init == "saved":
-                    policy.load_head_vector(inits[method])
-                fit_bc(policy, Aggregate([demo, first.to_dataset()]), dagger_bc, cache=cache)
-                heads[method, "twoshot"] = _head(policy)
-                final = test(heads[method, "twoshot"])
-            cosine_total, cosine_mean = _cosine(task, final)
+                # steps 8-9: one DAgger round labels the one-shot test's states and refits from the
+                # saved initialisation (Table 6) or from the one-shot head
+                start = inits[method] if config.dagger_init == "saved" else one_shot_heads[method]
+                (round_,) = dagger_rounds(learner, start=start, first=first, demo=demo, rounds=1, fit=refit,
+                                          early_stop=config.early_stop)
+                heads[method, "twoshot"], final = round_.head, round_.rollout
+            cosine_total, cosine_mean = _cosine(job.task, final)
             entries[method] = [{
                 "method": method, "seed": seed,
                 "one_shot_success": bool(first.success), "one_shot_reward": float(first.reward),
@@ -233,11 +206,9 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                 "two_shot_run": ran, "two_shot_success": bool(final.success),
                 "two_shot_reward": float(final.reward) if ran else None, "two_shot_steps": int(final.steps) if ran else None,
                 "two_shot_early_stopped": bool(final.early_stopped) if ran else None,
-                "demo_steps": len(demo), "expert_queries": len(demo) + (first.expert_queries if ran else 0),
+                "demo_steps": len(data), "expert_queries": len(data) + (first.expert_queries if ran else 0),
                 "cosine_total": cosine_total, "cosine_per_action": cosine_mean,
             }]
-    finally:
-        env.close()
     return {"seed": seed, "entries": entries, "heads": heads}
 
 
@@ -293,7 +264,7 @@ def evaluate_mdi(
         options: rebuild (redo rows made from another pi*, mapper or settings; else they are an
             error), executor, workers, progress.
         context_early_stop: the pairs' early-stop threshold, which cuts the BC rollout of an
-            initialiser's context (:mod:`metadagger.metal.context`).
+            initialiser's context (:func:`metadagger.metal.method.seed_context`).
 
     Returns:
         The rows (:data:`MDI_FIELDS`) of every seed of ``config``, by seed then in

@@ -1,17 +1,16 @@
 """Direct mapping (MDM) and one-shot evaluation on unseen seeds (paper 4.1, Tables 1-5).
 
-Per seed: the seed's expert demonstration -> a head fitted by BC on pi*'s frozen trunk (exactly as
-for the pairs) -> each method's head (the BC head itself, each mapper's output, the controls) ->
-one rollout each. One-shot: for each mapper whose head failed, its output initialises the head,
-which is refitted once on the same demonstration and rolled out again. A mapper that reads the
-seed's context gets it from the demonstration and one rollout of the BC head
-(:mod:`metadagger.metal.context`); its rows give that rollout's env steps as ``unlabelled_steps``. Every evaluated head is
+Per seed, the steps of :mod:`metadagger.metal.method`: the seed's expert demonstration -> w_BC
+(exactly as for the pairs) -> each method's head (the BC head itself, each mapper's output, the
+controls) -> one rollout each. One-shot: for each mapper whose head failed, its output initialises
+the head, which is refitted once on the same demonstration and rolled out again. A mapper that
+reads the seed's context gets it from the demonstration and one rollout of the BC head; its rows
+give that rollout's env steps as ``unlabelled_steps``. Every evaluated head is
 saved (``eval/heads/<method>/<seed>.safetensors``, tensor ``head``) so any row can be replayed.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,14 +19,13 @@ import torch
 
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import ROW_FIELDS, write_csv
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.rollouts import Trajectory, rollout
+from metadagger.imitation.bc import BCConfig
+from metadagger.imitation.rollouts import Trajectory
 from metadagger.io import save_tensors
 from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
-from metadagger.metal.context import bc_rollout, seed_context
-from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
+from metadagger.metal.method import SeedLearner, bc_head, demonstration, map_head, one_shot, seed_context, seeded
 from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
@@ -73,46 +71,38 @@ class EvalJob(SeedJob):
 def evaluate_seed(job: EvalJob) -> dict[str, Any]:
     """Evaluate BC and the job's mappers (and their one-shot refits) on one seed; returns
     ``seed``, ``entries`` (``{method: rows}``) and ``heads`` (``{row method: head}``)."""
-    policy = head_from_groundtruth(cached_groundtruth(job.groundtruth), job.bc.head_init_seed(job.seed))
-    bc_config = dataclasses.replace(job.bc, seed=job.seed)
-    env = job.task.make_env()
     entries: dict[str, list[dict[str, Any]]] = {}
     heads: dict[str, np.ndarray] = {}
+    fit = seeded(job.bc, job.seed)
+    with SeedLearner(job.task, job.groundtruth, job.seed, head_init_seed=job.bc.head_init_seed(job.seed)) as learner:
 
-    def run(owner: str, method: str, head: np.ndarray, queries: int, extra: dict[str, int]) -> Trajectory:
-        policy.load_head_vector(torch.from_numpy(head))
-        traj = rollout(env, seed=job.seed, policy=policy)
-        heads[method] = head
-        entries.setdefault(owner, []).append({"method": method, "seed": job.seed, "success": bool(traj.success),
-                                              "reward": float(traj.reward), "steps": int(traj.steps), "expert_queries": queries,
-                                              **extra})
-        return traj
+        def test(owner: str, method: str, head: np.ndarray, extra: dict[str, int]) -> Trajectory:
+            trajectory = learner.roll(head)
+            heads[method] = head
+            entries.setdefault(owner, []).append({"method": method, "seed": job.seed, "success": bool(trajectory.success),
+                                                  "reward": float(trajectory.reward), "steps": int(trajectory.steps),
+                                                  "expert_queries": len(demo), **extra})
+            return trajectory
 
-    try:
-        demo = rollout(env, seed=job.seed, policy=None).to_dataset()
-        cache = FeatureCache(policy)
-        fit_bc(policy, demo, bc_config, cache=cache)
-        w_bc = policy.head_vector().numpy().copy()
+        demo = demonstration(learner).to_dataset()
+        w_bc = bc_head(learner, demo, fit)
         kinds = [m for m in job.methods if m != "bc"]
-        bc_traj = run("bc", "bc", w_bc, len(demo), {}) if "bc" in job.methods else None
+        mappers = {kind: cached_mapper(job.mappers[kind]) for kind in kinds}
+        bc_trajectory = test("bc", "bc", w_bc, {}) if "bc" in job.methods else None
         context, unlabelled = None, {}
-        if any(cached_mapper(job.mappers[kind]).needs_context for kind in kinds):
-            # without an early stop the BC row's rollout is the context's (rollouts are deterministic)
-            reuse = bc_traj is not None and job.early_stop is None
-            unlabelled_rollout = bc_traj if reuse else bc_rollout(env, policy, job.seed, job.early_stop)  # labels never used
-            context, unlabelled = seed_context(cache, demo.obs, unlabelled_rollout.obs), {"unlabelled_steps": unlabelled_rollout.steps}
-        for kind in kinds:
-            mapper = cached_mapper(job.mappers[kind])
+        if any(mapper.needs_context for mapper in mappers.values()):
+            # without an early stop the BC row's rollout is the context's (rollouts are deterministic);
+            # the context's rollout is never labelled
+            reuse = bc_trajectory is not None and job.early_stop is None
+            rolled = bc_trajectory if reuse else learner.roll(w_bc, early_stop=job.early_stop)
+            context, unlabelled = seed_context(learner.cache, demo.obs, rolled.obs), {"unlabelled_steps": rolled.steps}
+        for kind, mapper in mappers.items():
             extra = unlabelled if mapper.needs_context else {}
-            mapped = mapper(w_bc, context)
-            if run(kind, kind, mapped, len(demo), extra).success or not job.oneshot:
+            mapped = map_head(mapper, w_bc, context)
+            if test(kind, kind, mapped, extra).success or not job.oneshot:
                 continue
-            policy.load_head_vector(torch.from_numpy(mapped))
-            fit_bc(policy, demo, bc_config, cache=cache)
             # one-shot reuses the same demonstration: no further expert queries
-            run(kind, ONESHOT_PREFIX + kind, policy.head_vector().numpy().copy(), len(demo), extra)
-    finally:
-        env.close()
+            test(kind, ONESHOT_PREFIX + kind, one_shot(learner, mapped, demo, fit), extra)
     return {"seed": job.seed, "entries": entries, "heads": heads}
 
 

@@ -8,7 +8,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from metadagger.evaluation.benchmark import MDM_PREFIX, plot_queries
+from metadagger.evaluation.benchmark import plot_queries
+from metadagger.evaluation.methods import MDM_PREFIX
 from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.io import read_json
 from metadagger.layout import RunLayout

@@ -61,7 +61,7 @@ class MapperKind:
     closed_form: ClosedForm | None = None
     """Learned kinds fitted in closed form (no autoencoder): how the core is set."""
     context: bool = False
-    """Learned kinds that also read the seed's context (:mod:`metadagger.metal.context`): the core
+    """Learned kinds that also read the seed's context (:func:`metadagger.metal.method.seed_context`): the core
     receives the standardised w_BC followed by the standardised context (scaler ``context``)."""
 
     def __post_init__(self) -> None:

@@ -1,16 +1,14 @@
 """Per-seed (w_BC, w_DA) pairs (paper 3.4.2).
 
-For each seed: freeze layers 1..n-1 to pi*, re-initialise the head (Xavier, zero bias), fit it by
-BC on that seed's expert demonstration -> w_BC; run DAgger rounds on that seed from there -> w_DA;
-roll both out. The seed's context (:mod:`metadagger.metal.context`) is stored with its pair. The seeds run in parallel through :mod:`metadagger.parallel`; the driver alone
+For each seed, the steps of :mod:`metadagger.metal.method`: the demonstration, w_BC (a fresh head
+on pi*'s frozen trunk fitted by BC on it), then DAgger rounds from there -> w_DA; both rolled out.
+The seed's context is stored with its pair. The seeds run in parallel through :mod:`metadagger.parallel`; the driver alone
 writes each pair to the :class:`~metadagger.metal.store.PairStore` as soon as it arrives, so a
 killed run resumes with the seeds that are not stored yet.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import functools
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -19,15 +17,14 @@ import numpy as np
 import torch
 
 from metadagger.errors import UserError
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.dagger import DAggerConfig, run_dagger
+from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.data import Aggregate
-from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
-from metadagger.imitation.rollouts import Trajectory, rollout
+from metadagger.imitation.early_stop import check_threshold
+from metadagger.imitation.rollouts import Trajectory
 from metadagger.io import write_json
 from metadagger.layout import RunLayout
-from metadagger.metal.context import CONTEXT_PARTS, seed_context
-from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth, load_groundtruth
+from metadagger.metal.groundtruth import load_groundtruth
+from metadagger.metal.method import CONTEXT_PARTS, SeedLearner, bc_head, dagger_rounds, demonstration, seed_context, seeded
 from metadagger.metal.store import PairStore
 from metadagger.runner import SeedJob, StageOptions, drive, plan
 from metadagger.stamps import describe_changes, file_fingerprint, stamp_of
@@ -94,7 +91,7 @@ class PairRun:
     w_da: np.ndarray
     """The head after the DAgger rounds."""
     context: np.ndarray
-    """The seed's context (:mod:`metadagger.metal.context`): what the ``conditioned`` mapper kind
+    """The seed's context (:func:`metadagger.metal.method.seed_context`): what the ``conditioned`` mapper kind
     reads beside w_BC."""
     record: dict[str, Any]
     """``bc`` and ``da`` outcomes, ``kept`` and ``outcome`` (as stored with the pair); for a task
@@ -115,48 +112,28 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
     is fit on: the demonstration (round 0), then each DAgger round's rollout.
     """
     fit_seed = seed if fit_seed is None else fit_seed
-    policy = head_from_groundtruth(cached_groundtruth(groundtruth), config.bc.head_init_seed(seed))
-    env = task.make_env()
-    try:
-        demo = rollout(env, seed=seed, policy=None)
-        if on_episode is not None:
-            on_episode(0, demo)
+    with SeedLearner(task, groundtruth, seed, head_init_seed=config.bc.head_init_seed(seed)) as learner:
+        demo = demonstration(learner)
         data = demo.to_dataset()
-        cache = FeatureCache(policy)
-        fit_bc(policy, data, dataclasses.replace(config.bc, seed=fit_seed), cache=cache)
-        w_bc = policy.head_vector().numpy().copy()
-        early_stop = None if config.early_stop is None else functools.partial(CosineEarlyStop, threshold=config.early_stop)
-        rounds: dict[int, list[Trajectory]] = {}
-        dagger = run_dagger(
-            policy, task, [seed], initial=data, cache=cache, early_stop_factory=early_stop,
-            on_rollouts=functools.partial(_each_round, rounds, on_episode),
-            config=DAggerConfig(rounds=config.dagger_rounds, bc=dataclasses.replace(config.dagger_bc, seed=fit_seed)),
-        )
-        # round 1 rolled out the BC head under the pairs' early stop: the context's unlabelled rollout
-        context = seed_context(cache, data.obs, rounds[1][0].obs)
-        # round 1 rolled out the BC policy: its outcome is BC's (rollouts are deterministic)
-        first = dagger.rounds[0]
-        da_traj = rollout(env, seed=seed, policy=policy, early_stop=None if early_stop is None else early_stop())
-    finally:
-        env.close()
-    bc = {"success": first["dagger/success_rate"] == 1.0, "reward": first["dagger/mean_reward"],
-          "steps": int(first["dagger/mean_steps"]), "expert_queries": len(data)}
-    da = {"success": bool(da_traj.success), "reward": float(da_traj.reward), "steps": int(da_traj.steps),
-          "expert_queries": int(dagger.rounds[-1]["dagger/expert_queries"])}
+        w_bc = bc_head(learner, data, seeded(config.bc, fit_seed))
+        # BC's own rollout, under the pairs' early stop, is the one DAgger's first round labels
+        first = learner.roll(w_bc, early_stop=config.early_stop)
+        rounds = list(dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=config.dagger_rounds,
+                                    fit=seeded(config.dagger_bc, fit_seed), early_stop=config.early_stop))
+        context = seed_context(learner.cache, data.obs, first.obs)
+        states = learner.cache.features_of(Aggregate([r.labelled for r in rounds])) if with_states else None
+    if on_episode is not None:
+        for index, episode in enumerate([demo, first, *(r.rollout for r in rounds[:-1])]):
+            on_episode(index, episode)
+    final = rounds[-1]
+    bc = {"success": bool(first.success), "reward": float(first.reward), "steps": int(first.steps), "expert_queries": len(data)}
+    da = {"success": bool(final.rollout.success), "reward": float(final.rollout.reward), "steps": int(final.rollout.steps),
+          "expert_queries": final.queries}
     record = {"bc": bc, "da": da, "kept": is_kept(config.keep, bc["success"], da["success"]),
               "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
     if demo.variation is not None:
         record["variation"] = demo.variation
-    states = cache.features_of(Aggregate(dagger.dataset.parts[1:])) if with_states else None
-    return PairRun(w_bc=w_bc, w_da=policy.head_vector().numpy().copy(), context=context, record=record, dagger_features=states)
-
-
-def _each_round(rounds: dict[int, list[Trajectory]], on_episode: Callable[[int, Trajectory], None] | None,
-                round_idx: int, trajectories: list[Trajectory]) -> None:
-    if round_idx == 1:
-        rounds[1] = trajectories
-    for trajectory in trajectories if on_episode is not None else ():
-        on_episode(round_idx, trajectory)
+    return PairRun(w_bc=w_bc, w_da=final.head, context=context, record=record, dagger_features=states)
 
 
 def collect_pair(job: PairJob) -> dict[str, Any]:

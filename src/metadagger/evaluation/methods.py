@@ -1,0 +1,112 @@
+"""Every method the query benchmark compares, declared once: a typed key per row.
+
+A row of ``benchmark/queries.csv`` is one method at one setting on one seed. The key of that
+method and setting is a :class:`MethodKey` built by the method's entry in :data:`METHODS`, never
+parsed back from text: its subclasses carry what the method needs (the mapper kind, the DAgger
+round, the gate and its value, the MDI test). ``MethodKey.id`` names its rows in the run's logs
+and stamps; it is written, never read back into a key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from metadagger.imitation.gates import GATES
+
+#: Prefix of the MDM methods: ``mdm-<mapper kind>``.
+MDM_PREFIX = "mdm-"
+#: The MDI protocol's methods (:mod:`metadagger.evaluation.mdi`) and their names in the benchmark,
+#: where ``dagger`` (DAgger from a Xavier head) must not be confused with the pairs' DAgger.
+MDI_METHODS = {"dagger-mdi": "dagger-mdi", "dagger-bc": "dagger-bc-init", "dagger": "dagger-xavier"}
+#: The MDI protocol's two tests and their settings in the benchmark.
+MDI_SHOTS = {"oneshot": "one-shot", "twoshot": "two-shot"}
+
+
+@dataclass(frozen=True)
+class MethodKey:
+    """One method at one setting, as its rows name them (``method``, ``setting`` columns)."""
+
+    method: str
+    setting: str
+
+    @property
+    def id(self) -> str:
+        """The name of its rows in the run's logs and stamps (written, never parsed)."""
+        return f"{self.method}@{self.setting}"
+
+
+@dataclass(frozen=True)
+class MapperKey(MethodKey):
+    """MDM: a mapper kind's head for w_BC, used as it is."""
+
+    kind: str
+
+
+@dataclass(frozen=True)
+class RoundKey(MethodKey):
+    """Plain DAgger after ``round`` rounds (every visited state labelled)."""
+
+    round: int
+
+
+@dataclass(frozen=True)
+class GateKey(MethodKey):
+    """Gated DAgger after every round, its gate at one value of its sweep."""
+
+    gate: str
+    value: float
+
+
+@dataclass(frozen=True)
+class ShotKey(MethodKey):
+    """One MDI method (Table 6) at one of its tests."""
+
+    mdi_method: str
+    shot: str
+
+
+def bc_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    """w_BC rolled out: the demonstration's queries only."""
+    return [MethodKey("bc", "")]
+
+
+def mdm_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    """Every mapper kind (and control) applied to w_BC."""
+    return [MapperKey(MDM_PREFIX + kind, "", kind=kind) for kind in kinds]
+
+
+def dagger_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    """The pairs' DAgger after each of its rounds."""
+    return [RoundKey("dagger", str(r), round=r) for r in range(1, rounds + 1)]
+
+
+def gate_keys(gate: str) -> Callable[[int, tuple[str, ...], dict[str, list[float]], bool], list[MethodKey]]:
+    """DAgger gated by ``gate``, after the last round, at each value of its grid."""
+
+    def keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+        method = f"dagger-{gate}"
+        return [GateKey(method, f"{value:g}", gate=gate, value=float(value)) for value in grids[method]]
+
+    return keys
+
+
+def mdi_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    """Table 6's one- and two-shot tests of DAgger-MDI, DAgger-BC and DAgger (runs with an mdi section)."""
+    if not mdi:
+        return []
+    return [ShotKey(name, setting, mdi_method=method, shot=shot)
+            for method, name in MDI_METHODS.items() for shot, setting in MDI_SHOTS.items()]
+
+
+#: Every benchmark method by its name in ``benchmark.methods``: the keys of its rows, given the
+#: pairs' DAgger rounds, the MDM mapper kinds, the gate grids and whether the run has MDI.
+METHODS: dict[str, Callable[[int, tuple[str, ...], dict[str, list[float]], bool], list[MethodKey]]] = {
+    "bc": bc_keys,
+    "mdm": mdm_keys,
+    "dagger": dagger_keys,
+    **{f"dagger-{gate}": gate_keys(gate) for gate in GATES},
+    "mdi": mdi_keys,
+}
+#: The gated methods and the gate each one uses.
+GATED = {f"dagger-{gate}": gate for gate in GATES}

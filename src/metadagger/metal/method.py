@@ -1,0 +1,204 @@
+"""MetaL DAgger on one seed, top to bottom: every per-seed step of the method, in one place.
+
+Every protocol starts a seed the same way: pi*'s trunk, frozen, with a fresh head of the seed's
+own (:class:`SeedLearner`), driving the seed's env. The steps (docs/method.md):
+
+1. :func:`demonstration` -- the expert drives the seed once; each of its steps is one query.
+2. :func:`bc_head` -- the head fitted by BC on the demonstration: w_BC (paper 3.4.2).
+3. :func:`seed_context` and :func:`map_head` -- a mapper's head for the seed from w_BC (and, for
+   a mapper that reads one, the seed's context): MDM, no further query (paper 4.1).
+4. :func:`dagger_rounds` -- roll out, choose the states to label (every one, or a gate's
+   choice), label them, aggregate, refit the head; one :class:`Round` after each refit.
+5. :func:`one_shot` -- a head refitted on the demonstration from an initialisation: MDI's
+   one-shot head (paper 4.2, Table 6 step 5).
+
+The protocols are these steps in different orders: a pair is 1, 2, 4 (every state labelled);
+MDM is 1, 2, 3 (and 5 for a mapped head that fails); MDI is 1, 2, 3, 5, then one round of 4 from
+the saved initialisation; the query benchmark runs them all. Rollouts are deterministic (an
+episode depends only on its seed and the head), so a head's rollout that ends one step is the
+one the next step starts from, and nothing is rolled out twice.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Iterator, Protocol
+
+import numpy as np
+import torch
+
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.data import Aggregate, Dataset
+from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.gates import Gate, Labelled
+from metadagger.imitation.rollouts import Trajectory, rollout
+from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
+from metadagger.policies import Policy
+from metadagger.tasks.base import Task
+
+#: What a context is made of, in order (the pairs' stamp records it).
+CONTEXT_PARTS = ("demonstration feature mean", "bc rollout feature mean")
+
+
+class HeadMapper(Protocol):
+    """What step 3 needs of a mapper (:class:`~metadagger.mapping.mappers.Mapper` is one)."""
+
+    @property
+    def needs_context(self) -> bool:
+        """Whether the mapper reads the seed's context beside w_BC."""
+
+    def __call__(self, w_bc: np.ndarray, context: np.ndarray | None = None) -> np.ndarray:
+        """The mapped head of ``w_bc``."""
+
+
+class SeedLearner:
+    """pi*'s frozen trunk with a head of its own, in one env of the task, on one seed.
+
+    Args:
+        task: the task whose learner env is rolled out.
+        groundtruth: path of pi* (loaded once per process).
+        seed: the env seed of every rollout.
+        head_init_seed: the seed of the fresh (Xavier) head (:meth:`BCConfig.head_init_seed`).
+    """
+
+    def __init__(self, task: Task, groundtruth: str, seed: int, *, head_init_seed: int) -> None:
+        self.task = task
+        self.seed = seed
+        self.policy: Policy = head_from_groundtruth(cached_groundtruth(groundtruth), head_init_seed)
+        self.cache = FeatureCache(self.policy)
+        self.env = task.make_env()
+
+    def head(self) -> np.ndarray:
+        """The current head as a flat float32 vector (a copy)."""
+        return self.policy.head_vector().numpy().copy()
+
+    def load(self, head: np.ndarray | torch.Tensor) -> None:
+        """Make ``head`` the current head (copied)."""
+        self.policy.load_head_vector(torch.as_tensor(head))
+
+    def roll(self, head: np.ndarray | None = None, *, early_stop: float | None = None) -> Trajectory:
+        """One episode of the seed with ``head`` (default: the current one), every visited state
+        labelled by the expert; cut as a failure by a cosine early stop at ``early_stop``."""
+        if head is not None:
+            self.load(head)
+        stop = None if early_stop is None else CosineEarlyStop(threshold=early_stop)
+        return rollout(self.env, seed=self.seed, policy=self.policy, early_stop=stop)
+
+    def close(self) -> None:
+        """Close the env."""
+        self.env.close()
+
+    def __enter__(self) -> SeedLearner:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def demonstration(learner: SeedLearner) -> Trajectory:
+    """Step 1: the expert drives the seed once; every step is one query."""
+    return rollout(learner.env, seed=learner.seed, policy=None)
+
+
+def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig) -> np.ndarray:
+    """Step 2: fit the learner's current head (a fresh one: w_BC) by BC on the demonstration."""
+    fit_bc(learner.policy, demo, fit, cache=learner.cache)
+    return learner.head()
+
+
+def seed_context(cache: FeatureCache, demonstration: np.ndarray, bc_rollout: np.ndarray) -> np.ndarray:
+    """Step 3's context: what the seed's own data says about it, without a further label.
+
+    The mean trunk feature of the ``demonstration``'s images, then of the ``bc_rollout``'s: one
+    rollout of w_BC (visited, never labelled), the one DAgger's first round starts from, cut by
+    the pairs' early stop. Images are uint8 ``(N, H, W, C)``, ``N >= 1`` each; the context is
+    ``2 x feature_dim`` float32 numbers (:data:`CONTEXT_PARTS`).
+    """
+    for name, images in (("demonstration", demonstration), ("bc_rollout", bc_rollout)):
+        if len(images) == 0:
+            raise ValueError(f"seed_context needs at least one image of the {name}, got none")
+    means = [cache.features(images).to(torch.float64).mean(dim=0) for images in (demonstration, bc_rollout)]
+    return torch.cat(means).to(torch.float32).numpy()
+
+
+def map_head(mapper: HeadMapper, w_bc: np.ndarray, context: np.ndarray | None) -> np.ndarray:
+    """Step 3: the mapper's head for the seed (MDM: used as it is, with no further query)."""
+    return mapper(w_bc, context if mapper.needs_context else None)
+
+
+@dataclass(frozen=True)
+class Round:
+    """One DAgger round: the states labelled, then the refitted head and its rollout."""
+
+    index: int
+    """1-based."""
+    labelled: Dataset | None
+    """The states this round labelled (None: the gate chose none, and the head was not refitted)."""
+    head: np.ndarray
+    """The head after the round's refit."""
+    rollout: Trajectory
+    """That head's rollout (the one the next round labels)."""
+    queries: int
+    """Expert queries so far, the demonstration's included."""
+
+
+def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory, demo: Trajectory, rounds: int,
+                  fit: BCConfig, gate: Gate | None = None, early_stop: float | None = None) -> Iterator[Round]:
+    """Step 4: ``rounds`` DAgger rounds from head ``start``, whose rollout ``first`` round 1 labels.
+
+    Each round labels the states of the last rollout that ``gate`` selects (all of them without
+    one: plain DAgger), adds them to the demonstration and the earlier rounds' labels, refits the
+    head on all of it (continuing from the current head), and rolls the refitted head out.
+
+    Args:
+        learner: the seed's learner.
+        start: the head the rounds start from (w_BC for the pairs).
+        first: ``start``'s rollout, made with the same ``early_stop``.
+        demo: the demonstration (on its states the learner's action is the expert's label).
+        rounds: R >= 1.
+        fit: the head-only refit of every round (its ``seed`` orders the batches).
+        gate: the query rule (:mod:`metadagger.imitation.gates`); its randomness is seeded by the
+            env seed. None labels every visited state.
+        early_stop: the cosine early stop of the rollouts.
+    """
+    generator = torch.Generator().manual_seed(learner.seed)
+    data = Aggregate([demo.to_dataset()])
+    actions = demo.expert_labels
+    queries = len(data)
+    learner.load(start)
+    trajectory = first
+    for index in range(1, rounds + 1):
+        keep = np.ones(trajectory.steps, dtype=bool) if gate is None else _gate_mask(gate, learner.cache, data, actions, trajectory, generator)
+        labelled = None
+        if keep.any():
+            labelled = Dataset(obs=trajectory.obs[keep], labels=trajectory.expert_labels[keep])
+            data = data.append(labelled)
+            actions = np.concatenate([actions, trajectory.learner_actions[keep]])
+            queries += int(keep.sum())
+            fit_bc(learner.policy, data, fit, cache=learner.cache)
+        head = learner.head()
+        trajectory = learner.roll(head, early_stop=early_stop)
+        yield Round(index=index, labelled=labelled, head=head, rollout=trajectory, queries=queries)
+
+
+def _gate_mask(gate: Gate, cache: FeatureCache, data: Aggregate, actions: np.ndarray, trajectory: Trajectory,
+               generator: torch.Generator) -> np.ndarray:
+    """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far."""
+    labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
+    return gate.select(cache.features(trajectory.obs), _tensor(trajectory.learner_actions), labelled, generator=generator).numpy()
+
+
+def _tensor(values: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(values))
+
+
+def one_shot(learner: SeedLearner, init: np.ndarray, demo: Dataset, fit: BCConfig) -> np.ndarray:
+    """Step 5: the head ``init`` refitted by BC on the demonstration (no further query)."""
+    learner.load(init)
+    return bc_head(learner, demo, fit)
+
+
+def seeded(fit: BCConfig, seed: int) -> BCConfig:
+    """``fit`` with its batch order seeded by ``seed`` (every per-seed fit is seeded by its env seed)."""
+    return dataclasses.replace(fit, seed=seed)
