@@ -7,6 +7,8 @@ without a traceback. Every message says what was wrong, what was expected and ho
 
 from __future__ import annotations
 
+import math
+
 
 class UserError(ValueError):
     """An error caused by user input; its message is a complete, one-line explanation."""
@@ -14,3 +16,13 @@ class UserError(ValueError):
 
 class CheckpointError(UserError):
     """A checkpoint file is missing, truncated, or does not match what was expected."""
+
+
+class DivergedError(UserError):
+    """A fit's loss or weights became non-finite (NaN or infinite): nothing of it is kept."""
+
+
+def check_finite_loss(loss: float, *, what: str, epoch: int, epochs: int, fix: str) -> None:
+    """Raise :class:`DivergedError` naming the fit, the epoch and the fix if ``loss`` is not finite."""
+    if not math.isfinite(loss):
+        raise DivergedError(f"{what} diverged at epoch {epoch} of {epochs} (mean training loss {loss}); {fix}")

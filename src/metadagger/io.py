@@ -5,6 +5,7 @@ A killed process therefore never leaves a half-written file under an artifact's 
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -16,7 +17,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
 
-from metadagger.errors import CheckpointError, UserError
+from metadagger.errors import CheckpointError, DivergedError, UserError
 
 
 def _current_umask() -> int:
@@ -59,21 +60,49 @@ def check_output_file(path: str | Path, option: str) -> None:
     os.unlink(trial)
 
 
+#: The errors of the machine rather than of the code: a full disk, a read-only or forbidden folder.
+_MACHINE_FAULTS = {errno.ENOSPC: "the disk is full", errno.EDQUOT: "the disk quota is used up",
+                   errno.EROFS: "the file system is read-only", errno.EACCES: "permission denied",
+                   errno.EPERM: "operation not permitted"}
+
+
+def machine_fault(path: str | Path, exc: BaseException) -> UserError | None:
+    """The one-line error for a machine fault (full disk, read-only folder, missing permission)
+    met while writing ``path``, naming it and what to do; None for any other error."""
+    code = getattr(exc, "errno", None)
+    if code not in _MACHINE_FAULTS and "No space left on device" not in str(exc):
+        return None
+    reason = _MACHINE_FAULTS.get(code, "the disk is full")
+    fix = ("free some space, then run the same command again: finished work is kept"
+           if reason.startswith("the disk") else "make the folder writable or choose another --out, then run the command again")
+    return UserError(f"cannot write {path}: {reason}; {fix}")
+
+
 def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
-    """Call ``write(tmp_path)`` then rename the temporary file onto ``path``."""
+    """Call ``write(tmp_path)`` then rename the temporary file onto ``path``.
+
+    A full disk, a read-only folder or a missing permission is one :class:`UserError` naming
+    the path and what to do; the earlier file at ``path``, if any, is left as it was.
+    """
     path = Path(path)
     _make_folder(path.parent)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_path = None
     try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        tmp_path = Path(tmp)
         write(tmp_path)
         with open(tmp_path, "rb+") as f:
             os.fsync(f.fileno())
         os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp makes 0600 files; artifacts are shared
         os.replace(tmp_path, path)
+    except Exception as exc:
+        fault = machine_fault(path, exc)
+        if fault is None:
+            raise
+        raise fault from None
     finally:
-        if tmp_path.exists():
+        if tmp_path is not None and tmp_path.exists():
             tmp_path.unlink()
     return path
 
@@ -148,32 +177,63 @@ _METADATA_KEY = "metadagger"
 
 
 def save_tensors(path: str | Path, tensors: dict[str, torch.Tensor], metadata: dict[str, str] | None = None) -> Path:
-    """Save tensors as safetensors atomically (contiguous CPU copies); same inputs, same bytes."""
+    """Save tensors as safetensors atomically (contiguous CPU copies); same inputs, same bytes.
+
+    Raises:
+        DivergedError: a tensor holds a NaN or an infinity (nothing is written: a non-finite
+            tensor is never saved).
+    """
     clean = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
+    for name, tensor in clean.items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise DivergedError(f"refusing to write {path}: its tensor {name!r} holds NaN or infinite values, so the "
+                                "computation that made it diverged; nothing was written")
     header = {_METADATA_KEY: json.dumps(metadata or {}, sort_keys=True)}
     return atomic_write(path, lambda p: save_file(clean, str(p), metadata=header))
 
 
 def load_tensors(path: str | Path, what: str = "checkpoint") -> dict[str, torch.Tensor]:
     """Load a safetensors file, turning a missing or corrupt file into a :class:`CheckpointError`."""
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"{what} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes it)")
+    path = _tensor_file(path, what)
     try:
-        return load_file(str(path))
+        tensors = load_file(str(path))
     except Exception as exc:  # safetensors raises several types for corrupt headers
         raise CheckpointError(
             f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes it"
         ) from None
+    for name, tensor in tensors.items():
+        if tensor.is_floating_point() and tensor.dtype != torch.float32:
+            raise CheckpointError(f"{what} {path} holds tensor {name!r} as {str(tensor.dtype).removeprefix('torch.')}, expected "
+                                  "float32; it was not written by metadagger: re-run the stage that writes it")
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise CheckpointError(f"{what} {path} holds NaN or infinite values in tensor {name!r}; it is damaged: delete it "
+                                  "and re-run the stage that writes it")
+    return tensors
+
+
+def _tensor_file(path: str | Path | None, what: str) -> Path:
+    """``path`` as a Path, if it names an existing safetensors file; else the one-line error that
+    says what was given and what is expected."""
+    if not isinstance(path, (str, Path)):
+        raise CheckpointError(f"{what}: expected the path of a .safetensors file, got {path!r}")
+    path = Path(path)
+    if path.is_dir():
+        found = sorted(p.name for p in path.glob("*.safetensors"))[:3]
+        hint = f" (it holds {', '.join(found)})" if found else ""
+        raise CheckpointError(f"{what}: {path} is a folder{hint}; pass the .safetensors file itself")
+    if not path.is_file():
+        raise CheckpointError(f"{what} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes it)")
+    if path.suffix != ".safetensors":
+        raise CheckpointError(f"{what}: {path} is not a .safetensors file; pass a file that metadagger wrote "
+                              "(a policy: RUN/groundtruth/policy.safetensors; a mapper: RUN/mappers/KIND/mapper.safetensors)")
+    return path
 
 
 def read_metadata(path: str | Path, what: str = "checkpoint") -> dict[str, str]:
     """Return the string metadata stored in a safetensors header."""
     from safetensors import safe_open
 
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"{what} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes it)")
+    path = _tensor_file(path, what)
     try:
         with safe_open(str(path), framework="pt") as f:
             header = dict(f.metadata() or {})

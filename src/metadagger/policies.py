@@ -225,6 +225,9 @@ class Policy:
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
         """The learner action for one raw observation (H, W, C) uint8: an int, or a float32 vector."""
+        if isinstance(obs, np.ndarray) and obs.ndim == 4:
+            raise UserError(f"policy(obs) takes one observation (H, W, C), got a batch of shape {obs.shape}; "
+                            "use policy.act_batch(obs) for a batch")
         with _one_torch_thread():
             action = self.act_batch(obs[None] if isinstance(obs, np.ndarray) else obs)[0]
         return int(action) if self.discrete else action

@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
 from metadagger.config import LATER_OPTION
-from metadagger.errors import UserError
+from metadagger.errors import DivergedError, UserError, check_finite_loss
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.imitation.selection import EpochSelector
@@ -249,6 +249,7 @@ def fit_bc(
     progress: bool = False,
     cache: FeatureCache | None = None,
     on_epoch: Callable[[int], None] | None = None,
+    what: str = "the BC fit",
 ) -> dict[str, Any]:
     """Fit ``policy`` in place to ``data`` with Adam: cross-entropy (discrete) or MSE (continuous).
 
@@ -262,9 +263,14 @@ def fit_bc(
         cache: features to reuse across calls (head-only fits only); a fresh one if None.
         on_epoch: called with the epoch's number (1, 2, ...) after each epoch, the policy holding
             that epoch's weights (an :class:`~metadagger.imitation.selection.EpochSelector`, say).
+        what: how an error names this fit.
 
     Returns:
         ``{"loss": [mean training loss per epoch], "samples": N, "seconds": wall time}``.
+
+    Raises:
+        DivergedError: an epoch's mean loss, or a weight at the end, is not finite (the policy is
+            then left as it is: its caller must not keep it).
     """
     _check_data(policy, data)
     started = time.perf_counter()
@@ -321,6 +327,8 @@ def fit_bc(
             for start, loss in zip(range(0, n, config.batch_size), epoch_losses(order), strict=True):
                 total += loss * min(config.batch_size, n - start)
             losses.append(total / n)
+            check_finite_loss(losses[-1], what=what, epoch=epoch + 1, epochs=config.epochs,
+                              fix=f"lower its learning rate (now {config.lr:g}) or check its data")
             bar.set_postfix(loss=f"{losses[-1]:.4f}")
             if on_epoch is not None:
                 if head_adam is not None:
@@ -328,6 +336,9 @@ def fit_bc(
                 on_epoch(epoch + 1)
     if head_adam is not None:
         head_adam.write_back()
+    if not bool(torch.isfinite(parameters_to_vector(params)).all()):
+        raise DivergedError(f"{what} diverged: its weights are not finite after {config.epochs} epochs; "
+                            f"lower its learning rate (now {config.lr:g}) or check its data")
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
 
 
@@ -388,6 +399,7 @@ def fit_or_resume(
     cache: FeatureCache | None = None,
     progress: bool = False,
     selector: EpochSelector | None = None,
+    what: str = "the BC fit",
 ) -> list[float] | None:
     """:func:`fit_bc`, then save the policy at ``checkpoint``; if that checkpoint already exists
     (a killed run being resumed) load its weights instead of fitting. With a ``selector`` the
@@ -399,7 +411,7 @@ def fit_or_resume(
     if checkpoint is not None and Path(checkpoint).is_file():
         policy.net.load_state_dict(load_policy(checkpoint).net.state_dict())
         return None
-    losses = fit_bc(policy, data, config, progress=progress, cache=cache, on_epoch=selector)["loss"]
+    losses = fit_bc(policy, data, config, progress=progress, cache=cache, on_epoch=selector, what=what)["loss"]
     if selector is not None:
         selector.restore()
     if checkpoint is not None:

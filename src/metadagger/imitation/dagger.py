@@ -116,7 +116,8 @@ def run_dagger(
             # a frozen trunk (e.g. pi*'s layers 1..n-1) is never re-initialised
             trunk_frozen = not any(p.requires_grad for p in policy.net.trunk.parameters())
             policy.net.init_weights(config.bc.seed, head_only=config.bc.head_only or trunk_frozen)
-        losses = fit_or_resume(policy, dataset, config.bc, _checkpoint(checkpoints, round_idx), cache=cache)
+        losses = fit_or_resume(policy, dataset, config.bc, _checkpoint(checkpoints, round_idx), cache=cache,
+                               what=f"DAgger round {round_idx}'s fit")
         metrics = {
             "dagger/round": round_idx,
             "dagger/success_rate": float(np.mean([t.success for t in trajectories])),

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from metadagger.errors import UserError
+from metadagger.errors import DivergedError, UserError, check_finite_loss
 from metadagger.io import write_text
 from metadagger.layout import CURVES_FILE, MAPPER_FILE
 from metadagger.mapping.mappers import ARCH_FIELDS, Mapper, Standardizer, build_networks, load_mapper
@@ -325,10 +325,11 @@ def _train(
         x_tr = torch.cat([x_tr, scalers["context"].transform(ctx_tr)], dim=1)
         x_va = torch.cat([x_va, scalers["context"].transform(ctx_va)], dim=1)
     y_tr, y_va = scalers[route.out_scaler].transform(da_tr), scalers[route.out_scaler].transform(da_va)
-    fit = dict(lr=config.lr, batch_size=config.batch_size, generator=generator, progress=progress)
+    fit = dict(lr=config.lr, batch_size=config.batch_size, generator=generator, progress=progress, owner=f"the {config.kind} mapper")
     rows: list[dict[str, Any]] = []
     if spec.closed_form is not None:
         mapper.config["fit"] = spec.closed_form(networks[route.core], x_tr, y_tr)
+        _check_weights(networks[route.core], f"the {config.kind} mapper's closed-form fit", "check the pairs (metadagger pairs --rebuild)")
         networks[route.core].eval()
         with torch.no_grad():
             losses = _mse(networks[route.core](x_tr), y_tr), _mse(networks[route.core](x_va), y_va)
@@ -375,9 +376,11 @@ def _fit(
     batch_size: int,
     generator: torch.Generator,
     progress: bool,
+    owner: str,
     after_epoch: Callable[[], tuple[float, float]] | None = None,
 ) -> list[dict[str, Any]]:
-    """Adam on the MSE of ``net(x)`` against ``y``; one curve row per epoch."""
+    """Adam on the MSE of ``net(x)`` against ``y``; one curve row per epoch. A loss or weight that
+    becomes non-finite stops it with a :class:`DivergedError` naming ``owner``, ``name`` and the epoch."""
     # fused: one kernel for all parameters; the per-tensor loop made the Adam step ~3x the step cost.
     optimizer = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay, fused=True)
     rows = []
@@ -396,8 +399,17 @@ def _fit(
             val_loss = _mse(net(x_va), y_va) if len(x_va) else math.nan
         weights = after_epoch() if after_epoch else (math.nan, math.nan)
         rows.append(_row(name, epoch, float(total) / len(x_tr), val_loss, *weights))
+        check_finite_loss(rows[-1]["train_loss"], what=f"{owner}'s network {name}", epoch=epoch, epochs=epochs,
+                          fix=f"lower its learning rate (now {lr:g})")
         bar.set_postfix(train=f"{rows[-1]['train_loss']:.4g}", val=f"{val_loss:.4g}", refresh=False)  # tqdm throttles redraws
+    _check_weights(net, f"{owner}'s network {name}", f"lower its learning rate (now {lr:g})")
     return rows
+
+
+def _check_weights(net: nn.Module, what: str, fix: str) -> None:
+    """Raise :class:`DivergedError` if a weight of ``net`` is not finite."""
+    if not all(bool(torch.isfinite(p).all()) for p in net.parameters()):
+        raise DivergedError(f"{what} diverged: its weights are not finite; {fix}")
 
 
 def _batches(order: torch.Tensor, batch_size: int) -> list[torch.Tensor]:

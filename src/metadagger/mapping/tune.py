@@ -36,7 +36,7 @@ import numpy as np
 import yaml
 
 from metadagger.config import build, dump_yaml, to_dict
-from metadagger.errors import UserError
+from metadagger.errors import DivergedError, UserError
 from metadagger.io import write_text
 from metadagger.mapping.registry import get_kind, kind_names, trained_names
 from metadagger.mapping.train import MapperConfig, evaluate_mapping, fit_mapper, mapper_stamp
@@ -166,9 +166,13 @@ class TrialJob:
 
 def score_trial(job: TrialJob) -> dict[str, Any]:
     """Train one trial's mapper in memory and score it on the validation pairs: ``number`` and
-    :func:`~metadagger.mapping.train.evaluate_mapping`'s metrics (``mse`` is the score)."""
+    :func:`~metadagger.mapping.train.evaluate_mapping`'s metrics (``mse`` is the score); a mapper
+    whose training diverged gives ``number`` and ``diverged`` (the error's message) instead."""
     split = job.split
-    mapper, _ = fit_mapper(split, job.config, progress=False)
+    try:
+        mapper, _ = fit_mapper(split, job.config, progress=False)
+    except DivergedError as exc:
+        return {"number": job.number, "diverged": str(exc)}
     return {"number": job.number, **evaluate_mapping(mapper, split.w_bc_val, split.w_da_val, mean_da=split.w_da_train.mean(0),
                                                    context=split.context_val)}
 
@@ -313,7 +317,9 @@ def _run(context: _Context, *, trials: int, seed: int, options: StageOptions) ->
     _requeue_interrupted(context.load(), state)
 
     def completed() -> int:
-        return len(context.load().get_trials(deepcopy=False, states=(state.COMPLETE,)))
+        """Trials done: complete ones and those whose training diverged (failed, never retried)."""
+        trials = context.load().get_trials(deepcopy=False, states=(state.COMPLETE, state.FAIL))
+        return sum(t.state == state.COMPLETE or "diverged" in t.user_attrs for t in trials)
 
     if completed() >= trials:
         return 0  # no executor (nor Ray cluster) for a study that is done
@@ -331,8 +337,13 @@ def _run(context: _Context, *, trials: int, seed: int, options: StageOptions) ->
             results = in_order(pool.imap_unordered(score_trial, jobs), [t.number for t in asked], key=_number_of)
             for told, result in enumerate(results, 1):  # consumed to the end: an abandoned one closes the pool
                 trial = asked[told - 1]
-                value = _tell(study, trial, result)
+                value = _tell(study, trial, result, state)
                 ran += 1
+                if "diverged" in result:  # a failed trial: the study goes on without it
+                    if options.progress:
+                        print(f"tune/{context.base.kind}: trial {trial.number} diverged ({done + told}/{trials}): "
+                              f"{result['diverged']}", file=sys.stderr, flush=True)
+                    continue
                 summary = _write_summary(context, ran)
                 if options.progress:
                     print(f"tune/{summary.kind}: trial {trial.number}: {value:.6g} ({done + told}/{trials}, "
@@ -357,9 +368,14 @@ def _requeue_interrupted(study: Any, state: Any) -> None:
         study.tell(trial.number, state=state.FAIL)
 
 
-def _tell(study: Any, trial: Any, metrics: dict[str, Any]) -> float:
-    """Record a trial's metrics and return its value; a diverged mapper (a NaN error) scores
-    +inf, the worst value, so it still counts as a completed trial the sampler learns from."""
+def _tell(study: Any, trial: Any, metrics: dict[str, Any], state: Any) -> float:
+    """Record a trial's metrics and return its value. A mapper whose training diverged is a failed
+    trial (its message kept as the user attribute ``diverged``) and returns +inf; a trained mapper
+    whose error is not finite scores +inf, the worst value, as a completed trial."""
+    if "diverged" in metrics:
+        trial.set_user_attr("diverged", metrics["diverged"])
+        study.tell(trial, state=state.FAIL)
+        return math.inf
     for name in _METRICS:
         trial.set_user_attr(name, metrics[name])
     value = metrics["mse"] if math.isfinite(metrics["mse"]) else math.inf
@@ -371,6 +387,9 @@ def _write_summary(context: _Context, ran: int) -> TuneResult:
     """Write the study's best trial and what the study was made from to the summary YAML."""
     study = context.load()
     complete = study.get_trials(deepcopy=False, states=(context.optuna.trial.TrialState.COMPLETE,))
+    if not complete:
+        raise UserError(f"every trial of the {context.base.kind} study so far diverged (the first: "
+                        f"{study.trials[0].user_attrs.get('diverged', 'no message')}); narrow the search space to smaller learning rates")
     best = study.best_trial
     baseline = next((t for t in complete if t.user_attrs.get("baseline")), None)
     kind = context.base.kind

@@ -121,7 +121,7 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     selector = EpochSelector(task, policy, config.select_seeds, every=config.select_every, epochs=config.bc.epochs,
                              workers=workers, progress=progress) if config.select_seeds else None
     bc_losses = fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress,
-                              selector=selector)
+                              selector=selector, what="pi*'s BC fit (groundtruth.bc)")
     history = []
     if config.dagger_rounds:
         result = run_dagger(

@@ -101,9 +101,9 @@ def demonstration(learner: SeedLearner) -> Trajectory:
     return rollout(learner.env, seed=learner.seed, policy=None)
 
 
-def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig) -> np.ndarray:
+def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig, *, what: str = "the BC head's fit") -> np.ndarray:
     """Step 2: fit the learner's current head (a fresh one: w_BC) by BC on the demonstration."""
-    fit_bc(learner.policy, demo, fit, cache=learner.cache)
+    fit_bc(learner.policy, demo, fit, cache=learner.cache, what=what)
     return learner.head()
 
 
@@ -176,7 +176,7 @@ def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory,
             data = data.append(labelled)
             actions = np.concatenate([actions, trajectory.learner_actions[keep]])
             queries += int(keep.sum())
-            fit_bc(learner.policy, data, fit, cache=learner.cache)
+            fit_bc(learner.policy, data, fit, cache=learner.cache, what=f"DAgger round {index}'s refit")
         head = learner.head()
         trajectory = learner.roll(head, early_stop=early_stop)
         yield Round(index=index, labelled=labelled, head=head, rollout=trajectory, queries=queries)
@@ -196,7 +196,7 @@ def _tensor(values: np.ndarray) -> torch.Tensor:
 def one_shot(learner: SeedLearner, init: np.ndarray, demo: Dataset, fit: BCConfig) -> np.ndarray:
     """Step 5: the head ``init`` refitted by BC on the demonstration (no further query)."""
     learner.load(init)
-    return bc_head(learner, demo, fit)
+    return bc_head(learner, demo, fit, what="the one-shot refit")
 
 
 def seeded(fit: BCConfig, seed: int) -> BCConfig:

@@ -262,11 +262,16 @@ class PairStore:
         latest: dict[int, dict[str, Any]] = {}
         for record in read_lines(self.jsonl_path, what="pair record"):
             try:
-                latest[_check_seed(record.get("seed"))] = record
-            except ValueError:
+                seed = _check_seed(record.get("seed") if isinstance(record, Mapping) else None)
+                _record_line(seed, record)
+                if not isinstance(record.get("stamp", {}), Mapping):
+                    raise ValueError(f"record 'stamp' must be a mapping, got {record['stamp']!r}")
+            except ValueError as exc:
                 raise CheckpointError(
-                    f"{self.jsonl_path} has a pair record without a valid seed: {str(record)[:80]}; delete that line and re-run metadagger pairs"
+                    f"{self.jsonl_path} has a damaged pair record ({exc}): {str(record)[:80]}; delete that line and re-run "
+                    "metadagger pairs (it collects the seed again)"
                 ) from None
+            latest[seed] = record
         return latest
 
     def _load_files(self, seeds: Iterable[int]) -> list[dict[str, torch.Tensor]]:
@@ -341,6 +346,8 @@ def _check_vectors(w_bc: Any, w_da: Any) -> None:
             raise ValueError(f"{name} must be a torch.Tensor, got {type(w).__name__}")
         if w.dtype != torch.float32 or w.ndim != 1 or w.numel() == 0:
             raise ValueError(f"{name} must be a non-empty 1-D float32 tensor, got {w.dtype} of shape {tuple(w.shape)}")
+        if not bool(torch.isfinite(w).all()):
+            raise ValueError(f"{name} holds NaN or infinite values")
     if w_bc.shape != w_da.shape:
         raise ValueError(f"w_bc and w_da must have the same length, got {w_bc.shape[0]} and {w_da.shape[0]}")
 
@@ -349,6 +356,8 @@ def _check_context(context: Any) -> None:
     if not isinstance(context, torch.Tensor) or context.dtype != torch.float32 or context.ndim != 1:
         raise ValueError(f"context must be a 1-D float32 tensor, got {getattr(context, 'dtype', type(context).__name__)} "
                          f"of shape {tuple(getattr(context, 'shape', ()))}")
+    if not bool(torch.isfinite(context).all()):
+        raise ValueError("context holds NaN or infinite values")
 
 
 def _record_line(seed: int, record: Mapping[str, Any]) -> bytes:
