@@ -247,3 +247,34 @@ def test_spatial_softmax_trunk_gives_keypoints_and_round_trips(tmp_path, rng):
     loaded = load_policy(policy.save(tmp_path / "p.safetensors"))
     obs = images(rng, 4)
     np.testing.assert_array_equal(loaded.act_batch(obs), policy.act_batch(obs))
+
+
+def test_a_policy_file_with_nan_float16_or_of_the_wrong_kind_is_one_line(tmp_path):
+    policy = small_policy()
+    path = policy.save(tmp_path / "policy.safetensors")
+    tensors, metadata = load_tensors(path), read_metadata(path)
+    with pytest.raises(UserError, match="holds NaN or infinite values"):
+        save_tensors(tmp_path / "nan.safetensors", {**tensors, "head.bias": torch.full_like(tensors["head.bias"], float("nan"))})
+    assert not (tmp_path / "nan.safetensors").exists()
+    from safetensors.torch import save_file
+    bad = {**tensors, "head.bias": torch.full_like(tensors["head.bias"], float("nan"))}
+    save_file(bad, str(tmp_path / "nan.safetensors"), metadata={"metadagger": json.dumps(metadata)})
+    with pytest.raises(CheckpointError, match=r"nan.safetensors holds NaN or infinite values in tensor 'head.bias'"):
+        load_policy(tmp_path / "nan.safetensors")
+    half = {name: t.half() if t.is_floating_point() else t for name, t in tensors.items()}
+    save_file(half, str(tmp_path / "half.safetensors"), metadata={"metadagger": json.dumps(metadata)})
+    with pytest.raises(CheckpointError, match="as float16, expected float32"):
+        load_policy(tmp_path / "half.safetensors")
+    with pytest.raises(CheckpointError, match=r"is a folder \(it holds half.safetensors, nan.safetensors, policy.safetensors\); pass the .safetensors file itself"):
+        load_policy(tmp_path)
+    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    with pytest.raises(CheckpointError, match="config.yaml is not a .safetensors file; pass a file that metadagger wrote"):
+        load_policy(tmp_path / "config.yaml")
+    with pytest.raises(CheckpointError, match="expected the path of a .safetensors file, got None"):
+        load_policy(None)
+
+
+def test_a_batch_passed_to_policy_points_to_act_batch(rng):
+    policy = small_policy()
+    with pytest.raises(UserError, match=r"use policy.act_batch\(obs\) for a batch"):
+        policy(images(rng, 4))

@@ -14,7 +14,7 @@ import torch
 from toy_task import TOY_ARCH
 from torch.nn.utils import parameters_to_vector
 
-from metadagger.errors import UserError
+from metadagger.errors import DivergedError, UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.policies import make_policy
@@ -280,3 +280,12 @@ def test_cosine_schedule_anneals_the_rate_epoch_by_epoch(task, demo):
     fit_bc(constant, demo, BCConfig(lr=3e-3, epochs=4, batch_size=16, seed=11))
     assert not torch.equal(trunk_vector(constant), trunk_vector(fitted))
     assert "lr_schedule" not in stamp_of(BCConfig()) and stamp_of(config)["lr_schedule"] == "cosine"
+
+
+@pytest.mark.parametrize("head_only", [False, True])
+def test_a_diverging_fit_stops_with_one_line_naming_it_and_the_epoch(policy, demo, head_only):
+    if policy.discrete and head_only:
+        pytest.skip("a head's cross-entropy saturates at a huge rate (zero gradients) rather than diverging")
+    config = BCConfig(lr=1e36, epochs=5, batch_size=16, head_only=head_only)
+    with pytest.raises(DivergedError, match=r"the test fit diverged at epoch \d of 5 .*lower its learning rate \(now 1e\+36\)"):
+        fit_bc(policy, demo, config, what="the test fit")

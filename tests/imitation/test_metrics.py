@@ -33,3 +33,10 @@ def test_summarize_counts_and_means():
     assert s["success_rate"] == 0.5
     assert s["mean_reward"] == 500.0 and s["mean_steps"] == 600.0
     assert s["expert_queries"] == 900
+
+
+@pytest.mark.parametrize("n", range(1, 201))
+def test_the_wilson_interval_holds_the_rate_at_none_and_all(n):
+    for wins in (0, n):
+        low, high = wilson_interval(wins, n)
+        assert 0.0 <= low <= wins / n <= high <= 1.0

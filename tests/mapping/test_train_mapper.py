@@ -10,7 +10,7 @@ import pytest
 import torch
 from mapping_data import synthetic_split, tiny_config
 
-from metadagger.errors import UserError
+from metadagger.errors import DivergedError, UserError
 from metadagger.mapping import train as train_module
 from metadagger.mapping.mappers import Mapper, load_mapper
 from metadagger.mapping.registry import kind_names
@@ -237,3 +237,11 @@ def test_conditioned_needs_the_context(tmp_path, split):
     bare = dataclasses.replace(split, context_train=None, context_val=None)
     with pytest.raises(UserError, match="stored without one; collect them again"):
         train_mapper(bare, tiny_config("conditioned"), tmp_path / "b", progress=False)
+
+
+@pytest.mark.parametrize("kind", ["dm", "sam"])
+def test_a_diverging_mapper_is_one_line_and_nothing_is_saved(tmp_path, split, kind):
+    config = dataclasses.replace(tiny_config(kind), lr=1e30)
+    with pytest.raises(DivergedError, match=rf"the {kind} mapper's network \w+ diverged at epoch \d+ of \d+ .*lower its learning rate"):
+        train_mapper(split, config, tmp_path / kind, progress=False)
+    assert not list((tmp_path / kind).glob("*.safetensors"))

@@ -267,3 +267,17 @@ def test_contexts_travel_with_the_pairs_into_the_split(tmp_path: Path) -> None:
         PairSplit(w_bc_train=split.w_bc_train, w_da_train=split.w_da_train, w_bc_val=split.w_bc_val, w_da_val=split.w_da_val,
                   train_seeds=split.train_seeds, val_seeds=split.val_seeds, context_train=split.context_train,
                   context_val=torch.zeros(2, 4))
+
+
+def test_a_damaged_record_or_a_nan_pair_is_one_line_naming_the_file(tmp_path):
+    store = PairStore(tmp_path)
+    store.write(1000, *_pair(1000), _record(1000))
+    with open(store.jsonl_path, "a") as f:
+        f.write('{"seed":1003,"stamp":"x","kept":true}\n')
+    with pytest.raises(CheckpointError, match=r"pairs.jsonl has a damaged pair record .*delete that line and re-run metadagger pairs"):
+        store.records()
+    store = PairStore(tmp_path / "nan")
+    w_bc, w_da = _pair(1000)
+    with pytest.raises(UserError, match="holds NaN or infinite values"):
+        store.write(1000, w_bc, torch.full_like(w_da, float("nan")), _record(1000))
+    assert not list((tmp_path / "nan").glob("*.safetensors"))

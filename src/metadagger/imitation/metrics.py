@@ -7,14 +7,16 @@ from typing import Iterable, Mapping, Sequence
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """The Wilson score interval for a binomial proportion (95% for ``z=1.96``)."""
+    """The Wilson score interval for a binomial proportion (95% for ``z=1.96``); it always holds
+    ``successes / n`` and lies in [0, 1]."""
     if n == 0:
         return (0.0, 1.0)
     p = successes / n
     denom = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # the interval holds p; at 0/n and n/n rounding can put a bound a hair beyond it
+    return (min(p, max(0.0, centre - half)), max(p, min(1.0, centre + half)))
 
 
 def mean_interval(values: Sequence[float], z: float = 1.96) -> dict[str, float]:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file
 
-from metadagger.errors import CheckpointError, UserError
+from metadagger.errors import CheckpointError, DivergedError, UserError
 from metadagger.io import save_tensors
 from metadagger.jsonl import append_line, read_lines
 
@@ -136,6 +136,10 @@ class PairStore:
             ValueError: bad seed, tensors or record (nothing is written then).
         """
         seed = _check_seed(seed)
+        for name, tensor in (("w_bc", w_bc), ("w_da", w_da), ("context", context)):
+            if isinstance(tensor, torch.Tensor) and tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+                raise DivergedError(f"refusing to write the pair of seed {seed}: its {name} holds NaN or infinite values, "
+                                    "so the fits that made it diverged; nothing was written")
         _check_vectors(w_bc, w_da)
         if context is not None:
             _check_context(context)
