@@ -26,33 +26,57 @@ T = TypeVar("T")
 PRESETS = ("quick", "paper", "ci")
 SEED_FIELD = re.compile(r"(\w+_)?seed")
 """Names of the int config fields that hold a seed (``seed``, ``split_seed``)."""
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 SEEDS_FIELD = re.compile(r"(\w+_)?seeds")
 """Names of the tuple-of-int config fields that hold seeds (``seeds``, ``eval_seeds``); a string
 value is a seed list (:func:`parse_seeds`)."""
 
 
+#: The largest seed (env seeds go to ``reset(seed=...)`` and generators as 32-bit numbers).
+MAX_SEED = 2**32 - 1
+#: The most seeds one list may hold (checked before a range is expanded).
+MAX_SEEDS = 1_000_000
+#: The largest value of any other integer setting (epochs, rounds, sizes, counts).
+MAX_COUNT = 10**9
+
+
 def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
-    """Parse ``"0-99"`` (inclusive range), ``"1,5,9"``, ``"3"`` or a list into a tuple of seeds."""
+    """Parse ``"0-99"`` (inclusive range), ``"1,5,9"``, ``"3"`` or a list into a tuple of seeds.
+
+    Seeds lie in ``[0, MAX_SEED]`` and a list holds at most :data:`MAX_SEEDS`, checked before
+    any range is expanded."""
     if isinstance(text, int):
         return check_seeds((text,), f"bad seed list {text!r}")
     if not isinstance(text, str):
-        return check_seeds(tuple(int(s) for s in text), f"bad seed list {text!r}")
-    seeds: list[int] = []
+        text = list(text)
+        if len(text) > MAX_SEEDS:
+            raise UserError(f"bad seed list: {len(text)} seeds, more than the {MAX_SEEDS:,} one list may hold; give fewer seeds")
+        return check_seeds(tuple(int(s) for s in text), f"bad seed list {text!r}"[:120])
+    parts = []
     for part in text.replace(" ", "").split(","):
         m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
         if not m or (m.group(2) is not None and int(m.group(2)) < int(m.group(1))):
             raise UserError(f"bad seed list {text!r}: expected ranges like '0-99' or lists like '1,5,9' (non-negative, A <= B)")
         lo = int(m.group(1))
         hi = int(m.group(2)) if m.group(2) is not None else lo
-        seeds.extend(range(lo, hi + 1))
-    return check_seeds(seeds, f"bad seed list {text!r}")
+        if hi > MAX_SEED:
+            raise UserError(f"bad seed list {text!r}: seed {hi} is above the largest seed, {MAX_SEED}; use smaller seeds")
+        parts.append((lo, hi))
+    count = sum(hi - lo + 1 for lo, hi in parts)
+    if count > MAX_SEEDS:
+        raise UserError(f"bad seed list {text!r}: {count:,} seeds, more than the {MAX_SEEDS:,} one list may hold; "
+                        "give a shorter range")
+    return check_seeds([seed for lo, hi in parts for seed in range(lo, hi + 1)], f"bad seed list {text!r}")
 
 
 def check_seeds(seeds: typing.Sequence[int], what: str) -> tuple[int, ...]:
-    """``seeds`` as a tuple, checked to be non-negative and distinct (``what`` names them in the error)."""
+    """``seeds`` as a tuple, checked to be in ``[0, MAX_SEED]`` and distinct (``what`` names them in the error)."""
     negative = [s for s in seeds if s < 0]
     if negative:
         raise UserError(f"{what}: seed {negative[0]} is negative; use seeds >= 0")
+    large = [s for s in seeds if s > MAX_SEED]
+    if large:
+        raise UserError(f"{what}: seed {large[0]} is above the largest seed, {MAX_SEED}; use smaller seeds")
     repeated = [s for s, n in Counter(seeds).items() if n > 1]
     if repeated:
         raise UserError(f"{what}: seed {repeated[0]} appears twice; list each seed once")
@@ -182,10 +206,15 @@ def _coerce(hint: Any, value: Any, where: str, field: str = "") -> Any:
             raise UserError(f"{where}: expected a list of {getattr(inner, '__name__', inner)}, got {value!r}")
         items = tuple(_coerce(inner, v, where) for v in value)
         return check_seeds(items, where) if seed_list else items
+    if hint is float and isinstance(value, str) and _NUMBER.fullmatch(value.strip()):
+        value = float(value)  # YAML 1.1 reads 1e-3 (no dot) as text
     if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         if not math.isfinite(value):
             raise UserError(f"{where}: expected a finite number, got {value!r}")
         return float(value)
+    if hint is int and isinstance(value, int) and not isinstance(value, bool) and not SEED_FIELD.fullmatch(field) \
+            and abs(value) > MAX_COUNT:
+        raise UserError(f"{where}: {value} is beyond the largest count metadagger accepts, {MAX_COUNT:,}; give a smaller value")
     if hint in (int, float, str, bool) and not isinstance(value, hint) or (hint is int and isinstance(value, bool)):
         raise UserError(f"{where}: expected {hint.__name__}, got {value!r}")
     return check_seeds((value,), where)[0] if hint is int and SEED_FIELD.fullmatch(field) else value
