@@ -15,6 +15,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import shutil
 import socket
 import sys
 import time
@@ -96,13 +97,15 @@ def _describe(text: str) -> str:
 
 
 def remove_temporary_files(root: str | Path) -> list[Path]:
-    """Remove the temporary files (``.*.tmp``) under ``root`` that a killed writer left; only the
-    lock's holder may call this. Returns what was removed."""
-    removed = []
-    for path in Path(root).rglob(".*.tmp"):
-        if path.is_file():
+    """Remove the temporary files and folders (``.*.tmp``, ``.*.tmp.old``) under ``root`` that a
+    killed writer left; only the lock's holder may call this. Returns what was removed."""
+    root = Path(root)
+    removed = [path for pattern in (".*.tmp", ".*.tmp.old") for path in root.rglob(pattern)]
+    for path in removed:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
             path.unlink(missing_ok=True)
-            removed.append(path)
     return removed
 
 
