@@ -1,7 +1,7 @@
 """metadagger: Meta-Learning DAgger (MetaL DAgger) for imitation-learning research.
 
 Importing the package selects the same CPU kernels on every x86-64 machine
-(:mod:`metadagger.kernels`) and registers its Gymnasium ids. The public interface::
+(:mod:`metadagger.utils.kernels`) and registers its Gymnasium ids. The public interface::
 
     task = metadagger.make_task("carracing")
     policy = metadagger.load_policy(path)
@@ -10,13 +10,13 @@ Importing the package selects the same CPU kernels on every x86-64 machine
 
 from __future__ import annotations
 
-from metadagger.kernels import pin_cpu_kernels
+from metadagger.utils.kernels import pin_cpu_kernels
 
 pin_cpu_kernels()  # before any tensor operation (docs/architecture.md, "Determinism")
 
 from metadagger.errors import CheckpointError, UserError  # noqa: E402
-from metadagger.registration import register_envs  # noqa: E402
 from metadagger.tasks import make_task, register_task  # noqa: E402
+from metadagger.tasks.gym_ids import register_envs  # noqa: E402
 
 from metadagger.version import __version__  # noqa: E402
 

@@ -40,15 +40,15 @@ from metadagger.imitation.gates import GATES, Gate, Labelled, make_gate
 from metadagger.imitation.metrics import summarize
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.evaluation.tables import method_label
-from metadagger.io import write_json
-from metadagger.layout import RunLayout
+from metadagger.utils.io import write_json
+from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
 from metadagger.metal.context import seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
-from metadagger.plotting import plt, save_figure
+from metadagger.utils.plotting import plt, save_figure
 from metadagger.policies import Policy
-from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
-from metadagger.stamps import file_fingerprint, stamp_of
+from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
+from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 #: Gated DAgger methods and the gate each one uses.

@@ -45,15 +45,15 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
-from metadagger.io import save_tensors
-from metadagger.layout import RunLayout
+from metadagger.utils.io import save_tensors
+from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import Mapper, cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.context import bc_rollout, seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
-from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
-from metadagger.stamps import file_fingerprint, stamp_of
+from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
+from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 #: The three methods of Table 6, in table order.

@@ -24,13 +24,13 @@ from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Aggregate
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory, rollout
-from metadagger.io import write_json
-from metadagger.layout import RunLayout
+from metadagger.utils.io import write_json
+from metadagger.runfolder.layout import RunLayout
 from metadagger.metal.context import CONTEXT_PARTS, seed_context
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth, load_groundtruth
 from metadagger.metal.store import PairStore
-from metadagger.runner import SeedJob, StageOptions, drive, plan
-from metadagger.stamps import describe_changes, file_fingerprint, stamp_of
+from metadagger.runfolder.driver import SeedJob, StageOptions, drive, plan
+from metadagger.runfolder.stamps import describe_changes, file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")

@@ -29,8 +29,8 @@ import torch
 from safetensors.torch import load_file
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import save_tensors
-from metadagger.jsonl import append_line, read_lines
+from metadagger.utils.io import save_tensors
+from metadagger.utils.jsonl import append_line, read_lines
 
 __all__ = ["OUTCOME_KEYS", "PairSplit", "PairStore"]
 
@@ -196,7 +196,7 @@ class PairStore:
         return torch.stack(contexts)
 
     def stamps(self) -> dict[int, dict[str, Any]]:
-        """For the per-seed driver (:mod:`metadagger.runner`): each done seed's ``{"pair": stamp}``
+        """For the per-seed driver (:mod:`metadagger.runfolder.driver`): each done seed's ``{"pair": stamp}``
         (what its pair was made from; seeds recorded without a stamp are left out)."""
         done = self.done_seeds()
         return {seed: {"pair": record["stamp"]} for seed, record in self._latest_records().items()

@@ -8,8 +8,8 @@ from test_stages import _refused
 
 from metadagger.errors import UserError
 from metadagger.evaluation.report import build_report
-from metadagger.layout import RunLayout
-from metadagger.run import RunConfig, init_run, load_run, records_config, resolve_config
+from metadagger.pipeline.run_config import RunConfig, init_run, load_run, records_config, resolve_config
+from metadagger.runfolder.layout import RunLayout
 
 
 @pytest.fixture

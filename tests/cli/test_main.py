@@ -11,11 +11,11 @@ import torch
 from toy_task import TINY_PRESETS, CorridorTask, RunCorridorTask
 from typer.testing import CliRunner
 
-from metadagger.cli import app, main
+from metadagger.cli.main import app, main
 from metadagger.errors import UserError
-from metadagger.layout import RunLayout
+from metadagger.pipeline.run_config import init_run
 from metadagger.policies import make_policy
-from metadagger.run import init_run
+from metadagger.runfolder.layout import RunLayout
 
 runner = CliRunner()
 
@@ -72,7 +72,7 @@ def test_an_interrupt_exits_130_and_a_bug_is_its_own_traceback(monkeypatch, caps
     def interrupted(*_):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("metadagger.run.resolve_config", interrupted)
+    monkeypatch.setattr("metadagger.pipeline.run_config.resolve_config", interrupted)
     with pytest.raises(SystemExit) as exit_:
         main(["config", "show", "--task", "carracing", "--preset", "quick"])
     assert exit_.value.code == 130 and "Traceback" not in capsys.readouterr().err  # the shell's code for Ctrl-C
@@ -80,7 +80,7 @@ def test_an_interrupt_exits_130_and_a_bug_is_its_own_traceback(monkeypatch, caps
     def broken(*_):
         raise ZeroDivisionError("a bug, not a user error")
 
-    monkeypatch.setattr("metadagger.run.resolve_config", broken)
+    monkeypatch.setattr("metadagger.pipeline.run_config.resolve_config", broken)
     with pytest.raises(ZeroDivisionError, match="a bug, not a user error"):
         main(["config", "show", "--task", "carracing", "--preset", "quick"])
 

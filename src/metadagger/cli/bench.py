@@ -15,7 +15,7 @@ import numpy as np
 
 import metadagger  # noqa: F401  (registers the metadagger ids)
 from metadagger.errors import UserError
-from metadagger.io import read_json, write_json
+from metadagger.utils.io import read_json, write_json
 
 #: task -> (our base env id, the upstream id it reproduces)
 ENV_PAIRS = {"carracing": ("metadagger/CarRacing-v0", "CarRacing-v3")}
@@ -216,11 +216,11 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     import dataclasses
     import tempfile
 
-    from metadagger.layout import RunLayout
+    from metadagger.runfolder.layout import RunLayout
     from metadagger.metal.groundtruth import load_groundtruth
     from metadagger.metal.pairs import collect_pairs
-    from metadagger.pipeline import load_run, run_task
-    from metadagger.runner import StageOptions
+    from metadagger.pipeline.stages import load_run, run_task
+    from metadagger.runfolder.driver import StageOptions
 
     run = Path(run)
     layout = RunLayout(run)

@@ -3,7 +3,7 @@ groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> benchmark -> report;
 and export run on their own.
 
 Each stage reads the run's config and the previous stages' artifacts, checks that those are
-complete and made from today's config (their stamps, :mod:`metadagger.stamps`), and skips the work
+complete and made from today's config (their stamps, :mod:`metadagger.runfolder.stamps`), and skips the work
 whose artifacts exist. Run alone, a stage whose inputs changed refuses with one line naming what
 changed; with ``rebuild`` (what ``reproduce`` passes) it redoes the stale work instead, so a
 changed input rebuilds exactly what depends on it. The mdi stage runs only for runs whose config
@@ -27,8 +27,6 @@ from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
 from metadagger.evaluation.tensorboard import (Scalar, benchmark_scalars, groundtruth_scalars, mapper_scalars, pairs_scalars,
                                                table_scalars, write_tensorboard)
-from metadagger.io import read_json
-from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
@@ -37,13 +35,15 @@ from metadagger.metal.export import export_run
 from metadagger.metal.groundtruth import groundtruth_changes, load_groundtruth, train_groundtruth
 from metadagger.metal.pairs import collect_pairs, pair_status
 from metadagger.metal.store import PairSplit, PairStore
-from metadagger.parallel import default_workers
+from metadagger.pipeline.run_config import RunConfig, init_run, load_run, records_config, save_run
 from metadagger.policies import Policy
-from metadagger.run import RunConfig, init_run, load_run, records_config, save_run
-from metadagger.runner import StageOptions
-from metadagger.stamps import describe_changes
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.stamps import describe_changes
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
+from metadagger.utils.executors import default_workers
+from metadagger.utils.io import read_json
 
 STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "report")
 

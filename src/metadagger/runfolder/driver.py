@@ -5,7 +5,7 @@ resumed and written is the same for all of them and lives here:
 
 1. :func:`plan`: for every seed, the methods whose rows are missing from the protocol's log, or
    were made from other inputs (another pi*, another mapper, other settings: the *stamp* of each
-   method, see :mod:`metadagger.stamps`). Stale rows are redone only when asked (``rebuild``);
+   method, see :mod:`metadagger.runfolder.stamps`). Stale rows are redone only when asked (``rebuild``);
    otherwise the plan stops with one line naming what changed.
 2. :func:`drive`: each seed's job goes to the executor; as each result arrives, the driver alone
    saves its artifacts (heads, pair tensors) and then appends the log, so a seed counts as done
@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol, Se
 
 
 from metadagger.errors import UserError
-from metadagger.jsonl import append_line, dumps_line, read_lines
-from metadagger.parallel import make_executor
-from metadagger.progress import progress_bar
-from metadagger.stamps import describe_changes
+from metadagger.runfolder.stamps import describe_changes
+from metadagger.utils.executors import make_executor
+from metadagger.utils.jsonl import append_line, dumps_line, read_lines
+from metadagger.utils.progress import progress_bar
 
 if TYPE_CHECKING:
     from metadagger.tasks.base import Task
@@ -90,7 +90,7 @@ class StageOptions:
     rebuild: bool = False
     """Redo work made from other inputs (another pi*, mapper or settings) instead of refusing."""
     executor: str = "local"
-    """``local`` (a process pool) or ``ray`` (:func:`metadagger.parallel.make_executor`)."""
+    """``local`` (a process pool) or ``ray`` (:func:`metadagger.utils.executors.make_executor`)."""
     workers: int | None = None
     """Parallel workers; default: this machine's cores, or the Ray cluster's CPUs."""
     address: str | None = None

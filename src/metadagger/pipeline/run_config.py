@@ -12,27 +12,31 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Concatenate, ParamSpec, Sequence, TypeVar
 
 import yaml
 
-from metadagger.config import build, dump_yaml, load_preset, read_run_data, to_dict
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark import BenchmarkConfig
 from metadagger.evaluation.diagnose import DiagnoseConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.evaluation.tensorboard import require_tensorboard
-from metadagger.io import atomic_write, write_text
-from metadagger.layout import RunLayout
 from metadagger.mapping.registry import kind_names, learned_names
 from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig
 from metadagger.metal.pairs import PairConfig
+from metadagger.runfolder.layout import RunLayout
+from metadagger.tasks import check_task
+from metadagger.utils.io import atomic_write, write_text
+from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
 
 LOGS = ("none", "tensorboard")
 """Values of :attr:`RunConfig.log`."""
+PRESETS = ("quick", "paper", "ci")
+"""The packaged presets of every built-in task (``presets/<task>.yaml``)."""
 CHOSEN_AT_START = ("task", "preset")
 """Config keys a run takes from ``--task``/``--preset`` when it starts, never from ``--set``."""
 P = ParamSpec("P")
@@ -118,6 +122,34 @@ class RunConfig:
     def task_kwargs(self) -> dict:
         """Keyword arguments of ``make_task`` for this run."""
         return {"max_episode_steps": self.max_episode_steps}
+
+
+def load_preset(task: str, preset: str, presets_file: str | Path | None = None) -> dict[str, Any]:
+    """The raw mapping of one preset: from the task's packaged YAML file, or from ``presets_file``
+    (a YAML file of the same layout, ``presets: {name: {section: ...}}``, any preset names)."""
+    check_task(task)
+    if presets_file is None:
+        if preset not in PRESETS:
+            raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}, "
+                            "or pass --presets FILE with presets of your own (see docs/custom_task.md)")
+        try:
+            text = resources.files("metadagger.pipeline.presets").joinpath(f"{task}.yaml").read_text()
+        except FileNotFoundError:
+            raise UserError(f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)") from None
+        where = f"metadagger/pipeline/presets/{task}.yaml"
+        presets = yaml.safe_load(text).get("presets")
+    else:
+        where = str(presets_file)
+        presets = read_yaml_mapping(presets_file, "presets file", "fix it or pass another (layout: docs/custom_task.md)").get("presets")
+    if not isinstance(presets, dict) or not presets:
+        raise UserError(f"{where} has no presets: expected a top-level 'presets:' mapping of preset names to stage sections "
+                        "(see docs/custom_task.md)")
+    if preset not in presets:
+        raise UserError(f"{where} has no preset {preset!r}: expected one of {', '.join(map(str, presets))}; pass one with --preset")
+    if not isinstance(presets[preset], dict):
+        raise UserError(f"{where}: preset {preset!r} is {presets[preset]!r}, not a mapping of stage sections; "
+                        f"give it sections, e.g. {preset}: {{pairs: {{dagger_rounds: 4}}}}")
+    return presets[preset]
 
 
 def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
