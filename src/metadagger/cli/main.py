@@ -2,6 +2,11 @@
 
 A :class:`~metadagger.errors.UserError`, and a usage error of the command line itself, becomes one
 ``error: ...`` line on stderr and exit code 2.
+
+The command line runs on pinned CPU kernels (:func:`~metadagger.utils.kernels.pin_cpu_kernels`):
+:func:`main` pins them first thing, and this module pins them before its one import of
+torch-using code (the mapper kinds named in ``--kind``'s help); the commands import the rest of
+the library when they run.
 """
 
 from __future__ import annotations
@@ -14,7 +19,11 @@ from typing import TYPE_CHECKING, Callable, Optional, TypeVar
 import typer
 
 from metadagger.errors import UserError
-from metadagger.mapping.registry import kind_names, trained_names
+from metadagger.utils.kernels import pin_cpu_kernels
+
+pin_cpu_kernels()  # before the registry below loads torch, and before any command's tensor operation
+
+from metadagger.mapping.registry import kind_names, trained_names  # noqa: E402
 
 if TYPE_CHECKING:
     from metadagger.runfolder.driver import StageOptions
@@ -459,6 +468,8 @@ def main(argv: Optional[list[str]] = None) -> None:
     The command line's own usage errors (an unknown command or option, a missing option, a value
     that is not a number) are one ``error: ...`` line and exit code 2, like a :class:`UserError`.
     """
+    pin_cpu_kernels()  # first thing: the command line's kernels, before any tensor operation
+
     import importlib
     import sys
 

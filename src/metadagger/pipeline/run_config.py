@@ -31,6 +31,7 @@ from metadagger.metal.pairs import PairConfig
 from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks import check_task
 from metadagger.utils.io import atomic_write, write_text
+from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
 
 LOGS = ("none", "tensorboard")
@@ -191,7 +192,9 @@ def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path |
              overrides: Sequence[str] = ()) -> RunConfig:
     """Create ``<run>/config.yaml`` from a preset and ``overrides``, or read the existing one (of
     the same task and preset) with ``overrides`` applied; an existing run's file is updated by the
-    stage that runs with the result (:func:`records_config`)."""
+    stage that runs with the result (:func:`records_config`). Pins the CPU kernels first
+    (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
+    pin_cpu_kernels()
     layout = RunLayout(run)
     if layout.root.exists() and not layout.root.is_dir():
         raise UserError(f"--out {run} is a file, not a run folder; pass a folder path")
@@ -217,7 +220,9 @@ def check_log(value: str, name: str = "log") -> None:
 def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     """Read a run's config with ``overrides`` applied (the file is left as it is: the stage that
     runs with the result writes it, :func:`records_config`); a missing or broken file is a
-    :class:`UserError`."""
+    :class:`UserError`. Pins the CPU kernels first (:func:`~metadagger.utils.kernels.pin_cpu_kernels`),
+    as the command line does."""
+    pin_cpu_kernels()
     path = RunLayout(run).config
     if not path.is_file():
         raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")

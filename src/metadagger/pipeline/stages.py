@@ -9,6 +9,10 @@ changed; with ``rebuild`` (what ``reproduce`` passes) it redoes the stale work i
 changed input rebuilds exactly what depends on it. The mdi stage runs only for runs whose config
 has an ``mdi`` section (Fetch). With ``log: tensorboard`` each stage then rewrites its TensorBoard
 scalars from its artifacts (:mod:`metadagger.evaluation.tensorboard`).
+
+The entry points a Python program starts with (:func:`reproduce`, :func:`init_run`,
+:func:`load_run`) pin the CPU kernels first, as the command line does
+(:mod:`metadagger.utils.kernels`).
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
 from metadagger.utils.executors import default_workers
 from metadagger.utils.io import read_json
+from metadagger.utils.kernels import pin_cpu_kernels
 
 STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "report")
 
@@ -280,7 +285,9 @@ def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Pa
     """Every stage in order, each resuming where a previous run stopped and rebuilding what a
     changed input made stale (``options.rebuild`` is always on); returns the report path.
     ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one;
-    ``overrides``: ``section.key=value`` items."""
+    ``overrides``: ``section.key=value`` items. Pins the CPU kernels first
+    (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
+    pin_cpu_kernels()
     layout = RunLayout(run)
     config = init_run(run, task, preset, presets_file, overrides)
     options = dataclasses.replace(options, rebuild=True)

@@ -25,6 +25,7 @@ from typing import Any, Callable, Generic, Iterable, Iterator, TypeVar
 import torch
 
 from metadagger.errors import UserError
+from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.ray_cluster import ADDRESS_HINT, bounded_gcs_wait, check_reachable, import_ray, token_hint
 
 __all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "check_executor_options", "default_workers", "in_order",
@@ -84,6 +85,7 @@ def _limit_threads() -> None:
 
 
 def _init_pool_worker() -> None:
+    pin_cpu_kernels()  # every worker on the pinned kernels, whether or not the driver pinned them
     _limit_threads()
     # A terminal Ctrl-C reaches the whole process group; only the driver should react (it
     # terminates the pool), so workers do not die mid-task with tracebacks of their own.
@@ -255,6 +257,7 @@ def _check_picklable(fn: Callable[..., Any]) -> None:
 
 
 def _run_ray_task(fn: Callable[[T], R], item: T) -> R:
+    pin_cpu_kernels()  # a worker on another node does not inherit the driver's environment
     _limit_threads()
     return fn(item)
 
