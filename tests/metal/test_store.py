@@ -267,3 +267,13 @@ def test_contexts_travel_with_the_pairs_into_the_split(tmp_path: Path) -> None:
         PairSplit(w_bc_train=split.w_bc_train, w_da_train=split.w_da_train, w_bc_val=split.w_bc_val, w_da_val=split.w_da_val,
                   train_seeds=split.train_seeds, val_seeds=split.val_seeds, context_train=split.context_train,
                   context_val=torch.zeros(2, 4))
+
+
+def test_a_pair_record_without_a_stamp_is_a_corrupt_line(tmp_path: Path) -> None:
+    store = PairStore(tmp_path / "pairs")
+    store.write(1, *_pair(1), {**_record(1), "stamp": {"task": "toy"}})
+    assert store.stamps() == {1: {"pair": {"task": "toy"}}}
+    store.write(2, *_pair(2), _record(2))
+    with pytest.raises(CheckpointError, match=re.escape(f"{store.jsonl_path} has a pair record without its stamp (seed 2); "
+                                                        "delete that line and re-run metadagger pairs")):
+        store.stamps()

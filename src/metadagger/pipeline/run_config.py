@@ -5,6 +5,10 @@ pairs --out RUN`` and the later stages read it back, so a run is described by it
 The stage commands also take ``--set section.key=value`` overrides (the value read as YAML), validated
 by the same builder as the presets; the config a stage runs with is written back to the folder
 (:func:`records_config`), and put back as it was when the stage refuses.
+
+``config.yaml`` records the metadagger version that created the folder (``metadagger_version``, in
+no stamp); a folder made by another major.minor version, or before versions were recorded (0.2),
+is refused with one line (:func:`check_version`).
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from metadagger.tasks import check_task
 from metadagger.utils.io import atomic_write, write_text
 from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
+from metadagger.version import __version__
 
 LOGS = ("none", "tensorboard")
 """Values of :attr:`RunConfig.log`."""
@@ -40,6 +45,10 @@ PRESETS = ("quick", "paper", "ci")
 """The packaged presets of every built-in task (``presets/<task>.yaml``)."""
 CHOSEN_AT_START = ("task", "preset")
 """Config keys a run takes from ``--task``/``--preset`` when it starts, never from ``--set``."""
+VERSION_KEY = "metadagger_version"
+"""The config key that records the metadagger version a run folder was made by."""
+FIRST_RECORDED = "0.2"
+"""The first version whose run folders record it: a ``config.yaml`` without it is older."""
 P = ParamSpec("P")
 R = TypeVar("R")
 
@@ -48,6 +57,9 @@ R = TypeVar("R")
 class RunConfig:
     """Every stage of one MetaL DAgger run."""
 
+    metadagger_version: str = __version__
+    """The metadagger version that made the run folder (kept as the folder's stages rewrite its
+    config; in no stamp, so it changes no other artifact)."""
     task: str = "carracing"
     """Task name (``metadagger.make_task``)."""
     preset: str = "quick"
@@ -162,6 +174,9 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
         keys = path.strip().split(".")
         if not sep or not all(keys):
             raise UserError(f"bad --set {item!r}: expected section.key=value, e.g. --set pairs.dagger_rounds=4")
+        if keys[0] == VERSION_KEY:
+            raise UserError(f"bad --set {item!r}: {VERSION_KEY} records the metadagger version that made the run folder; "
+                            "it cannot be set")
         if keys[0] in CHOSEN_AT_START:
             raise UserError(f"bad --set {item!r}: the {keys[0]} is chosen with --{keys[0]}, not --set, and a run keeps the one it "
                             f"started with; pass --{keys[0]} instead (with a new --out for a started run)")
@@ -226,7 +241,25 @@ def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     path = RunLayout(run).config
     if not path.is_file():
         raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")
-    return build(RunConfig, apply_overrides(read_run_data(path), overrides), where=str(path) + (" with --set" if overrides else ""))
+    data = read_run_data(path)
+    check_version(path, data)
+    return build(RunConfig, apply_overrides(data, overrides), where=str(path) + (" with --set" if overrides else ""))
+
+
+def check_version(path: str | Path, data: dict[str, Any]) -> None:
+    """Raise a :class:`UserError` unless the run config ``data`` (read from ``path``) was made by a
+    metadagger of this major.minor version; a folder of another one needs that version's code."""
+    recorded = data.get(VERSION_KEY)
+    if recorded is not None and _major_minor(str(recorded)) == _major_minor(__version__):
+        return
+    made_by = f"metadagger {recorded}" if recorded is not None else f"a metadagger version before {FIRST_RECORDED}"
+    task, preset = data.get("task", "T"), data.get("preset", "P")
+    raise UserError(f"{path} was made by {made_by}; this is {__version__}: start a new run folder "
+                    f"(metadagger reproduce --task {task} --preset {preset} --out NEW) or use {made_by}")
+
+
+def _major_minor(version: str) -> tuple[str, ...]:
+    return tuple(version.split(".")[:2])
 
 
 def save_run(run: str | Path, config: RunConfig) -> None:

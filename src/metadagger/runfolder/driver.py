@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 
-from metadagger.errors import UserError
+from metadagger.errors import CheckpointError, UserError
 from metadagger.runfolder.stamps import describe_changes
 from metadagger.utils.executors import make_executor
 from metadagger.utils.jsonl import append_line, dumps_line, read_lines
@@ -47,7 +47,8 @@ class SeedLog(Protocol):
 class RowLog:
     """``*.jsonl`` of evaluation rows: one line per finished job, ``{"seed", "entries": {method:
     {"stamp", "rows"}}}``; a worker's result carries ``entries: {method: [rows]}``. A method's
-    latest entry for a seed supersedes earlier ones."""
+    latest entry for a seed supersedes earlier ones; a line without entries is a corrupt line
+    (a :class:`CheckpointError` naming the file)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -55,8 +56,11 @@ class RowLog:
     def _entries(self) -> dict[int, dict[str, dict[str, Any]]]:
         latest: dict[int, dict[str, dict[str, Any]]] = {}
         for record in read_lines(self.path, what="row record"):
-            # lines without entries come from before stamps existed: they match no stamp
-            for method, entry in (record.get("entries") or {}).items():
+            entries = record.get("entries")
+            if not isinstance(entries, dict):
+                raise CheckpointError(f"{self.path} has a row record without its entries: {str(record)[:80]}; "
+                                      "delete that line and re-run the stage")
+            for method, entry in entries.items():
                 latest.setdefault(int(record["seed"]), {})[method] = entry
         return latest
 
