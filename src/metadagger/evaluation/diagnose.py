@@ -1,6 +1,6 @@
 """``metadagger diagnose``: does a mapper learn anything, or memorise, or sit at the noise floor?
 
-Per validation pair (DESIGN.md, "Mapping diagnostics"), with the yardsticks of
+Per validation pair (docs/diagnostics.md, "What is measured"), with the yardsticks of
 :mod:`metadagger.mapping.diagnostics`:
 
 - **state samples**: the seed's pair procedure is re-run (it is deterministic; the run checks

@@ -17,10 +17,12 @@ from metadagger.tasks.gym_ids import register_envs
 
 
 class Task(abc.ABC):
-    """A meta-learning task family: one env per seed, an expert, and a success rule.
+    """One environment with its expert: an env per seed (the seed draws the layout), the expert,
+    the split of a full action into the learner's part and the expert's, and a success rule.
 
-    Subclass it for your own environment and register it with
-    :func:`metadagger.tasks.register_task`.
+    A task *family* is a Task whose seeds also draw a variation of the system
+    (:class:`~metadagger.tasks.family.FamilyTask`, docs/families.md). Subclass Task for your own
+    environment and register it with :func:`metadagger.tasks.register_task`.
     """
 
     #: Short name used on the command line (``--task NAME``).
