@@ -11,11 +11,11 @@ import sys
 
 import torch
 
-from metadagger.config import parse_seeds
 from metadagger.imitation.episodes import evaluate_policy
 from metadagger.imitation.metrics import summarize
 from metadagger.policies import load_policy
 from metadagger.tasks import make_task
+from metadagger.utils.yaml_config import parse_seeds
 
 
 def main(checkpoint: str, own: str, other: str) -> dict:

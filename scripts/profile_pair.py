@@ -20,14 +20,14 @@ from typing import Any, Callable
 
 import torch
 
-from metadagger.config import parse_seeds
 from metadagger.imitation.bc import FeatureCache
 from metadagger.imitation.head_adam import LinearHeadAdam
-from metadagger.layout import RunLayout
 from metadagger.metal.pairs import run_pair
-from metadagger.pipeline import load_run, run_task
+from metadagger.pipeline.stages import load_run, run_task
 from metadagger.policies import Policy
+from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks.base import LearnerEnv
+from metadagger.utils.yaml_config import parse_seeds
 
 #: (owner, method, what the docs call it)
 PARTS = (

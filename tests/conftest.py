@@ -1,4 +1,6 @@
-"""Shared fixtures: one thread for torch (CI has 2 cores), a seeded generator and a closed port."""
+"""Shared fixtures: one thread for torch (CI has 2 cores), metadagger's Gymnasium ids registered
+(tests ``gym.make`` them directly; importing metadagger does not register them), a seeded
+generator and a closed port."""
 
 from __future__ import annotations
 
@@ -9,7 +11,10 @@ import numpy as np
 import pytest
 import torch
 
+from metadagger.tasks.gym_ids import register_envs
+
 torch.set_num_threads(1)
+register_envs()
 
 
 @pytest.fixture

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.policies import Policy, PolicyNet, load_policy, make_policy, tensor_mismatch
+from metadagger.utils.io import load_tensors, read_metadata, save_tensors
 
 SMALL = {"conv_channels": (4, 8), "kernel_sizes": (3, 3), "hidden": (16,)}
 

@@ -1,8 +1,11 @@
 """metadagger: Meta-Learning DAgger (MetaL DAgger) for imitation-learning research.
 
-Importing the package selects the same CPU kernels on every x86-64 machine
-(:mod:`metadagger.kernels`) and registers its Gymnasium ids. The public interface::
+Importing the package changes nothing in the process: the Gymnasium ids are registered when a
+task or one of its envs is made (:func:`~metadagger.tasks.gym_ids.register_envs`), and the CPU
+kernels are pinned by whoever asks (:func:`pin_cpu_kernels`: the command line, the pipeline's
+entry points, the executors' workers). The public interface::
 
+    metadagger.pin_cpu_kernels()          # the command line's kernels; before any tensor operation
     task = metadagger.make_task("carracing")
     policy = metadagger.load_policy(path)
     mapper = metadagger.load_mapper(path)
@@ -10,17 +13,11 @@ Importing the package selects the same CPU kernels on every x86-64 machine
 
 from __future__ import annotations
 
-from metadagger.kernels import pin_cpu_kernels
-
-pin_cpu_kernels()  # before any tensor operation (docs/architecture.md, "Determinism")
-
-from metadagger.errors import CheckpointError, UserError  # noqa: E402
-from metadagger.registration import register_envs  # noqa: E402
-from metadagger.tasks import make_task, register_task  # noqa: E402
-
-from metadagger.version import __version__  # noqa: E402
-
-register_envs()
+from metadagger.errors import CheckpointError, UserError
+from metadagger.tasks import make_task, register_task
+from metadagger.tasks.gym_ids import register_envs
+from metadagger.utils.kernels import pin_cpu_kernels
+from metadagger.version import __version__
 
 
 def load_policy(path):
@@ -37,4 +34,5 @@ def load_mapper(path):
     return _load(path)
 
 
-__all__ = ["CheckpointError", "UserError", "__version__", "load_mapper", "load_policy", "make_task", "register_task"]
+__all__ = ["CheckpointError", "UserError", "__version__", "load_mapper", "load_policy", "make_task", "pin_cpu_kernels",
+           "register_envs", "register_task"]

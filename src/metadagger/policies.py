@@ -24,8 +24,8 @@ from torch import nn
 from torch.nn.utils import parameters_to_vector, vector_to_parameters
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.tasks.base import Task
+from metadagger.utils.io import load_tensors, read_metadata, save_tensors
 from metadagger.version import __version__
 
 #: Defaults sized for 96x96x3 -> 20 classes: about 150K parameters (paper Sec. 3.2).

@@ -17,11 +17,11 @@ from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import collect
-from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
 from metadagger.policies import load_policy
-from metadagger.runner import StageOptions
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import RunLayout
 
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
@@ -151,7 +151,7 @@ def test_mdi_on_a_run_without_an_mdi_protocol_is_refused_before_any_work(tmp_pat
 
 
 def test_matching_table_picks_the_cheapest_setting_that_reaches_dagger(tmp_path):
-    from metadagger.io import write_json
+    from metadagger.utils.io import write_json
 
     layout = RunLayout(tmp_path)
     entry = lambda m, s, rate, q: {"method": m, "setting": s, "seeds": 10, "successes": int(10 * rate), "success_rate": rate,  # noqa: E731

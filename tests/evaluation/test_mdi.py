@@ -18,14 +18,14 @@ from metadagger.evaluation.rows import read_csv, write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import collect, rollout
-from metadagger.io import load_tensors
-from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.pipeline.run_config import init_run, load_run
 from metadagger.policies import load_policy
-from metadagger.run import init_run, load_run
-from metadagger.runner import StageOptions
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.io import load_tensors
 
 GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 # 1-D displacements: the cosine distance per step is 0 (same sign), 1 (one is zero) or 2 (opposite)

@@ -8,9 +8,9 @@ from metadagger.errors import UserError
 from metadagger.evaluation.report import build_report
 from metadagger.evaluation.report_mdm import FIGURE
 from metadagger.evaluation.rows import write_csv
-from metadagger.io import write_json, write_text
-from metadagger.layout import RunLayout
 from metadagger.mapping.train import CURVE_COLUMNS
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.io import write_json, write_text
 
 
 def _row(method: str, seed: int, success: bool, reward: float, steps: int = 100) -> dict:

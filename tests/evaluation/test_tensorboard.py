@@ -14,12 +14,12 @@ import pytest
 from toy_task import TINY_PRESETS, RunCorridorTask
 from typer.testing import CliRunner
 
-from metadagger.cli import app
+from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
 from metadagger.evaluation.tensorboard import INSTALL, benchmark_scalars, groundtruth_scalars, require_tensorboard
-from metadagger.layout import RunLayout
 from metadagger.metal.store import PairStore
+from metadagger.runfolder.layout import RunLayout
 
 runner = CliRunner()
 TASK = "corridor-tb"

@@ -18,7 +18,7 @@ from metadagger.errors import DivergedError, UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.policies import make_policy
-from metadagger.stamps import stamp_of
+from metadagger.runfolder.stamps import stamp_of
 
 FAST = BCConfig(lr=3e-3, epochs=20, batch_size=16)
 

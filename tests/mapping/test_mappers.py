@@ -8,8 +8,8 @@ import torch
 
 import metadagger
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.mapping.mappers import Mapper, Standardizer, build_networks, load_mapper
+from metadagger.utils.io import load_tensors, read_metadata, save_tensors
 
 
 def test_standardizer_fit_transform_inverse(rng):

@@ -14,7 +14,7 @@ from metadagger.mapping import registry
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import MapperKind, Route, get_kind, kind_names, register_kind
 from metadagger.mapping.train import MapperConfig, train_mapper
-from metadagger.run import resolve_config
+from metadagger.pipeline.run_config import resolve_config
 
 
 def build_linear(dim: int, *, generator: torch.Generator | None = None, **_: object) -> dict[str, nn.Module]:

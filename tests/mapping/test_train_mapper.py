@@ -11,12 +11,12 @@ import torch
 from mapping_data import synthetic_split, tiny_config
 
 from metadagger.errors import DivergedError, UserError
+from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping import train as train_module
 from metadagger.mapping.mappers import Mapper, load_mapper
 from metadagger.mapping.registry import kind_names
-from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, MapperJob, evaluate_mapping, paper_config, train_mapper, train_mappers
-from metadagger.runner import StageOptions
+from metadagger.runfolder.driver import StageOptions
 
 KINDS = kind_names()
 STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "modes": ["modes"], "conditioned": ["ridge"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}

@@ -9,20 +9,20 @@ import yaml
 from mapping_data import synthetic_split, tiny_config
 from typer.testing import CliRunner
 
-from metadagger.cli import app
-from metadagger.config import build, to_dict
+from metadagger.cli.main import app
 from metadagger.errors import UserError
-from metadagger.layout import RunLayout
 from metadagger.mapping import tune as tune_module
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.train import MapperConfig, evaluate_mapping, fit_mapper, paper_config
 from metadagger.mapping.tune import check_tunable, search_space, trial_config, tune_mapper
 from metadagger.metal.pairs import pair_stamp
 from metadagger.metal.store import PairStore
-from metadagger.pipeline import run_task
+from metadagger.pipeline.run_config import init_run, load_run
+from metadagger.pipeline.stages import run_task
 from metadagger.policies import make_policy
-from metadagger.run import init_run, load_run
-from metadagger.runner import StageOptions
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.yaml_config import build, to_dict
 
 optuna = pytest.importorskip("optuna")
 

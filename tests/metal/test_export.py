@@ -16,11 +16,11 @@ minari = pytest.importorskip("minari")
 from metadagger.errors import UserError  # noqa: E402
 from metadagger.imitation.minari_io import read_demonstrations  # noqa: E402
 from metadagger.imitation.rollouts import collect  # noqa: E402
-from metadagger.layout import RunLayout  # noqa: E402
 from metadagger.metal.export import export_run  # noqa: E402
 from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth  # noqa: E402
 from metadagger.metal.pairs import collect_pairs, run_pair  # noqa: E402
-from metadagger.runner import StageOptions  # noqa: E402
+from metadagger.runfolder.driver import StageOptions  # noqa: E402
+from metadagger.runfolder.layout import RunLayout  # noqa: E402
 from test_groundtruth_pairs import GT, PAIRS  # noqa: E402
 
 SEEDS = PAIRS.seeds[:3]
@@ -141,7 +141,7 @@ def test_bad_input_is_one_clear_error(run, datasets):
 def test_export_command_refuses_bad_input_before_any_work(tmp_path, args, needle):
     from typer.testing import CliRunner
 
-    from metadagger.cli import app
+    from metadagger.cli.main import app
 
     result = CliRunner().invoke(app, ["export", "--out", str(tmp_path / "no-run"), *args])
     assert result.exit_code == 2, result.output

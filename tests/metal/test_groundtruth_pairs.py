@@ -21,14 +21,14 @@ from metadagger.evaluation.report_run import groundtruth_section
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import collect, rollout
-from metadagger.layout import RunLayout
 from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
-from metadagger.runner import StageOptions
-from metadagger.stamps import stamp_of
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.stamps import stamp_of
 
 TESTS = Path(__file__).resolve().parents[1]
 # Subprocesses and Ray workers import the toy tasks from here; the caller's PYTHONPATH (e.g. a
@@ -130,12 +130,12 @@ def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
 
 _KILLABLE = """
 import signal, sys
-# a shell's background job starts with SIGINT ignored: restore Python's handler (see test_parallel)
+# a shell's background job starts with SIGINT ignored: restore Python's handler (see test_executors)
 signal.signal(signal.SIGINT, signal.default_int_handler)
 from slow_task import SlowCorridorTask
-from metadagger.layout import RunLayout
+from metadagger.runfolder.layout import RunLayout
 from metadagger.metal.pairs import collect_pairs
-from metadagger.runner import StageOptions
+from metadagger.runfolder.driver import StageOptions
 from test_groundtruth_pairs import PAIRS
 collect_pairs(SlowCorridorTask(), RunLayout(sys.argv[1]), PAIRS, StageOptions(workers=1, progress=False))
 """

@@ -14,8 +14,8 @@ import pytest
 import torch
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import save_tensors
 from metadagger.metal.store import PairSplit, PairStore
+from metadagger.utils.io import save_tensors
 
 DIM = 6
 

@@ -11,15 +11,15 @@ from gymnasium.utils.env_checker import check_env
 from toy_task import TINY_PRESETS, CorridorFamily, RunCorridorTask
 from typer.testing import CliRunner
 
-from metadagger.cli import app
+from metadagger.cli.main import app
 from metadagger.errors import UserError
-from metadagger.layout import RunLayout
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
+from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks import make_task
+from metadagger.tasks.base import LearnerEnv
 from metadagger.tasks.carracing.expert import STEER_LIMIT
 from metadagger.tasks.carracing.family import SteeringVariation
-from metadagger.tasks.base import LearnerEnv
 from metadagger.tasks.carracing.task import CarRacingTask
 from metadagger.tasks.family import VariedEnv
 
@@ -108,7 +108,7 @@ def corridor_family(tmp_path):
 
 def test_a_custom_family_runs_the_pipeline_and_reports_each_seeds_variation(corridor_family, tmp_path):
     from metadagger.metal.groundtruth import train_groundtruth
-    from metadagger.run import load_run
+    from metadagger.pipeline.run_config import load_run
 
     run = RunLayout(tmp_path / "family")
     result = runner.invoke(app, ["reproduce", "--task", "corridor-family", "--presets", str(corridor_family), "--preset", "tiny",
@@ -148,7 +148,7 @@ def test_a_plain_task_gets_no_family_section(tmp_path):
 @pytest.mark.parametrize("task", ["carracing-family", "fetch-family"])
 @pytest.mark.parametrize("preset", ["quick", "paper", "ci"])
 def test_every_family_preset_resolves(task, preset):
-    from metadagger.run import resolve_config
+    from metadagger.pipeline.run_config import resolve_config
 
     config = resolve_config(task, preset)
     assert config.task == task and config.pairs.seeds and config.benchmark is not None

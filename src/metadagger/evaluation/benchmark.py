@@ -35,13 +35,13 @@ from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gates import Gate, make_gate
 from metadagger.imitation.metrics import summarize
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.io import write_json
-from metadagger.layout import RunLayout
+from metadagger.utils.io import write_json
+from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
 from metadagger.metal.method import Round, SeedLearner, bc_head, dagger_rounds, demonstration, map_head, seed_context, seeded
-from metadagger.plotting import plt, save_figure
-from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
-from metadagger.stamps import file_fingerprint, stamp_of
+from metadagger.utils.plotting import plt, save_figure
+from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
+from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 #: Columns of ``benchmark/queries.csv``.

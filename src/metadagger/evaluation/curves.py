@@ -6,7 +6,7 @@ import csv
 import math
 from pathlib import Path
 
-from metadagger.plotting import plt, save_figure
+from metadagger.utils.plotting import plt, save_figure
 
 
 def plot_curves(csv_path: str | Path, png_path: str | Path) -> Path:

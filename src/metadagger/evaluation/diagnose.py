@@ -1,6 +1,6 @@
 """``metadagger diagnose``: does a mapper learn anything, or memorise, or sit at the noise floor?
 
-Per validation pair (DESIGN.md, "Mapping diagnostics"), with the yardsticks of
+Per validation pair (docs/diagnostics.md, "What is measured"), with the yardsticks of
 :mod:`metadagger.mapping.diagnostics`:
 
 - **state samples**: the seed's pair procedure is re-run (it is deterministic; the run checks
@@ -33,16 +33,16 @@ import torch
 
 from metadagger.errors import UserError
 from metadagger.imitation.metrics import mean_interval
-from metadagger.io import load_tensors, save_tensors, write_json
-from metadagger.layout import RunLayout
+from metadagger.utils.io import load_tensors, save_tensors, write_json
+from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.diagnostics import canonical_heads, function_error, memorisation, pairwise_spread, weight_error
 from metadagger.mapping.mappers import Mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperConfig, MapperJob, mapper_stamp, train_mappers
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairSplit
-from metadagger.plotting import plt, save_figure
-from metadagger.runner import RowLog, SeedJob, StageOptions, drive, plan
+from metadagger.utils.plotting import plt, save_figure
+from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, drive, plan
 from metadagger.tasks.base import Task
 
 #: Line styles of the constant controls in the scaling figure (one each, in turn).

@@ -43,14 +43,14 @@ from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.io import save_tensors
-from metadagger.layout import RunLayout
+from metadagger.utils.io import save_tensors
+from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.groundtruth import cached_groundtruth
 from metadagger.metal.method import SeedLearner, bc_head, dagger_rounds, demonstration, map_head, one_shot, seed_context, seeded
-from metadagger.runner import RowLog, SeedJob, Stamp, StageOptions, drive, plan
-from metadagger.stamps import file_fingerprint, stamp_of
+from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
+from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 #: The three methods of Table 6, in table order.

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from metadagger.config import read_run_data
 from metadagger.errors import UserError
 from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.report_diagnostics import diagnostics_section
@@ -22,8 +21,9 @@ from metadagger.evaluation.report_mdi import mdi_section
 from metadagger.evaluation.report_mdm import mdm_section
 from metadagger.evaluation.report_oneshot import oneshot_section
 from metadagger.evaluation.report_run import groundtruth_section, mappers_section, pairs_section
-from metadagger.io import write_text
-from metadagger.layout import RunLayout
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.io import write_text
+from metadagger.utils.yaml_config import read_run_data
 
 SECTIONS = (groundtruth_section, pairs_section, mappers_section, diagnostics_section, mdm_section, oneshot_section, mdi_section,
             benchmark_section, family_section)

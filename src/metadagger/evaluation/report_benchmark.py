@@ -11,8 +11,8 @@ from typing import Any
 from metadagger.evaluation.benchmark import plot_queries
 from metadagger.evaluation.methods import MDM_PREFIX
 from metadagger.evaluation.tables import markdown_table, method_label, pct
-from metadagger.io import read_json
-from metadagger.layout import RunLayout
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.io import read_json
 
 FIGURE = "queries.png"
 #: The share of DAgger's final success a method must reach to count as matching it.

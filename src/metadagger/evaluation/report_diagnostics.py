@@ -7,8 +7,8 @@ import math
 
 from metadagger.evaluation.diagnose import plot_scaling
 from metadagger.evaluation.tables import markdown_table, method_label, method_order
-from metadagger.io import read_json
-from metadagger.layout import RunLayout
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.io import read_json
 
 FIGURE = "diagnostics_scaling.png"
 

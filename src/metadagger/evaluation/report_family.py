@@ -12,14 +12,14 @@ from __future__ import annotations
 import statistics
 from typing import Any
 
-from metadagger.config import read_run_data
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order, rate
-from metadagger.layout import RunLayout
-from metadagger.plotting import plt, save_figure
+from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
+from metadagger.utils.plotting import plt, save_figure
+from metadagger.utils.yaml_config import read_run_data
 
 FIGURE = "family_variation.png"
 

@@ -8,8 +8,8 @@ from typing import Any
 from metadagger.evaluation.mdi import METHODS
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import markdown_table, method_label, rate
-from metadagger.layout import RunLayout
-from metadagger.plotting import plt, save_figure
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.plotting import plt, save_figure
 
 FIGURE = "mdi_cosine.png"
 COSINE_KEYS = (("cosine_total", "accumulated"), ("cosine_per_action", "per action"))

@@ -8,8 +8,8 @@ from typing import Any
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order, rate
 from metadagger.imitation.metrics import summarize
-from metadagger.layout import RunLayout
-from metadagger.plotting import plt, save_figure
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.plotting import plt, save_figure
 
 FIGURE = "mdm_vs_bc.png"
 

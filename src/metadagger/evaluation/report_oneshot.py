@@ -6,7 +6,7 @@ from __future__ import annotations
 from metadagger.evaluation.mdm import ONESHOT_PREFIX
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order
-from metadagger.layout import RunLayout
+from metadagger.runfolder.layout import RunLayout
 
 
 def oneshot_section(layout: RunLayout) -> list[str]:

@@ -8,9 +8,9 @@ from __future__ import annotations
 from metadagger.evaluation.curves import plot_curves
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
 from metadagger.evaluation.tables import markdown_table, method_label, pct
-from metadagger.io import read_json
-from metadagger.layout import RunLayout
 from metadagger.mapping.registry import get_kind, kind_names
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.io import read_json
 
 
 def groundtruth_section(layout: RunLayout) -> list[str]:

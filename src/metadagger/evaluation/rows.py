@@ -1,4 +1,4 @@
-"""Evaluation rows as CSV tables (written from the resume logs of :mod:`metadagger.runner`)."""
+"""Evaluation rows as CSV tables (written from the resume logs of :mod:`metadagger.runfolder.driver`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import io
 from pathlib import Path
 from typing import Any
 
-from metadagger.io import corrupt_artifact, write_text
+from metadagger.utils.io import corrupt_artifact, write_text
 
 ROW_FIELDS = ("method", "seed", "success", "reward", "steps", "expert_queries")
 #: The columns every mapper's ``curves.csv`` has (its other columns are losses).

@@ -28,9 +28,9 @@ from typing import Any
 
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
-from metadagger.io import atomic_folder, read_json
-from metadagger.layout import RunLayout
 from metadagger.metal.store import OUTCOME_KEYS, PairStore
+from metadagger.runfolder.layout import RunLayout
+from metadagger.utils.io import atomic_folder, read_json
 
 Scalar = tuple[str, Any, int]
 """One point: its tag below the namespace, its value, its step. A value that is not a number (an

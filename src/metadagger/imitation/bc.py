@@ -22,13 +22,13 @@ import torch
 import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
-from metadagger.config import LATER_OPTION
 from metadagger.errors import DivergedError, UserError, check_finite_loss
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
-from metadagger.progress import progress_bar
+from metadagger.utils.progress import progress_bar
+from metadagger.utils.yaml_config import LATER_OPTION
 
 #: How a seed's fresh head starts (:attr:`BCConfig.head_init`).
 HEAD_INITS = ("seed", "shared")

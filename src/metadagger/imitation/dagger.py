@@ -13,8 +13,8 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.rollouts import EarlyStop, Trajectory, collect
 from metadagger.policies import Policy
-from metadagger.progress import progress_bar
 from metadagger.tasks.base import Task
+from metadagger.utils.progress import progress_bar
 
 
 @dataclass(frozen=True)

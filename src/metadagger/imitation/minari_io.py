@@ -25,7 +25,7 @@ import numpy as np
 from metadagger.errors import UserError
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.rollouts import Trajectory, stack_labels
-from metadagger.io import atomic_folder
+from metadagger.utils.io import atomic_folder
 
 INSTALL_MINARI = 'pip install -c constraints.txt -e ".[minari]"'
 INFO_KEYS = ("expert_label", "queried", "round", "seed")

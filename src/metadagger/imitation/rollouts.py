@@ -9,10 +9,10 @@ import gymnasium as gym
 import numpy as np
 
 from metadagger.imitation.data import Dataset
-from metadagger.parallel import in_order, make_executor
 from metadagger.policies import Policy
-from metadagger.progress import progress_bar
 from metadagger.tasks.base import Task
+from metadagger.utils.executors import in_order, make_executor
+from metadagger.utils.progress import progress_bar
 
 
 class EarlyStop(Protocol):

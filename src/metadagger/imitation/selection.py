@@ -14,8 +14,8 @@ from typing import Any, Sequence
 from metadagger.errors import UserError
 from metadagger.imitation.episodes import evaluate_policy
 from metadagger.policies import Policy
-from metadagger.progress import note
 from metadagger.tasks.base import Task
+from metadagger.utils.progress import note
 
 
 class EpochSelector:

@@ -1,4 +1,4 @@
-"""Does a mapper learn anything? The yardsticks of the mapping diagnostics (DESIGN.md).
+"""Does a mapper learn anything? The yardsticks of the mapping diagnostics (docs/diagnostics.md).
 
 Heads are flat vectors of layer n (weight ``[outputs, features]`` then bias ``[outputs]``).
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +22,9 @@ import torch
 from torch import nn
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.mapping.registry import get_kind
 from metadagger.policies import tensor_mismatch
+from metadagger.utils.io import load_tensors, read_metadata, save_tensors
 from metadagger.version import __version__
 
 __all__ = ["ARCH_FIELDS", "Mapper", "Standardizer", "build_networks", "cached_mapper", "load_mapper"]

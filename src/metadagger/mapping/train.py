@@ -26,15 +26,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from metadagger.errors import DivergedError, UserError, check_finite_loss
-from metadagger.io import write_text
-from metadagger.layout import CURVES_FILE, MAPPER_FILE
 from metadagger.mapping.mappers import ARCH_FIELDS, Mapper, Standardizer, build_networks, load_mapper
 from metadagger.mapping.registry import Route, get_kind, kind_names
 from metadagger.metal.store import PairSplit
-from metadagger.parallel import default_workers, make_executor
-from metadagger.progress import note, progress_bar
-from metadagger.runner import StageOptions
-from metadagger.stamps import data_fingerprint, describe_changes, stamp_of
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import CURVES_FILE, MAPPER_FILE
+from metadagger.runfolder.stamps import data_fingerprint, describe_changes, stamp_of
+from metadagger.utils.executors import default_workers, make_executor
+from metadagger.utils.io import write_text
+from metadagger.utils.progress import note, progress_bar
 
 __all__ = ["CURVE_COLUMNS", "MapperConfig", "MapperJob", "evaluate_mapping", "fit_mapper", "fit_mapper_job", "paper_config", "train_mapper",
            "train_mappers"]

@@ -35,15 +35,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from metadagger.config import build, dump_yaml, to_dict
 from metadagger.errors import DivergedError, UserError
-from metadagger.io import write_text
 from metadagger.mapping.registry import get_kind, kind_names, trained_names
 from metadagger.mapping.train import MapperConfig, evaluate_mapping, fit_mapper, mapper_stamp
 from metadagger.metal.store import PairSplit
-from metadagger.parallel import in_order, make_executor
-from metadagger.runner import StageOptions
-from metadagger.stamps import describe_changes, stamp_of
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.stamps import describe_changes, stamp_of
+from metadagger.utils.executors import in_order, make_executor
+from metadagger.utils.io import write_text
+from metadagger.utils.yaml_config import build, dump_yaml, to_dict
 
 __all__ = ["TrialJob", "TuneResult", "check_tunable", "config_overrides", "score_trial", "search_space", "trial_config",
            "tune_mapper"]

@@ -18,13 +18,13 @@ import numpy as np
 from metadagger.errors import UserError
 from metadagger.imitation.minari_io import RecordedEpisode, check_new_dataset_name, write_dataset
 from metadagger.imitation.rollouts import rollout
-from metadagger.layout import RunLayout
+from metadagger.runfolder.layout import RunLayout
 from metadagger.metal.groundtruth import load_groundtruth
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairStore
-from metadagger.parallel import in_order, make_executor
-from metadagger.progress import progress_bar
-from metadagger.runner import SeedJob, StageOptions
+from metadagger.utils.executors import in_order, make_executor
+from metadagger.utils.progress import progress_bar
+from metadagger.runfolder.driver import SeedJob, StageOptions
 from metadagger.tasks.base import Task
 
 EXPORTS = ("demos", "dagger", "pairs-data")

@@ -1,7 +1,7 @@
 """The ground-truth policy pi* (paper 3.4.1): one BC fit on expert demos of K seeds, then DAgger
 rounds over all K seeds. Its layers 1..n-1 are frozen into every per-seed policy afterwards.
 
-Artifacts (paths from :class:`~metadagger.layout.RunLayout`): pi*, its metrics (success on its
+Artifacts (paths from :class:`~metadagger.runfolder.layout.RunLayout`): pi*, its metrics (success on its
 own seeds and on unseen seeds), the stamp of the config it is made from (written first) and
 per-round checkpoints, so a killed run resumes after its last finished fit.
 """
@@ -12,20 +12,20 @@ import functools
 import shutil
 from dataclasses import dataclass, field
 
-from metadagger.config import LATER_OPTION
 from metadagger.errors import UserError
-from metadagger.imitation.episodes import evaluate_policy
-from metadagger.imitation.metrics import summarize
 from metadagger.imitation.bc import BCConfig, fit_or_resume
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
+from metadagger.imitation.episodes import evaluate_policy
+from metadagger.imitation.metrics import summarize
 from metadagger.imitation.rollouts import collect
 from metadagger.imitation.selection import EpochSelector
-from metadagger.io import read_json, write_json
-from metadagger.layout import RunLayout
 from metadagger.policies import Policy, load_policy, make_policy
-from metadagger.stamps import describe_changes, stamp_of
+from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.stamps import describe_changes, stamp_of
 from metadagger.tasks.base import Task
+from metadagger.utils.io import read_json, write_json
+from metadagger.utils.yaml_config import LATER_OPTION
 
 
 @dataclass(frozen=True)

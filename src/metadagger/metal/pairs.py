@@ -21,13 +21,13 @@ from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.data import Aggregate
 from metadagger.imitation.early_stop import check_threshold
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.io import write_json
-from metadagger.layout import RunLayout
+from metadagger.utils.io import write_json
+from metadagger.runfolder.layout import RunLayout
 from metadagger.metal.groundtruth import load_groundtruth
 from metadagger.metal.method import CONTEXT_PARTS, SeedLearner, bc_head, dagger_rounds, demonstration, seed_context, seeded
 from metadagger.metal.store import PairStore
-from metadagger.runner import SeedJob, StageOptions, drive, plan
-from metadagger.stamps import describe_changes, file_fingerprint, stamp_of
+from metadagger.runfolder.driver import SeedJob, StageOptions, drive, plan
+from metadagger.runfolder.stamps import describe_changes, file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")

@@ -29,8 +29,8 @@ import torch
 from safetensors.torch import load_file
 
 from metadagger.errors import CheckpointError, DivergedError, UserError
-from metadagger.io import save_tensors
-from metadagger.jsonl import append_line, read_lines
+from metadagger.utils.io import save_tensors
+from metadagger.utils.jsonl import append_line, read_lines
 
 __all__ = ["OUTCOME_KEYS", "PairSplit", "PairStore"]
 
@@ -200,11 +200,24 @@ class PairStore:
         return torch.stack(contexts)
 
     def stamps(self) -> dict[int, dict[str, Any]]:
-        """For the per-seed driver (:mod:`metadagger.runner`): each done seed's ``{"pair": stamp}``
-        (what its pair was made from; seeds recorded without a stamp are left out)."""
+        """For the per-seed driver (:mod:`metadagger.runfolder.driver`): each done seed's ``{"pair": stamp}``
+        (what its pair was made from).
+
+        Raises:
+            CheckpointError: a done seed's record holds no stamp (a corrupt line).
+        """
         done = self.done_seeds()
-        return {seed: {"pair": record["stamp"]} for seed, record in self._latest_records().items()
-                if seed in done and "stamp" in record} if done else {}
+        if not done:
+            return {}
+        stamps = {}
+        for seed, record in self._latest_records().items():
+            if seed not in done:
+                continue
+            if "stamp" not in record:
+                raise CheckpointError(f"{self.jsonl_path} has a pair record without its stamp (seed {seed}); "
+                                      "delete that line and re-run metadagger pairs")
+            stamps[seed] = {"pair": record["stamp"]}
+        return stamps
 
     def append(self, result: Mapping[str, Any], stamps: Mapping[str, Any]) -> None:
         """For the per-seed driver: store a collected pair (``seed``, ``w_bc``, ``w_da``, ``record``)

@@ -14,6 +14,7 @@ from typing import Callable
 
 from metadagger.errors import UserError
 from metadagger.tasks.base import LearnerEnv, Task
+from metadagger.tasks.gym_ids import register_envs
 
 #: Entry-point group through which installed packages add tasks.
 ENTRY_POINT_GROUP = "metadagger.tasks"
@@ -53,7 +54,9 @@ def check_task(name: str) -> None:
 
 
 def make_task(name: str, **kwargs) -> Task:
-    """Build the task called ``name``; an unknown name raises a :class:`UserError`."""
+    """Build the task called ``name``; an unknown name raises a :class:`UserError`. Registers
+    metadagger's Gymnasium ids (:func:`~metadagger.tasks.gym_ids.register_envs`) first."""
+    register_envs()
     check_task(name)
     factory = _factories()[name]
     if isinstance(factory, str):

@@ -13,17 +13,21 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
+from metadagger.tasks.gym_ids import register_envs
+
 
 class Task(abc.ABC):
-    """A meta-learning task family: one env per seed, an expert, and a success rule.
+    """One environment with its expert: an env per seed (the seed draws the layout), the expert,
+    the split of a full action into the learner's part and the expert's, and a success rule.
 
-    Subclass it for your own environment and register it with
-    :func:`metadagger.tasks.register_task`.
+    A task *family* is a Task whose seeds also draw a variation of the system
+    (:class:`~metadagger.tasks.family.FamilyTask`, docs/families.md). Subclass Task for your own
+    environment and register it with :func:`metadagger.tasks.register_task`.
     """
 
     #: Short name used on the command line (``--task NAME``).
     name: str
-    #: Gymnasium id of the learner-facing env (registered when metadagger is imported).
+    #: Gymnasium id of the learner-facing env (registered by :func:`~metadagger.tasks.gym_ids.register_envs`).
     learner_env_id: str
     #: Step limit of one episode.
     max_episode_steps: int
@@ -57,7 +61,9 @@ class Task(abc.ABC):
         """The paper's success rule, read at the end of an episode."""
 
     def make_env(self, seed: int | None = None, **kwargs: Any) -> gym.Env:
-        """The learner-facing env; if ``seed`` is given it is reset once with that seed."""
+        """The learner-facing env; if ``seed`` is given it is reset once with that seed. Registers
+        metadagger's Gymnasium ids (:func:`~metadagger.tasks.gym_ids.register_envs`) first."""
+        register_envs()
         env = LearnerEnv(self.make_base_env(**kwargs), task=self, max_episode_steps=self.max_episode_steps)
         if seed is not None:
             env.reset(seed=seed)

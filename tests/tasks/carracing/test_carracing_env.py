@@ -10,8 +10,7 @@ import pytest
 from gymnasium.envs.box2d.car_racing import CarRacing
 from gymnasium.utils.env_checker import check_env
 
-import metadagger  # noqa: F401  (registers the ids)
-from metadagger.bench import smooth_actions
+from metadagger.cli.bench import smooth_actions
 from metadagger.errors import UserError
 from metadagger.tasks.carracing.env import CarRacingFast
 

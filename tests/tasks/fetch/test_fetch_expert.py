@@ -12,6 +12,7 @@ import gymnasium as gym  # noqa: E402
 import torch  # noqa: E402
 
 from metadagger.errors import CheckpointError  # noqa: E402
+from metadagger.tasks.fetch.env import UPSTREAM_ID, FetchState, fetch_is_success, lower_goal_to_object, read_fetch_state  # noqa: E402
 from metadagger.tasks.fetch.expert import (  # noqa: E402
     CLOSE,
     OPEN,
@@ -22,9 +23,8 @@ from metadagger.tasks.fetch.expert import (  # noqa: E402
     distill_fetch_expert,
     state_features,
 )
-from metadagger.io import save_tensors  # noqa: E402
 from metadagger.tasks.fetch.task import expert_success  # noqa: E402
-from metadagger.tasks.fetch.env import UPSTREAM_ID, FetchState, fetch_is_success, lower_goal_to_object, read_fetch_state  # noqa: E402
+from metadagger.utils.io import save_tensors  # noqa: E402
 
 CUBE = np.array([1.30, 0.70, 0.425])
 GOAL = np.array([1.40, 0.85, 0.425])

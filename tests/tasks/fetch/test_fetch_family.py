@@ -12,7 +12,6 @@ pytest.importorskip("mujoco")
 
 import gymnasium as gym  # noqa: E402
 
-import metadagger  # noqa: E402,F401  (registers the gym ids)
 from metadagger.errors import UserError  # noqa: E402
 from metadagger.imitation.rollouts import rollout  # noqa: E402
 from metadagger.tasks import make_task  # noqa: E402

@@ -18,8 +18,8 @@ import torch
 from torch import nn
 
 from metadagger.errors import CheckpointError
-from metadagger.io import load_tensors, read_metadata, save_tensors
 from metadagger.tasks.fetch.env import UPSTREAM_ID, FetchState, lower_goal_to_object, read_fetch_state
+from metadagger.utils.io import load_tensors, read_metadata, save_tensors
 
 #: Half the cube's side (metres): the grip site sits at the cube's centre when it is held.
 CUBE_HALF = 0.025

@@ -8,15 +8,15 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from metadagger.cli import app
+from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import METHODS as MDI_METHODS
 from metadagger.evaluation.report_mdi import FIGURE as MDI_FIGURE
 from metadagger.evaluation.rows import read_csv
-from metadagger.layout import RunLayout
 from metadagger.mapping.registry import kind_names
-from metadagger.pipeline import init_run, reproduce, stage_mdi
-from metadagger.runner import StageOptions
+from metadagger.pipeline.stages import init_run, reproduce, stage_mdi
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import RunLayout
 
 runner = CliRunner()
 

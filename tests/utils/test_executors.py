@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from metadagger import parallel
 from metadagger.errors import CheckpointError, UserError
-from metadagger.parallel import Executor, LocalExecutor, WorkerError, check_executor_options, make_executor
+from metadagger.utils import executors, ray_cluster
+from metadagger.utils.executors import Executor, LocalExecutor, WorkerError, check_executor_options, make_executor
 
 ITEMS = list(range(12))
 GCS_WAIT = "RAY_gcs_server_port_wait_time_s"
@@ -166,7 +166,7 @@ def test_connecting_bounds_how_long_ray_tries_the_cluster(monkeypatch: pytest.Mo
         raise ConnectionError(f"Failed to connect to Ray cluster at {kwargs['address']}")
 
     monkeypatch.setattr(ray, "init", init)
-    monkeypatch.setattr(parallel, "_answers_grpc", lambda target: True)  # e.g. a gRPC service that is not Ray's
+    monkeypatch.setattr(ray_cluster, "_answers_grpc", lambda target: True)  # e.g. a gRPC service that is not Ray's
     monkeypatch.delenv(GCS_WAIT, raising=False)
     with socket.socket() as server:
         server.bind(("127.0.0.1", 0))
@@ -188,7 +188,7 @@ def test_a_refused_connection_names_the_token_of_this_machine(monkeypatch: pytes
         raise ConnectionError(f"Failed to connect to Ray cluster at {kwargs['address']}")
 
     monkeypatch.setattr(ray, "init", init)
-    monkeypatch.setattr(parallel, "_check_reachable", lambda address: None)
+    monkeypatch.setattr(executors, "check_reachable", lambda address: None)
     monkeypatch.setenv("HOME", str(tmp_path))
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
     with pytest.raises(UserError) as error:
@@ -213,7 +213,7 @@ def test_a_ray_address_without_a_port_is_a_user_error() -> None:
 _DRIVER = textwrap.dedent(
     """
     import os, signal, sys, time
-    from metadagger.parallel import make_executor
+    from metadagger.utils.executors import make_executor
 
     # A shell's background job starts with SIGINT ignored, and Python then raises no
     # KeyboardInterrupt; restore its handler so the test does not depend on how it was launched.

@@ -14,20 +14,19 @@ Example:
 from __future__ import annotations
 
 import abc
-import contextlib
 import multiprocessing
 import os
 import pickle
 import signal
-import socket
 import threading
 from concurrent import futures
-from pathlib import Path
 from typing import Any, Callable, Generic, Iterable, Iterator, TypeVar
 
 import torch
 
 from metadagger.errors import UserError
+from metadagger.utils.kernels import pin_cpu_kernels
+from metadagger.utils.ray_cluster import ADDRESS_HINT, bounded_gcs_wait, check_reachable, import_ray, token_hint
 
 __all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "check_executor_options", "default_workers", "in_order",
            "make_executor"]
@@ -39,15 +38,6 @@ H = TypeVar("H")  # an in-flight handle: a Future or a Ray ObjectRef
 # Items kept in flight per worker: enough to keep every worker busy while the driver writes a
 # result, few enough that an interrupt has little queued work to cancel.
 _IN_FLIGHT_PER_WORKER = 2
-
-# Seconds to wait for a Ray cluster's port to accept a connection: a live head answers in
-# milliseconds, while Ray keeps retrying an unreachable one (Ray Client for 30 s, HOST:PORT longer).
-_CONNECT_TIMEOUT_S = 3.0
-# Ray's setting for how many times (about a second apart) ray.init tries a cluster's GCS: by
-# default 20, each failed try logging a warning that no Ray log level silences.
-_GCS_WAIT_VAR = "RAY_gcs_server_port_wait_time_s"
-_INSTALL_RAY = 'pip install -c constraints.txt -e ".[ray]"'
-_ADDRESS_HINT = "expected 'ray://HEAD:10001' (Ray Client), 'HEAD:6379' (on a cluster node) or 'auto'"
 
 
 class WorkerError(RuntimeError):
@@ -95,6 +85,7 @@ def _limit_threads() -> None:
 
 
 def _init_pool_worker() -> None:
+    pin_cpu_kernels()  # every worker on the pinned kernels, whether or not the driver pinned them
     _limit_threads()
     # A terminal Ctrl-C reaches the whole process group; only the driver should react (it
     # terminates the pool), so workers do not die mid-task with tracebacks of their own.
@@ -266,6 +257,7 @@ def _check_picklable(fn: Callable[..., Any]) -> None:
 
 
 def _run_ray_task(fn: Callable[[T], R], item: T) -> R:
+    pin_cpu_kernels()  # a worker on another node does not inherit the driver's environment
     _limit_threads()
     return fn(item)
 
@@ -281,18 +273,18 @@ class RayExecutor(Executor[Any]):
     """
 
     def __init__(self, *, workers: int | None, address: str | None) -> None:
-        ray = _import_ray()
+        ray = import_ray()
         self._ray = ray
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
-            _check_reachable(address)
+            check_reachable(address)
             # num_cpus may only be given when starting a local instance, not when connecting.
             num_cpus = workers if address is None else None
             try:
-                with _bounded_gcs_wait(address):
+                with bounded_gcs_wait(address):
                     ray.init(address=address, num_cpus=num_cpus, include_dashboard=False)
             except ConnectionError as exc:  # e.g. "auto" with no cluster running
-                raise UserError(f"cannot connect to Ray at {address!r} ({exc}); {_ADDRESS_HINT}{_token_hint()}") from None
+                raise UserError(f"cannot connect to Ray at {address!r} ({exc}); {ADDRESS_HINT}{token_hint()}") from None
         if workers is None:
             workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         super().__init__(workers=workers)
@@ -331,97 +323,6 @@ class RayExecutor(Executor[Any]):
             self._ray.shutdown()
 
 
-def _token_hint() -> str:
-    """A hint when this machine holds a Ray token the driver does not send: a head started by
-    ``ray start`` beside ``~/.ray/auth_token`` (which any local Ray instance writes) refuses drivers
-    that lack it, and Ray reports that as a failed connection."""
-    token = Path.home() / ".ray" / "auth_token"
-    if not token.is_file() or os.environ.get("RAY_AUTH_MODE") == "token":
-        return ""
-    return (f"; or, if the cluster uses token authentication (this machine has {token}), "
-            "set RAY_AUTH_MODE=token so that the driver sends the token")
-
-
-def _import_ray() -> Any:
-    try:
-        import ray
-    except ImportError:
-        raise UserError(f"executor 'ray' needs Ray, which is not installed; install it with: {_INSTALL_RAY}") from None
-    return ray
-
-
-@contextlib.contextmanager
-def _bounded_gcs_wait(address: str | None) -> Iterator[None]:
-    """Connecting to ``address``, let ray.init try the cluster's GCS :data:`_CONNECT_TIMEOUT_S`
-    times instead of Ray's 20, so a port that answers but is no Ray head fails with a few of Ray's
-    warnings, not twenty; a local instance, or a number the user set, is left alone."""
-    if address is None or _GCS_WAIT_VAR in os.environ:
-        yield
-        return
-    os.environ[_GCS_WAIT_VAR] = str(int(_CONNECT_TIMEOUT_S))
-    try:
-        yield
-    finally:
-        del os.environ[_GCS_WAIT_VAR]
-
-
-def _check_reachable(address: str | None) -> None:
-    """Raise UserError unless ``address`` (``ray://HOST:PORT``, ``HOST:PORT``, or ``"auto"``: the
-    cluster Ray finds for it) accepts a TCP connection within a few seconds; ``None`` (a local
-    instance) needs no check."""
-    if address is None:
-        return
-    target = _auto_address() if address == "auto" else address
-    host, _, port = target.removeprefix("ray://").rpartition(":")
-    if not host or not port.isdigit():
-        raise UserError(f"bad Ray address {target!r}; {_ADDRESS_HINT}")
-    found = f" (found for {address!r})" if target != address else ""
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=_CONNECT_TIMEOUT_S).close()
-    except OSError as exc:
-        raise UserError(
-            f"cannot reach a Ray cluster at {target!r}{found} ({exc.strerror or exc}); "
-            f"check that its head is running (ray start --head) and the host and port: {_ADDRESS_HINT}"
-        ) from None
-    if not _answers_grpc(f"{host}:{port}"):
-        raise UserError(
-            f"{target!r}{found} accepts connections but does not answer as a Ray cluster within {_CONNECT_TIMEOUT_S:.0f} s; "
-            f"check the host and port (a head's GCS port, or its Ray Client port for ray://): {_ADDRESS_HINT}"
-        )
-
-
-def _answers_grpc(target: str) -> bool:
-    """Whether ``target`` (``HOST:PORT``) completes a gRPC handshake within :data:`_CONNECT_TIMEOUT_S`,
-    as a Ray head's GCS and Ray Client server do at once; ray.init would wait minutes on a port
-    that accepts connections but never answers. True without grpcio (Ray without its client extra)."""
-    try:
-        import grpc
-    except ImportError:
-        return True
-    channel = grpc.insecure_channel(target)
-    try:
-        grpc.channel_ready_future(channel).result(timeout=_CONNECT_TIMEOUT_S)
-        return True
-    except grpc.FutureTimeoutError:
-        return False
-    finally:
-        channel.close()
-
-
-def _auto_address() -> str:
-    """The cluster ``ray.init(address="auto")`` connects to: ``RAY_ADDRESS``, else one started on
-    this node by ``ray start`` (found by Ray's own lookup)."""
-    from ray._private.services import canonicalize_bootstrap_address
-
-    try:
-        return os.environ.get("RAY_ADDRESS") or canonicalize_bootstrap_address("auto")
-    except ConnectionError:
-        raise UserError(
-            "no Ray cluster found for address 'auto': RAY_ADDRESS is not set and no `ray start` runs on this node; "
-            f"start one (ray start --head) or pass its address: {_ADDRESS_HINT}"
-        ) from None
-
-
 def check_executor_options(kind: str, workers: int | None, address: str | None) -> None:
     """Raise UserError for options no executor of ``kind`` accepts (see :func:`make_executor`).
 
@@ -435,8 +336,8 @@ def check_executor_options(kind: str, workers: int | None, address: str | None) 
     if kind == "local" and address is not None:
         raise UserError(f"address {address!r} only applies to executor 'ray'; use --executor ray or drop the address")
     if kind == "ray":
-        _import_ray()
-        _check_reachable(address)
+        import_ray()
+        check_reachable(address)
 
 
 def make_executor(kind: str = "local", *, workers: int | None = None, address: str | None = None) -> Executor:

@@ -5,6 +5,10 @@ pairs --out RUN`` and the later stages read it back, so a run is described by it
 The stage commands also take ``--set section.key=value`` overrides (the value read as YAML), validated
 by the same builder as the presets; the config a stage runs with is written back to the folder
 (:func:`records_config`), and put back as it was when the stage refuses.
+
+``config.yaml`` records the metadagger version that created the folder (``metadagger_version``, in
+no stamp); a folder made by another major.minor version, or before versions were recorded (0.2),
+is refused with one line (:func:`check_version`).
 """
 
 from __future__ import annotations
@@ -12,29 +16,40 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any, Callable, Concatenate, ParamSpec, Sequence, TypeVar
 
 import yaml
 
-from metadagger.config import build, dump_yaml, load_preset, read_run_data, to_dict
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark import BenchmarkConfig
 from metadagger.evaluation.diagnose import DiagnoseConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.evaluation.tensorboard import require_tensorboard
-from metadagger.io import atomic_write, write_text
-from metadagger.layout import RunLayout
 from metadagger.mapping.registry import kind_names, learned_names
 from metadagger.mapping.train import MapperConfig, paper_config
 from metadagger.metal.groundtruth import GroundTruthConfig
 from metadagger.metal.pairs import PairConfig
+from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.lock import run_lock
+from metadagger.tasks import check_task
+from metadagger.utils.io import atomic_write, write_text
+from metadagger.utils.kernels import pin_cpu_kernels
+from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
+from metadagger.version import __version__
 
 LOGS = ("none", "tensorboard")
 """Values of :attr:`RunConfig.log`."""
+PRESETS = ("quick", "paper", "ci")
+"""The packaged presets of every built-in task (``presets/<task>.yaml``)."""
 CHOSEN_AT_START = ("task", "preset")
 """Config keys a run takes from ``--task``/``--preset`` when it starts, never from ``--set``."""
+VERSION_KEY = "metadagger_version"
+"""The config key that records the metadagger version a run folder was made by."""
+FIRST_RECORDED = "0.2"
+"""The first version whose run folders record it: a ``config.yaml`` without it is older."""
 P = ParamSpec("P")
 R = TypeVar("R")
 
@@ -43,6 +58,9 @@ R = TypeVar("R")
 class RunConfig:
     """Every stage of one MetaL DAgger run."""
 
+    metadagger_version: str = __version__
+    """The metadagger version that made the run folder (kept as the folder's stages rewrite its
+    config; in no stamp, so it changes no other artifact)."""
     task: str = "carracing"
     """Task name (``metadagger.make_task``)."""
     preset: str = "quick"
@@ -120,6 +138,34 @@ class RunConfig:
         return {"max_episode_steps": self.max_episode_steps}
 
 
+def load_preset(task: str, preset: str, presets_file: str | Path | None = None) -> dict[str, Any]:
+    """The raw mapping of one preset: from the task's packaged YAML file, or from ``presets_file``
+    (a YAML file of the same layout, ``presets: {name: {section: ...}}``, any preset names)."""
+    check_task(task)
+    if presets_file is None:
+        if preset not in PRESETS:
+            raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}, "
+                            "or pass --presets FILE with presets of your own (see docs/custom_task.md)")
+        try:
+            text = resources.files("metadagger.pipeline.presets").joinpath(f"{task}.yaml").read_text()
+        except FileNotFoundError:
+            raise UserError(f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)") from None
+        where = f"metadagger/pipeline/presets/{task}.yaml"
+        presets = yaml.safe_load(text).get("presets")
+    else:
+        where = str(presets_file)
+        presets = read_yaml_mapping(presets_file, "presets file", "fix it or pass another (layout: docs/custom_task.md)").get("presets")
+    if not isinstance(presets, dict) or not presets:
+        raise UserError(f"{where} has no presets: expected a top-level 'presets:' mapping of preset names to stage sections "
+                        "(see docs/custom_task.md)")
+    if preset not in presets:
+        raise UserError(f"{where} has no preset {preset!r}: expected one of {', '.join(map(str, presets))}; pass one with --preset")
+    if not isinstance(presets[preset], dict):
+        raise UserError(f"{where}: preset {preset!r} is {presets[preset]!r}, not a mapping of stage sections; "
+                        f"give it sections, e.g. {preset}: {{pairs: {{dagger_rounds: 4}}}}")
+    return presets[preset]
+
+
 def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
     """``data`` with each ``section.key=value`` of ``overrides`` set (the value read as YAML, so
     ``evaluate.methods=[dm, sam]`` gives a list); returns a new mapping."""
@@ -129,6 +175,9 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
         keys = path.strip().split(".")
         if not sep or not all(keys):
             raise UserError(f"bad --set {item!r}: expected section.key=value, e.g. --set pairs.dagger_rounds=4")
+        if keys[0] == VERSION_KEY:
+            raise UserError(f"bad --set {item!r}: {VERSION_KEY} records the metadagger version that made the run folder; "
+                            "it cannot be set")
         if keys[0] in CHOSEN_AT_START:
             raise UserError(f"bad --set {item!r}: the {keys[0]} is chosen with --{keys[0]}, not --set, and a run keeps the one it "
                             f"started with; pass --{keys[0]} instead (with a new --out for a started run)")
@@ -159,7 +208,9 @@ def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path |
              overrides: Sequence[str] = ()) -> RunConfig:
     """Create ``<run>/config.yaml`` from a preset and ``overrides``, or read the existing one (of
     the same task and preset) with ``overrides`` applied; an existing run's file is updated by the
-    stage that runs with the result (:func:`records_config`)."""
+    stage that runs with the result (:func:`records_config`). Pins the CPU kernels first
+    (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
+    pin_cpu_kernels()
     layout = RunLayout(run)
     if layout.root.exists() and not layout.root.is_dir():
         raise UserError(f"--out {run} is a file, not a run folder; pass a folder path")
@@ -172,7 +223,8 @@ def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path |
             )
         return config
     config = resolve_config(task, preset, presets_file, overrides)
-    save_run(run, config)
+    with run_lock(run):
+        save_run(run, config)
     return config
 
 
@@ -185,11 +237,31 @@ def check_log(value: str, name: str = "log") -> None:
 def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     """Read a run's config with ``overrides`` applied (the file is left as it is: the stage that
     runs with the result writes it, :func:`records_config`); a missing or broken file is a
-    :class:`UserError`."""
+    :class:`UserError`. Pins the CPU kernels first (:func:`~metadagger.utils.kernels.pin_cpu_kernels`),
+    as the command line does."""
+    pin_cpu_kernels()
     path = RunLayout(run).config
     if not path.is_file():
         raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")
-    return build(RunConfig, apply_overrides(read_run_data(path), overrides), where=str(path) + (" with --set" if overrides else ""))
+    data = read_run_data(path)
+    check_version(path, data)
+    return build(RunConfig, apply_overrides(data, overrides), where=str(path) + (" with --set" if overrides else ""))
+
+
+def check_version(path: str | Path, data: dict[str, Any]) -> None:
+    """Raise a :class:`UserError` unless the run config ``data`` (read from ``path``) was made by a
+    metadagger of this major.minor version; a folder of another one needs that version's code."""
+    recorded = data.get(VERSION_KEY)
+    if recorded is not None and _major_minor(str(recorded)) == _major_minor(__version__):
+        return
+    made_by = f"metadagger {recorded}" if recorded is not None else f"a metadagger version before {FIRST_RECORDED}"
+    task, preset = data.get("task", "T"), data.get("preset", "P")
+    raise UserError(f"{path} was made by {made_by}; this is {__version__}: start a new run folder "
+                    f"(metadagger reproduce --task {task} --preset {preset} --out NEW) or use {made_by}")
+
+
+def _major_minor(version: str) -> tuple[str, ...]:
+    return tuple(version.split(".")[:2])
 
 
 def save_run(run: str | Path, config: RunConfig) -> None:
@@ -201,18 +273,20 @@ def records_config(stage: Callable[Concatenate[RunLayout, RunConfig, P], R]) -> 
     """``stage(layout, config, ...)`` run with ``config`` as the run's ``config.yaml``: written first
     when the file says otherwise (``--set`` overrides), and put back as it was when the stage
     refuses (a :class:`UserError`), so a refused command leaves the run's config unchanged. A
-    folder without a ``config.yaml`` (a config made in code) gets none."""
+    folder without a ``config.yaml`` (a config made in code) gets none. The stage holds the run
+    folder's write lock (a second writer is refused at once)."""
 
     @functools.wraps(stage)
     def wrapper(layout: RunLayout, config: RunConfig, *args: P.args, **kwargs: P.kwargs) -> R:
-        before = layout.config.read_bytes() if layout.config.is_file() else None
-        if before is None or before == dump_yaml(config).encode():
-            return stage(layout, config, *args, **kwargs)
-        save_run(layout.root, config)
-        try:
-            return stage(layout, config, *args, **kwargs)
-        except UserError:
-            atomic_write(layout.config, lambda tmp: tmp.write_bytes(before))
-            raise
+        with run_lock(layout.root):  # one writer per run folder (runfolder/lock.py)
+            before = layout.config.read_bytes() if layout.config.is_file() else None
+            if before is None or before == dump_yaml(config).encode():
+                return stage(layout, config, *args, **kwargs)
+            save_run(layout.root, config)
+            try:
+                return stage(layout, config, *args, **kwargs)
+            except UserError:
+                atomic_write(layout.config, lambda tmp: tmp.write_bytes(before))
+                raise
 
     return wrapper

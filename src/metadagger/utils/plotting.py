@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from metadagger.io import atomic_write  # noqa: E402
+from metadagger.utils.io import atomic_write  # noqa: E402
 
 
 def save_figure(fig: "plt.Figure", path: str | Path) -> Path:

@@ -5,7 +5,7 @@ resumed and written is the same for all of them and lives here:
 
 1. :func:`plan`: for every seed, the methods whose rows are missing from the protocol's log, or
    were made from other inputs (another pi*, another mapper, other settings: the *stamp* of each
-   method, see :mod:`metadagger.stamps`). Stale rows are redone only when asked (``rebuild``);
+   method, see :mod:`metadagger.runfolder.stamps`). Stale rows are redone only when asked (``rebuild``);
    otherwise the plan stops with one line naming what changed.
 2. :func:`drive`: each seed's job goes to the executor; as each result arrives, the driver alone
    saves its artifacts (heads, pair tensors) and then appends the log, so a seed counts as done
@@ -21,11 +21,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 
-from metadagger.errors import UserError
-from metadagger.jsonl import append_line, dumps_line, read_lines
-from metadagger.parallel import make_executor
-from metadagger.progress import progress_bar
-from metadagger.stamps import describe_changes
+from metadagger.errors import CheckpointError, UserError
+from metadagger.runfolder.stamps import describe_changes
+from metadagger.utils.executors import make_executor
+from metadagger.utils.jsonl import append_line, dumps_line, read_lines
+from metadagger.utils.progress import progress_bar
 
 if TYPE_CHECKING:
     from metadagger.tasks.base import Task
@@ -47,7 +47,8 @@ class SeedLog(Protocol):
 class RowLog:
     """``*.jsonl`` of evaluation rows: one line per finished job, ``{"seed", "entries": {method:
     {"stamp", "rows"}}}``; a worker's result carries ``entries: {method: [rows]}``. A method's
-    latest entry for a seed supersedes earlier ones."""
+    latest entry for a seed supersedes earlier ones; a line without entries is a corrupt line
+    (a :class:`CheckpointError` naming the file)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -55,8 +56,11 @@ class RowLog:
     def _entries(self) -> dict[int, dict[str, dict[str, Any]]]:
         latest: dict[int, dict[str, dict[str, Any]]] = {}
         for record in read_lines(self.path, what="row record"):
-            # lines without entries come from before stamps existed: they match no stamp
-            for method, entry in (record.get("entries") or {}).items():
+            entries = record.get("entries")
+            if not isinstance(entries, dict):
+                raise CheckpointError(f"{self.path} has a row record without its entries: {str(record)[:80]}; "
+                                      "delete that line and re-run the stage")
+            for method, entry in entries.items():
                 latest.setdefault(int(record["seed"]), {})[method] = entry
         return latest
 
@@ -90,7 +94,7 @@ class StageOptions:
     rebuild: bool = False
     """Redo work made from other inputs (another pi*, mapper or settings) instead of refusing."""
     executor: str = "local"
-    """``local`` (a process pool) or ``ray`` (:func:`metadagger.parallel.make_executor`)."""
+    """``local`` (a process pool) or ``ray`` (:func:`metadagger.utils.executors.make_executor`)."""
     workers: int | None = None
     """Parallel workers; default: this machine's cores, or the Ray cluster's CPUs."""
     address: str | None = None

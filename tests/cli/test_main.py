@@ -11,13 +11,16 @@ import torch
 from toy_task import TINY_PRESETS, CorridorTask, RunCorridorTask
 from typer.testing import CliRunner
 
-from metadagger.cli import app, main
+from metadagger.cli.main import app, main
 from metadagger.errors import UserError
-from metadagger.layout import RunLayout
+from metadagger.pipeline.run_config import init_run
 from metadagger.policies import make_policy
-from metadagger.run import init_run
+from metadagger.runfolder.layout import RunLayout
+from metadagger.version import __version__
 
 runner = CliRunner()
+VERSION = f"metadagger_version: {__version__}\n"
+"""The line that every run folder's config.yaml starts with."""
 
 
 def _fails_cleanly(args: list[str], *needles: str) -> str:
@@ -72,7 +75,7 @@ def test_an_interrupt_exits_130_and_a_bug_is_its_own_traceback(monkeypatch, caps
     def interrupted(*_):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("metadagger.run.resolve_config", interrupted)
+    monkeypatch.setattr("metadagger.pipeline.run_config.resolve_config", interrupted)
     with pytest.raises(SystemExit) as exit_:
         main(["config", "show", "--task", "carracing", "--preset", "quick"])
     assert exit_.value.code == 130 and "Traceback" not in capsys.readouterr().err  # the shell's code for Ctrl-C
@@ -80,7 +83,7 @@ def test_an_interrupt_exits_130_and_a_bug_is_its_own_traceback(monkeypatch, caps
     def broken(*_):
         raise ZeroDivisionError("a bug, not a user error")
 
-    monkeypatch.setattr("metadagger.run.resolve_config", broken)
+    monkeypatch.setattr("metadagger.pipeline.run_config.resolve_config", broken)
     with pytest.raises(ZeroDivisionError, match="a bug, not a user error"):
         main(["config", "show", "--task", "carracing", "--preset", "quick"])
 
@@ -99,18 +102,18 @@ def test_unknown_preset_names_the_allowed_ones(tmp_path):
 
 
 def test_bad_config_value_in_a_run_config(tmp_path):
-    (tmp_path / "config.yaml").write_text("task: carracing\npairs: {dagger_rounds: 0}\n")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\npairs: {dagger_rounds: 0}\n")
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "pairs.dagger_rounds must be >= 1, got 0")
 
 
 def test_unknown_config_field(tmp_path):
-    (tmp_path / "config.yaml").write_text("task: carracing\npairs: {epochz: 3}\n")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\npairs: {epochz: 3}\n")
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "unknown field(s) epochz")
 
 
 def test_missing_run_and_missing_groundtruth(tmp_path):
     _fails_cleanly(["pairs", "--out", str(tmp_path / "none")], "no run at")
-    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "pi* not found")
 
 
@@ -118,7 +121,7 @@ def test_missing_run_and_missing_groundtruth(tmp_path):
                          ids=["pairs", "evaluate", "bench-pairs"])
 def test_corrupt_checkpoint_is_a_clear_error(tmp_path, command):
     # a run folder whose pi* is garbage: the stage reports it before looking for work
-    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
     gt = RunLayout(tmp_path).groundtruth
     gt.parent.mkdir()
     gt.write_bytes(b"not a safetensors file")
@@ -134,12 +137,12 @@ def test_wrong_head_vector_length_is_a_user_error():
 
 
 def test_unknown_mapper_kind(tmp_path):
-    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
     _fails_cleanly(["train-mapper", "--out", str(tmp_path), "--kind", "xyz"], "unknown mapper kind")
 
 
 def test_unknown_executor(tmp_path: Path):
-    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
     gt = tmp_path / "groundtruth" / "policy.safetensors"
     make_policy(CorridorTask(), seed=0).save(gt)
     _fails_cleanly(["pairs", "--out", str(tmp_path), "--executor", "slurm"], "unknown executor 'slurm'")
@@ -240,7 +243,7 @@ def test_demo_from_a_missing_dataset_writes_nothing(tmp_path):
 
 def test_evaluate_protocol_errors(tmp_path):
     _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "xyz"], "unknown protocol 'xyz'", "mdm, mdi, all")
-    (tmp_path / "config.yaml").write_text("task: carracing\n")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
     _fails_cleanly(["evaluate", "--out", str(tmp_path), "--protocol", "mdi"], "has no mdi section", "--protocol mdm")
 
 

@@ -1,8 +1,8 @@
-"""Configuration: frozen dataclasses built from YAML presets, validated on construction.
+"""Configuration: frozen dataclasses built from YAML, validated on construction.
 
-Presets live in ``metadagger/configs/<task>.yaml`` under ``presets: {quick, paper, ci}``, or in a
-YAML file of your own with the same layout (``--presets FILE``); each preset has one section per
-pipeline stage. :func:`build` turns a mapping into a (nested) frozen
+The presets they are built from (:func:`metadagger.pipeline.run_config.load_preset`) live in
+``metadagger/pipeline/presets/<task>.yaml``, or in a YAML file of your own with the same layout
+(``--presets FILE``). :func:`build` turns a mapping into a (nested) frozen
 dataclass and reports unknown or mistyped keys as one clear :class:`UserError` line.
 """
 
@@ -14,7 +14,6 @@ import re
 import types
 import typing
 from collections import Counter
-from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -23,7 +22,6 @@ import yaml
 from metadagger.errors import UserError
 
 T = TypeVar("T")
-PRESETS = ("quick", "paper", "ci")
 SEED_FIELD = re.compile(r"(\w+_)?seed")
 """Names of the int config fields that hold a seed (``seed``, ``split_seed``)."""
 _NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
@@ -113,36 +111,6 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
     problem = getattr(exc, "problem", None) or str(exc)
     where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
     return " ".join(f"{problem}{where}".split())
-
-
-def load_preset(task: str, preset: str, presets_file: str | Path | None = None) -> dict[str, Any]:
-    """The raw mapping of one preset: from the task's packaged YAML file, or from ``presets_file``
-    (a YAML file of the same layout, ``presets: {name: {section: ...}}``, any preset names)."""
-    from metadagger.tasks import check_task  # tasks import this module's helpers
-
-    check_task(task)
-    if presets_file is None:
-        if preset not in PRESETS:
-            raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}, "
-                            "or pass --presets FILE with presets of your own (see docs/custom_task.md)")
-        try:
-            text = resources.files("metadagger.configs").joinpath(f"{task}.yaml").read_text()
-        except FileNotFoundError:
-            raise UserError(f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)") from None
-        where = f"metadagger/configs/{task}.yaml"
-        presets = yaml.safe_load(text).get("presets")
-    else:
-        where = str(presets_file)
-        presets = read_yaml_mapping(presets_file, "presets file", "fix it or pass another (layout: docs/custom_task.md)").get("presets")
-    if not isinstance(presets, dict) or not presets:
-        raise UserError(f"{where} has no presets: expected a top-level 'presets:' mapping of preset names to stage sections "
-                        "(see docs/custom_task.md)")
-    if preset not in presets:
-        raise UserError(f"{where} has no preset {preset!r}: expected one of {', '.join(map(str, presets))}; pass one with --preset")
-    if not isinstance(presets[preset], dict):
-        raise UserError(f"{where}: preset {preset!r} is {presets[preset]!r}, not a mapping of stage sections; "
-                        f"give it sections, e.g. {preset}: {{pairs: {{dagger_rounds: 4}}}}")
-    return presets[preset]
 
 
 def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T:

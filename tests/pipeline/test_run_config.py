@@ -4,12 +4,14 @@ command leaves the run's config.yaml as it was."""
 from __future__ import annotations
 
 import pytest
+import yaml
 from test_stages import _refused
 
 from metadagger.errors import UserError
 from metadagger.evaluation.report import build_report
-from metadagger.layout import RunLayout
-from metadagger.run import RunConfig, init_run, load_run, records_config, resolve_config
+from metadagger.pipeline.run_config import RunConfig, init_run, load_run, records_config, resolve_config
+from metadagger.runfolder.layout import RunLayout
+from metadagger.version import __version__
 
 
 @pytest.fixture
@@ -129,3 +131,38 @@ def test_a_stage_writes_the_config_it_runs_with_and_puts_it_back_when_it_refuses
     assert run.config.read_bytes() == before
     stage(run, changed, refuse=False)
     assert seen == [4, 4] and load_run(run.root) == changed
+
+
+def test_config_yaml_records_the_version_that_made_the_folder_and_no_set_changes_it(run):
+    assert run.config.read_text().startswith(f"metadagger_version: {__version__}\n")
+    assert load_run(run.root).metadagger_version == __version__
+    _refused(["pairs", "--out", run.root, "--set", "metadagger_version=9.9.9"], "bad --set 'metadagger_version=9.9.9'", "cannot be set")
+
+
+@pytest.mark.parametrize(("recorded", "made_by"), [
+    (None, "a metadagger version before 0.2"),
+    ("0.1.0", "metadagger 0.1.0"),
+    ("9.0.0", "metadagger 9.0.0"),
+], ids=["unrecorded", "older", "newer"])
+def test_a_run_folder_of_another_version_is_one_line_that_says_what_to_do(run, recorded, made_by):
+    data = yaml.safe_load(run.config.read_text())
+    if recorded is None:
+        del data["metadagger_version"]
+    else:
+        data["metadagger_version"] = recorded
+    run.config.write_text(yaml.safe_dump(data, sort_keys=False))
+    before = run.config.read_bytes()
+    expected = (f"{run.config} was made by {made_by}; this is {__version__}: start a new run folder "
+                f"(metadagger reproduce --task carracing --preset ci --out NEW) or use {made_by}")
+    with pytest.raises(UserError) as error:
+        load_run(run.root)
+    assert str(error.value) == expected
+    assert _refused(["pairs", "--out", run.root]) == f"error: {expected}"
+    assert _refused(["reproduce", "--task", "carracing", "--preset", "ci", "--out", run.root]) == f"error: {expected}"
+    assert run.config.read_bytes() == before
+
+
+def test_a_run_folder_of_another_patch_version_loads(run):
+    major, minor, _ = __version__.split(".")
+    run.config.write_text(run.config.read_text().replace(f"metadagger_version: {__version__}", f"metadagger_version: {major}.{minor}.99"))
+    assert load_run(run.root).metadagger_version == f"{major}.{minor}.99"

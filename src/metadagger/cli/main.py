@@ -2,22 +2,32 @@
 
 A :class:`~metadagger.errors.UserError`, and a usage error of the command line itself, becomes one
 ``error: ...`` line on stderr and exit code 2.
+
+The command line runs on pinned CPU kernels (:func:`~metadagger.utils.kernels.pin_cpu_kernels`):
+:func:`main` pins them first thing, and this module pins them before its one import of
+torch-using code (the mapper kinds named in ``--kind``'s help); the commands import the rest of
+the library when they run.
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import signal
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Optional, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Optional, TypeVar
 
 import typer
 
 from metadagger.errors import UserError
-from metadagger.mapping.registry import kind_names, trained_names
+from metadagger.utils.kernels import pin_cpu_kernels
+
+pin_cpu_kernels()  # before the registry below loads torch, and before any command's tensor operation
+
+from metadagger.mapping.registry import kind_names, trained_names  # noqa: E402
 
 if TYPE_CHECKING:
-    from metadagger.runner import StageOptions
+    from metadagger.runfolder.driver import StageOptions
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.")
@@ -59,9 +69,9 @@ def _print_error(message: str) -> None:
 
 
 TASK = typer.Option("carracing", "--task", help="Task name: carracing, fetch, or one an installed package adds.")
-PRESET = typer.Option("quick", "--preset", help="Preset from configs/<task>.yaml (quick, paper or ci) or from --presets.")
-PRESETS_FILE = typer.Option(None, "--presets", help="YAML file of your own presets (same layout as configs/<task>.yaml).")
-BUILTIN_PRESET = typer.Option("quick", "--preset", help="Preset from configs/<task>.yaml (quick, paper or ci).")
+PRESET = typer.Option("quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci) or from --presets.")
+PRESETS_FILE = typer.Option(None, "--presets", help="YAML file of your own presets (same layout as pipeline/presets/<task>.yaml).")
+BUILTIN_PRESET = typer.Option("quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci).")
 
 
 @app.command()
@@ -76,7 +86,7 @@ def demo(
                                         "task's learner) instead of the expert's demonstrations of the train seeds."),
 ) -> None:
     """BC from expert demos, then DAgger rounds; both evaluated on unseen seeds."""
-    from metadagger.demo import demo_config, run_demo
+    from metadagger.cli.demo import demo_config, run_demo
 
     config = demo_config(task, preset, rounds=rounds, epochs=epochs, demos=demos)
     result = run_demo(config, out)
@@ -92,9 +102,9 @@ def expert(
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the per-seed rows as JSON here."),
 ) -> None:
     """Measure the task's expert (acting through the learner's action space) on seeds."""
-    from metadagger.config import parse_seeds
+    from metadagger.utils.yaml_config import parse_seeds
     from metadagger.evaluation.expert import evaluate_expert, expert_table
-    from metadagger.io import check_output_file, write_json
+    from metadagger.utils.io import check_output_file, write_json
     from metadagger.tasks import make_task
 
     if out is not None:
@@ -121,10 +131,10 @@ ADDRESS = typer.Option(None, "--address", help="Ray cluster: ray://HEAD:10001, H
 def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets: Optional[Path] = PRESETS_FILE,
                 overrides: list[str] = SET, rebuild: bool = REBUILD) -> None:
     """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import init_run, stage_groundtruth
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import init_run, stage_groundtruth
 
-    from metadagger.runner import StageOptions
+    from metadagger.runfolder.driver import StageOptions
 
     layout = RunLayout(out)
     metrics = stage_groundtruth(layout, init_run(out, task, preset, presets, overrides), StageOptions(rebuild=rebuild))
@@ -142,8 +152,8 @@ def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets
 def pairs(out: Path = OUT, overrides: list[str] = SET, rebuild: bool = REBUILD, executor: str = EXECUTOR,
           workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
     """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, stage_pairs
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, stage_pairs
 
     options = _options(rebuild, executor, workers, address)  # before any work
     layout = RunLayout(out)
@@ -165,8 +175,8 @@ def train_mapper_cmd(
 ) -> None:
     """Train mappers on the run's kept pairs (curves.csv and curves.png beside each), one kind
     per worker."""
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, stage_mappers
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, stage_mappers
 
     options = _options(rebuild, executor, workers, address)  # before any work
     kinds = kind_names() if kind == "all" else (kind,)
@@ -195,8 +205,8 @@ def tune(
     """Search a mapper's hyperparameters with Optuna: trials train on the run's training pairs and
     are scored on its validation pairs (never on evaluation seeds); the study in tune/<kind>.db
     resumes, the best trial goes to tune/<kind>.yaml (docs/tuning.md)."""
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, stage_tune
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, stage_tune
 
     options = _options(rebuild, executor, workers, address)
     layout = RunLayout(out)
@@ -216,8 +226,8 @@ PROTOCOLS = ("mdm", "mdi", "all")
 
 def _options(rebuild: bool, executor: str, workers: int | None, address: str | None) -> StageOptions:
     """A stage's options from the command line, its executor options checked before any work."""
-    from metadagger.parallel import check_executor_options
-    from metadagger.runner import StageOptions
+    from metadagger.utils.executors import check_executor_options
+    from metadagger.runfolder.driver import StageOptions
 
     check_executor_options(executor, workers, address)
     return StageOptions(rebuild=rebuild, executor=executor, workers=workers, address=address)
@@ -238,9 +248,9 @@ def evaluate(
     """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds, and the
     MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) for runs whose config has an mdi section.
     Only the missing (seed, method) rows are evaluated."""
-    from metadagger.config import parse_seeds
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, stage_evaluate, stage_mdi
+    from metadagger.utils.yaml_config import parse_seeds
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, stage_evaluate, stage_mdi
 
     options = _options(rebuild, executor, workers, address)
     if protocol not in PROTOCOLS:
@@ -274,9 +284,9 @@ def benchmark(
 ) -> None:
     """Success against expert queries: DAgger, gated DAgger baselines and MetaL DAgger on unseen
     seeds (benchmark/queries.csv, summary.json, queries.png). Only the missing rows are run."""
-    from metadagger.config import parse_seeds
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, stage_benchmark
+    from metadagger.utils.yaml_config import parse_seeds
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, stage_benchmark
 
     options = _options(rebuild, executor, workers, address)
     layout = RunLayout(out)
@@ -301,8 +311,8 @@ def diagnose(
     """Does a mapper learn anything? Function- and weight-space errors of every kind and control
     on the validation pairs, the noise ceiling, memorisation and the data-scaling curve
     (diagnostics/mapping.json, scaling.png; a section of the report)."""
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, stage_diagnose
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, stage_diagnose
 
     options = _options(False, executor, workers, address)
     layout = RunLayout(out)
@@ -327,10 +337,10 @@ def export(
 ) -> None:
     """Write a run's episodes as a Minari dataset: observations, the learner's action, the expert's
     label, whether it was queried, the DAgger round and the seed (docs/minari.md)."""
-    from metadagger.config import parse_seeds
+    from metadagger.utils.yaml_config import parse_seeds
     from metadagger.metal.export import check_export
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, stage_export
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, stage_export
 
     seed_list = parse_seeds(seeds) if seeds is not None else None  # a malformed value before the dataset store is read
     check_export(what, fmt, name)
@@ -347,7 +357,7 @@ def export(
 def report(out: Path = OUT) -> None:
     """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
     from metadagger.evaluation.report import build_report
-    from metadagger.layout import RunLayout
+    from metadagger.runfolder.layout import RunLayout
 
     typer.echo(f"wrote {build_report(RunLayout(out))}")
 
@@ -369,9 +379,9 @@ def reproduce(
 ) -> None:
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import load_run, reproduce as run_all
-    from metadagger.run import check_log
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import load_run, reproduce as run_all
+    from metadagger.pipeline.run_config import check_log
 
     if log is not None:
         check_log(log, "--log")
@@ -393,9 +403,9 @@ def bench_env_cmd(
     out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
 ) -> None:
     """Steps per second of our env against upstream's, on the same seeds and actions."""
-    from metadagger.bench import bench_env, write_bench
-    from metadagger.config import parse_seeds
-    from metadagger.io import check_output_file
+    from metadagger.cli.bench import bench_env, write_bench
+    from metadagger.utils.yaml_config import parse_seeds
+    from metadagger.utils.io import check_output_file
 
     check_output_file(out, "--out")
     result = bench_env(task, seeds=parse_seeds(seeds), steps=steps)
@@ -412,8 +422,8 @@ def bench_bc_cmd(
     out: Path = typer.Option(Path("runs/bench/bc.json"), "--out", help="JSON file to write."),
 ) -> None:
     """Full BC fit vs head-only refit on cached trunk features, and inference latency."""
-    from metadagger.bench import bench_bc, write_bench
-    from metadagger.io import check_output_file
+    from metadagger.cli.bench import bench_bc, write_bench
+    from metadagger.utils.io import check_output_file
 
     check_output_file(out, "--out")
     result = bench_bc(images=images, epochs=epochs)
@@ -433,8 +443,8 @@ def bench_pairs_cmd(
 ) -> None:
     """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
     pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
-    from metadagger.bench import bench_pairs, write_bench
-    from metadagger.io import check_output_file
+    from metadagger.cli.bench import bench_pairs, write_bench
+    from metadagger.utils.io import check_output_file
 
     check_output_file(json_out, "--json")
     result = bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes)
@@ -447,10 +457,21 @@ def bench_pairs_cmd(
 @user_errors
 def config_show(task: str = TASK, preset: str = PRESET, presets: Optional[Path] = PRESETS_FILE, overrides: list[str] = SET) -> None:
     """Print the resolved config of a preset with --set overrides, as YAML (what a new run would use)."""
-    from metadagger.config import dump_yaml
-    from metadagger.run import resolve_config
+    from metadagger.utils.yaml_config import dump_yaml
+    from metadagger.pipeline.run_config import resolve_config
 
     typer.echo(dump_yaml(resolve_config(task, preset, presets, overrides)), nl=False)
+
+
+#: The signals that stopped this command (SIGTERM or SIGINT), for its last line.
+_stopped_by: list[int] = []
+
+
+def _stop(signum: int, frame: Any) -> None:
+    """SIGTERM and Ctrl-C stop the command where it is, as a KeyboardInterrupt: workers are
+    cancelled and temporary files removed on the way out; finished work stays."""
+    _stopped_by.append(signum)
+    raise KeyboardInterrupt
 
 
 def main(argv: Optional[list[str]] = None) -> None:
@@ -459,13 +480,20 @@ def main(argv: Optional[list[str]] = None) -> None:
     The command line's own usage errors (an unknown command or option, a missing option, a value
     that is not a number) are one ``error: ...`` line and exit code 2, like a :class:`UserError`.
     """
+    pin_cpu_kernels()  # first thing: the command line's kernels, before any tensor operation
+
     import importlib
     import sys
 
     # Click's exceptions, from wherever this Typer takes them (Click itself, or its own copy)
     click_errors = importlib.import_module(typer.BadParameter.__module__)
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, _stop)
     try:
-        code = app(args=argv, prog_name="metadagger", standalone_mode=False)
+        code = app(args=argv, prog_name="metadagger", standalone_mode=False)  # Typer returns 130 on an interrupt
+    except typer.Abort:  # a refused confirmation
+        typer.echo("Aborted!", err=True)
+        sys.exit(1)
     except getattr(click_errors, "NoArgsIsHelpError", ()):
         sys.exit(2)  # building the error printed the help
     except click_errors.ClickException as exc:  # a UsageError (exit code 2) names its command
@@ -475,9 +503,10 @@ def main(argv: Optional[list[str]] = None) -> None:
             message += f"{'' if message.endswith(('.', '?')) else '.'} See `{ctx.command_path} --help` for the usage."
         _print_error(message)
         sys.exit(exc.exit_code)
-    except typer.Abort:  # a refused confirmation, or Ctrl-C under a Typer that leaves it to Click (this one exits 130)
-        typer.echo("Aborted!", err=True)
-        sys.exit(1)
+    if _stopped_by:
+        by = "SIGTERM" if _stopped_by[0] == signal.SIGTERM else "Ctrl-C"
+        _print_error(f"stopped by {by}: finished work is kept; run the same command again to resume where it stopped")
+        sys.exit(128 + _stopped_by[0])  # the shell's convention: 143 for SIGTERM, 130 for Ctrl-C
     sys.exit(code if isinstance(code, int) else 0)
 
 

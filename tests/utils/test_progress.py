@@ -6,7 +6,7 @@ import io
 import subprocess
 import sys
 
-from metadagger.progress import note, progress_bar
+from metadagger.utils.progress import note, progress_bar
 
 
 class _Terminal(io.StringIO):
@@ -55,7 +55,7 @@ def test_a_terminal_gets_a_redrawn_bar() -> None:
 
 
 def test_a_stage_run_into_a_file_logs_lines_not_bars(tmp_path) -> None:
-    code = ("from metadagger.progress import note, progress_bar\n"
+    code = ("from metadagger.utils.progress import note, progress_bar\n"
             "for _ in progress_bar(range(1000), desc='seeds'):\n"
             "    for _ in progress_bar(range(10), desc='inner', leave=False): pass\n")
     with open(tmp_path / "log.txt", "w") as log:

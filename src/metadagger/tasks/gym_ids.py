@@ -1,4 +1,10 @@
-"""Gymnasium ids registered when :mod:`metadagger` is imported (entry points load lazily)."""
+"""metadagger's Gymnasium ids (entry points load lazily), registered by :func:`register_envs`.
+
+Making a task (:func:`metadagger.tasks.make_task`) or one of its envs (:meth:`Task.make_env
+<metadagger.tasks.base.Task.make_env>`) registers them; code that calls ``gym.make`` on one of these
+ids first calls :func:`register_envs` (or ``metadagger.register_envs()``) itself. Importing
+metadagger leaves Gymnasium's registry alone.
+"""
 
 from __future__ import annotations
 

@@ -9,21 +9,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from metadagger.config import build, dump_yaml, load_preset
 from metadagger.errors import UserError
-from metadagger.imitation.episodes import evaluate_policy
-from metadagger.imitation.metrics import summarize
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
+from metadagger.imitation.episodes import evaluate_policy
+from metadagger.imitation.metrics import summarize
 from metadagger.imitation.minari_io import read_demonstrations
 from metadagger.imitation.rollouts import collect
-from metadagger.io import write_json, write_text
-from metadagger.layout import RunLayout
+from metadagger.pipeline.run_config import load_preset
 from metadagger.policies import make_policy
+from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
+from metadagger.utils.io import write_json, write_text
+from metadagger.utils.yaml_config import build, dump_yaml
 
 
 @dataclass(frozen=True)
@@ -144,7 +145,7 @@ def _table(bc: dict, bc_queries: int, da: dict, da_queries: int, n_eval: int) ->
 
 
 def _plot(curve: list[dict], path: Path, *, task: str) -> None:
-    from metadagger.plotting import save_figure, plt
+    from metadagger.utils.plotting import save_figure, plt
 
     fig, ax = plt.subplots(figsize=(5, 3.5))
     rounds = [r["round"] for r in curve]

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any, Mapping
 
-from metadagger.config import to_dict
+from metadagger.utils.yaml_config import to_dict
 
 
 def file_fingerprint(path: str | Path) -> str:

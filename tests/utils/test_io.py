@@ -6,7 +6,7 @@ import stat
 
 import pytest
 
-from metadagger.io import atomic_folder
+from metadagger.utils.io import atomic_folder
 
 
 def _write(files: dict[str, str]):

@@ -13,9 +13,9 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-import metadagger  # noqa: F401  (registers the metadagger ids)
 from metadagger.errors import UserError
-from metadagger.io import read_json, write_json
+from metadagger.tasks.gym_ids import register_envs
+from metadagger.utils.io import read_json, write_json
 
 #: task -> (our base env id, the upstream id it reproduces)
 ENV_PAIRS = {"carracing": ("metadagger/CarRacing-v0", "CarRacing-v3")}
@@ -70,6 +70,7 @@ def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), step
     if task not in ENV_PAIRS:
         raise UserError(f"bench env: unknown task {task!r}: expected one of {', '.join([*ENV_PAIRS, 'fetch'])}; pass --task carracing")
     ids = ENV_PAIRS[task]
+    register_envs()  # our id, for gym.make
     envs = [_TimedEnv(env_id) for env_id in ids]
     try:
         if warmup_steps > 0:
@@ -216,11 +217,11 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     import dataclasses
     import tempfile
 
-    from metadagger.layout import RunLayout
+    from metadagger.runfolder.layout import RunLayout
     from metadagger.metal.groundtruth import load_groundtruth
     from metadagger.metal.pairs import collect_pairs
-    from metadagger.pipeline import load_run, run_task
-    from metadagger.runner import StageOptions
+    from metadagger.pipeline.stages import load_run, run_task
+    from metadagger.runfolder.driver import StageOptions
 
     run = Path(run)
     layout = RunLayout(run)

@@ -3,12 +3,16 @@ groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> benchmark -> report;
 and export run on their own.
 
 Each stage reads the run's config and the previous stages' artifacts, checks that those are
-complete and made from today's config (their stamps, :mod:`metadagger.stamps`), and skips the work
+complete and made from today's config (their stamps, :mod:`metadagger.runfolder.stamps`), and skips the work
 whose artifacts exist. Run alone, a stage whose inputs changed refuses with one line naming what
 changed; with ``rebuild`` (what ``reproduce`` passes) it redoes the stale work instead, so a
 changed input rebuilds exactly what depends on it. The mdi stage runs only for runs whose config
 has an ``mdi`` section (Fetch). With ``log: tensorboard`` each stage then rewrites its TensorBoard
 scalars from its artifacts (:mod:`metadagger.evaluation.tensorboard`).
+
+The entry points a Python program starts with (:func:`reproduce`, :func:`init_run`,
+:func:`load_run`) pin the CPU kernels first, as the command line does
+(:mod:`metadagger.utils.kernels`).
 """
 
 from __future__ import annotations
@@ -27,8 +31,6 @@ from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
 from metadagger.evaluation.tensorboard import (Scalar, benchmark_scalars, groundtruth_scalars, mapper_scalars, pairs_scalars,
                                                table_scalars, write_tensorboard)
-from metadagger.io import read_json
-from metadagger.layout import RunLayout
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
@@ -37,13 +39,17 @@ from metadagger.metal.export import export_run
 from metadagger.metal.groundtruth import groundtruth_changes, load_groundtruth, train_groundtruth
 from metadagger.metal.pairs import collect_pairs, pair_status
 from metadagger.metal.store import PairSplit, PairStore
-from metadagger.parallel import default_workers
+from metadagger.pipeline.run_config import RunConfig, init_run, load_run, records_config, save_run
 from metadagger.policies import Policy
-from metadagger.run import RunConfig, init_run, load_run, records_config, save_run
-from metadagger.runner import StageOptions
-from metadagger.stamps import describe_changes
+from metadagger.runfolder.driver import StageOptions
+from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.lock import run_lock
+from metadagger.runfolder.stamps import describe_changes
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
+from metadagger.utils.executors import default_workers
+from metadagger.utils.io import read_json
+from metadagger.utils.kernels import pin_cpu_kernels
 
 STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "report")
 
@@ -280,9 +286,15 @@ def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Pa
     """Every stage in order, each resuming where a previous run stopped and rebuilding what a
     changed input made stale (``options.rebuild`` is always on); returns the report path.
     ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one;
-    ``overrides``: ``section.key=value`` items."""
-    layout = RunLayout(run)
+    ``overrides``: ``section.key=value`` items. Pins the CPU kernels first
+    (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
+    pin_cpu_kernels()
     config = init_run(run, task, preset, presets_file, overrides)
+    with run_lock(run):  # the whole run: no other writer between two stages
+        return _reproduce(RunLayout(run), config, options)
+
+
+def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions) -> Path:
     options = dataclasses.replace(options, rebuild=True)
     stages = [
         ("groundtruth: pi*", lambda: stage_groundtruth(layout, config, options)),

@@ -10,9 +10,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from metadagger.bench import bench_env, smooth_actions, write_bench
+from metadagger.cli.bench import bench_env, smooth_actions, write_bench
 from metadagger.errors import UserError
-from metadagger.runner import StageOptions
+from metadagger.runfolder.driver import StageOptions
 
 
 def test_smooth_actions_are_seeded_and_in_range():
@@ -63,7 +63,7 @@ def test_bench_env_fetch_reports_frames_per_second():
 
 
 def test_bench_bc_head_only_refit_is_faster_than_the_full_fit():
-    from metadagger.bench import bench_bc
+    from metadagger.cli.bench import bench_bc
 
     bench_bc(images=10, epochs=1)  # torch's first-call set-up, so it is not timed below
     small = bench_bc(images=100, epochs=1)
@@ -82,10 +82,10 @@ def test_bench_bc_head_only_refit_is_faster_than_the_full_fit():
 def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
     from toy_task import TINY_PRESETS, RunCorridorTask
 
-    from metadagger.bench import bench_pairs
-    from metadagger.layout import RunLayout
-    from metadagger.pipeline import stage_groundtruth
-    from metadagger.run import init_run
+    from metadagger.cli.bench import bench_pairs
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.pipeline.stages import stage_groundtruth
+    from metadagger.pipeline.run_config import init_run
     from metadagger.tasks import _FACTORIES, register_task
 
     register_task("corridor-bench", RunCorridorTask)

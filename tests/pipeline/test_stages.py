@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from metadagger.cli import app
+from metadagger.cli.main import app
 from metadagger.evaluation.rows import read_csv
-from metadagger.layout import RunLayout
+from metadagger.runfolder.layout import RunLayout
 
 runner = CliRunner()
 
