@@ -324,3 +324,25 @@ def test_a_task_whose_factory_rejects_the_run_arguments_is_a_user_error(tmp_path
                        "cannot be built with {'max_episode_steps': 12}")
     finally:
         del _FACTORIES["corridor-no-kwargs"]
+
+
+def test_sigterm_mid_stage_is_one_line_exit_143_and_leaves_no_temporary_files(tmp_path):
+    """A SIGTERM during a stage stops the command as Ctrl-C would: workers cancelled, temporary
+    files removed, a line saying what was kept, the shell's exit code for SIGTERM."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    run = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "metadagger.cli.main", "reproduce", "--task", "carracing", "--preset", "ci",
+                             "--out", str(run)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not list((run / "pairs").glob("*.safetensors")) and time.monotonic() < deadline:
+        time.sleep(0.05)  # the pairs stage, its workers running
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143
+    assert ("error: stopped by SIGTERM: finished work is kept; run the same command again to resume where it stopped"
+            in err.splitlines())
+    assert not [p for p in run.rglob("*") if ".tmp" in p.name]

@@ -69,6 +69,6 @@ def test_the_lock_is_reentrant_in_one_process(tmp_path):
 def test_a_folder_that_cannot_hold_the_lock_is_one_line(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
-    with pytest.raises(UserError, match="cannot write the run folder .*choose a folder you can write to"):
+    with pytest.raises(UserError, match="cannot create folder .*is a file, not a folder"):
         with run_lock(blocker / "run"):
             pass

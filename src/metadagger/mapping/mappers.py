@@ -29,6 +29,9 @@ from metadagger.version import __version__
 
 __all__ = ["ARCH_FIELDS", "Mapper", "Standardizer", "build_networks", "cached_mapper", "load_mapper"]
 
+#: Tensors of a mapper file where -inf marks an unused entry: the modes kind's empty groups
+#: (:class:`~metadagger.mapping.modes.GroupMeans`). Anywhere else a non-finite value is damage.
+MASKED_TENSORS = frozenset({"networks.modes.bias"})
 ARCH_FIELDS = ("hidden", "latent", "ae_hidden", "batchnorm", "dropout", "ae_dropout")
 """The config fields that decide the networks' shapes (stored with every mapper)."""
 
@@ -234,7 +237,7 @@ class Mapper:
             "stamp": json.dumps(self.stamp, sort_keys=True),
             "metadagger_version": __version__,
         } | ({"context_dim": str(self.context_dim)} if self.context_dim else {})
-        return save_tensors(path, tensors, metadata=metadata)
+        return save_tensors(path, tensors, metadata=metadata, masks=MASKED_TENSORS)
 
 
 def load_mapper(path: str | Path) -> Mapper:
@@ -244,7 +247,7 @@ def load_mapper(path: str | Path) -> Mapper:
         CheckpointError: the file is missing, corrupt, not a mapper, or its tensors do not fit
             the architecture its metadata describes.
     """
-    tensors = load_tensors(path, what="mapper")
+    tensors = load_tensors(path, what="mapper", masks=MASKED_TENSORS)
     meta = read_metadata(path, what="mapper")
     if meta.get("format") != _FORMAT:
         raise CheckpointError(f"{path} is not a mapper file (no {_FORMAT!r} metadata); pass a mapper.safetensors written by train-mapper")

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Iterator
 
 from metadagger.errors import UserError
+from metadagger.utils.io import make_folder
 
 #: The lock file's name in a run folder.
 LOCK_FILE = ".lock"
@@ -66,8 +67,8 @@ def run_lock(root: str | Path, command: str | None = None) -> Iterator[None]:
 
 def _acquire(root: Path, command: str):
     path = root / LOCK_FILE
+    make_folder(root)
     try:
-        root.mkdir(parents=True, exist_ok=True)
         handle = open(path, "a+", encoding="utf-8")
     except OSError as exc:
         raise UserError(f"cannot write the run folder {root} ({exc.strerror}): {path} cannot be created; "

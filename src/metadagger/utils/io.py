@@ -11,7 +11,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Collection
 
 import numpy as np
 import torch
@@ -29,7 +29,7 @@ def _current_umask() -> int:
 _UMASK = _current_umask()
 
 
-def _make_folder(folder: Path) -> None:
+def make_folder(folder: Path) -> None:
     """Create ``folder`` and its parents; a file in the way, or a place where no folder can be
     made, is a :class:`UserError` naming it."""
     try:
@@ -85,7 +85,7 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     the path and what to do; the earlier file at ``path``, if any, is left as it was.
     """
     path = Path(path)
-    _make_folder(path.parent)
+    make_folder(path.parent)
     tmp_path = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -115,8 +115,8 @@ def atomic_folder(path: str | Path, write: Callable[[Path], None], *, staging_in
     """
     path = Path(path)
     staging_root = path.parent if staging_in is None else Path(staging_in)
-    _make_folder(staging_root)
-    _make_folder(path.parent)
+    make_folder(staging_root)
+    make_folder(path.parent)
     staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=staging_root))
     old = staging.with_name(staging.name + ".old")
     try:
@@ -176,8 +176,21 @@ def _json_default(obj: Any) -> Any:
 _METADATA_KEY = "metadagger"
 
 
-def save_tensors(path: str | Path, tensors: dict[str, torch.Tensor], metadata: dict[str, str] | None = None) -> Path:
+def _non_finite(name: str, tensor: torch.Tensor, masks: Collection[str]) -> bool:
+    """Whether ``tensor`` holds a NaN or an infinity; in a tensor named in ``masks``, -inf marks
+    an unused entry (a mapper's empty group) and is allowed."""
+    if not tensor.is_floating_point():
+        return False
+    if name in masks:
+        return bool(torch.isnan(tensor).any() or (tensor == float("inf")).any())
+    return not bool(torch.isfinite(tensor).all())
+
+
+def save_tensors(path: str | Path, tensors: dict[str, torch.Tensor], metadata: dict[str, str] | None = None, *,
+                 masks: Collection[str] = ()) -> Path:
     """Save tensors as safetensors atomically (contiguous CPU copies); same inputs, same bytes.
+
+    ``masks`` names the tensors where -inf marks an unused entry.
 
     Raises:
         DivergedError: a tensor holds a NaN or an infinity (nothing is written: a non-finite
@@ -185,14 +198,14 @@ def save_tensors(path: str | Path, tensors: dict[str, torch.Tensor], metadata: d
     """
     clean = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
     for name, tensor in clean.items():
-        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+        if _non_finite(name, tensor, masks):
             raise DivergedError(f"refusing to write {path}: its tensor {name!r} holds NaN or infinite values, so the "
                                 "computation that made it diverged; nothing was written")
     header = {_METADATA_KEY: json.dumps(metadata or {}, sort_keys=True)}
     return atomic_write(path, lambda p: save_file(clean, str(p), metadata=header))
 
 
-def load_tensors(path: str | Path, what: str = "checkpoint") -> dict[str, torch.Tensor]:
+def load_tensors(path: str | Path, what: str = "checkpoint", *, masks: Collection[str] = ()) -> dict[str, torch.Tensor]:
     """Load a safetensors file, turning a missing or corrupt file into a :class:`CheckpointError`."""
     path = _tensor_file(path, what)
     try:
@@ -205,7 +218,7 @@ def load_tensors(path: str | Path, what: str = "checkpoint") -> dict[str, torch.
         if tensor.is_floating_point() and tensor.dtype != torch.float32:
             raise CheckpointError(f"{what} {path} holds tensor {name!r} as {str(tensor.dtype).removeprefix('torch.')}, expected "
                                   "float32; it was not written by metadagger: re-run the stage that writes it")
-        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+        if _non_finite(name, tensor, masks):
             raise CheckpointError(f"{what} {path} holds NaN or infinite values in tensor {name!r}; it is damaged: delete it "
                                   "and re-run the stage that writes it")
     return tensors
