@@ -2,7 +2,7 @@
 
 For each seed, the steps of :mod:`metadagger.metal.method`: the demonstration, w_BC (a fresh head
 on pi*'s frozen trunk fitted by BC on it), then DAgger rounds from there -> w_DA; both rolled out.
-The seed's context is stored with its pair. The seeds run in parallel through :mod:`metadagger.parallel`; the driver alone
+The seed's context is stored with its pair. The seeds run in parallel through :mod:`metadagger.utils.executors`; the driver alone
 writes each pair to the :class:`~metadagger.metal.store.PairStore` as soon as it arrives, so a
 killed run resumes with the seeds that are not stored yet.
 """
