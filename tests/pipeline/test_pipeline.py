@@ -17,6 +17,7 @@ from metadagger.mapping.registry import kind_names
 from metadagger.pipeline.stages import init_run, reproduce, stage_mdi
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.lock import LOCK_FILE
 
 runner = CliRunner()
 
@@ -112,12 +113,12 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
 
 
 def _artifacts(run: Path) -> dict[str, bytes | list[bytes]]:
-    """Every artifact but the report (whose title names the run folder), by relative path. The
-    JSON-lines resume logs list seeds in the order workers finished them, so their lines are
-    compared as a sorted list."""
+    """Every artifact but the report (whose title names the run folder) and the lock file (which
+    names the process that wrote), by relative path. The JSON-lines resume logs list seeds in the
+    order workers finished them, so their lines are compared as a sorted list."""
     return {
         str(p.relative_to(run)): sorted(p.read_bytes().splitlines()) if p.suffix == ".jsonl" else p.read_bytes()
-        for p in sorted(run.rglob("*")) if p.is_file() and "report" not in p.parts
+        for p in sorted(run.rglob("*")) if p.is_file() and "report" not in p.parts and p.name != LOCK_FILE
     }
 
 
