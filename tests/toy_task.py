@@ -151,6 +151,7 @@ presets:
     groundtruth:
       seeds: 0-1
       eval_seeds: 100-100
+      min_success: 0.0
       dagger_rounds: 1
       bc: {lr: 3.0e-3, batch_size: 16, epochs: 1}
     pairs:

@@ -345,4 +345,5 @@ def test_sigterm_mid_stage_is_one_line_exit_143_and_leaves_no_temporary_files(tm
     assert proc.returncode == 143
     assert ("error: stopped by SIGTERM: finished work is kept; run the same command again to resume where it stopped"
             in err.splitlines())
+    assert "Traceback" not in err and "leaked" not in err and "Warning" not in err
     assert not [p for p in run.rglob("*") if ".tmp" in p.name]

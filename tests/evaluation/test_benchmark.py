@@ -164,5 +164,107 @@ def test_matching_table_picks_the_cheapest_setting_that_reaches_dagger(tmp_path)
     assert "| DAgger, random gate | 0.5 | 90.0% | 900.0 |" in lines  # 90% of 100%: 0.05 falls short
     assert "| DAgger, novelty gate | 0.95 | 95.0% | 250.0 |" in lines  # the cheaper of two that reach it
     assert "| BC | never | - | - |" in lines and "| DAgger | 3 | 100.0% | 1400.0 |" in lines
-    # MDM saves 1300 queries per seed against DAgger's 1400: 25000 / 1300 -> 20 seeds
-    assert "| MDM DM | 70.0% | 1300.0 | 20 |" in lines
+    # MDM saves 1300 queries per seed against DAgger's 1400, but succeeds less often: that saving repays nothing
+    assert "| MDM DM | 70.0% | 1300.0 | never (success below DAgger's 100.0%) |" in lines
+
+
+def _entry(method: str, setting: str, rate: float, queries: float, seeds: int = 10) -> dict:
+    from metadagger.imitation.metrics import wilson_interval
+
+    low, high = wilson_interval(round(seeds * rate), seeds)
+    return {"method": method, "setting": setting, "seeds": seeds, "successes": round(seeds * rate), "success_rate": rate,
+            "success_ci_low": low, "success_ci_high": high, "mean_reward": 0.0, "mean_queries": queries}
+
+
+def _section(tmp_path, entries: list[dict]) -> list[str]:
+    from metadagger.utils.io import write_json
+
+    layout = RunLayout(tmp_path)
+    write_json(layout.benchmark_summary, {"entries": entries, "meta_training_queries": {"pistar": 5000, "pairs": 20000}})
+    return benchmark_section(layout)
+
+
+def test_only_a_method_that_succeeds_as_often_as_dagger_repays_meta_training(tmp_path):
+    lines = _section(tmp_path / "a", [
+        _entry("dagger", "1", 0.5, 600), _entry("dagger", "3", 0.8, 1400), _entry("mdm-dm", "", 0.8, 100),
+        _entry("mdm-ridge", "", 0.9, 150), _entry("mdm-sam", "", 0.7, 100), _entry("mdm-mean-da", "", 0.0, 100),
+        _entry("mdm-tam", "", 1.0, 1500)])
+    assert "| MDM DM | 80.0% | 1300.0 | 20 |" in lines  # as often as DAgger: 25000 / 1300 -> 20 seeds
+    assert "| MDM Ridge | 90.0% | 1250.0 | 20 |" in lines
+    assert "| MDM SAM | 70.0% | 1300.0 | never (success below DAgger's 80.0%) |" in lines
+    assert "| MDM mean-DA (control) | 0.0% | 1300.0 | never (success 0%) |" in lines
+    assert "| MDM TAM | 100.0% | -100.0 | never (no queries saved) |" in lines
+    text = "\n".join(lines)
+    assert ("Against DAgger after 3 rounds (80.0% success, 1400.0 queries per seed). A method repays meta-training only if "
+            "it succeeds, at least as often as DAgger, with fewer queries") in text
+    # DAgger solving nothing: an MDM method solving nothing does not repay anything either
+    lines = _section(tmp_path / "b", [_entry("dagger", "1", 0.0, 80), _entry("mdm-dm", "", 0.0, 40)])
+    assert "| MDM DM | 0.0% | 40.0 | never (success 0%) |" in lines
+
+
+def _figure(monkeypatch, summary: dict):
+    """The figure plot_queries draws for ``summary``, kept open to be read."""
+    figures = []
+    monkeypatch.setattr(bench, "save_figure", lambda fig, path: figures.append(fig) or path)
+    bench.plot_queries(summary, None)
+    return figures[0]
+
+
+def test_points_at_one_query_count_are_spread_and_ticked(monkeypatch):
+    from metadagger.utils.plotting import plt
+
+    mdm = ["mdm-dm", "mdm-sam", "mdm-tam", "mdm-ridge", "mdm-mean-da", "mdm-pistar-head"]
+    entries = [_entry("bc", "", 0.0, 40), *(_entry(m, "", 0.0, 40) for m in mdm), _entry("dagger", "1", 0.0, 80),
+               _entry("dagger-random", "0.5", 0.0, 56.5), _entry("dagger-ensemble", "0.5", 0.0, 60),
+               _entry("dagger-novelty", "0.5", 0.0, 60)]
+    fig = _figure(monkeypatch, {"entries": entries, "meta_training_queries": {}})
+    ax = fig.axes[0]
+    assert list(ax.get_xticks()) == [40, 56.5, 60, 80] and [t.get_text() for t in ax.get_xticklabels()] == ["40", "56.5", "60", "80"]
+    assert all(c.has_yerr for c in ax.containers) and len(ax.containers) == len(entries)
+    xs = [x for c in ax.containers for x in c.lines[0].get_xdata()]
+    assert len(set(xs)) == len(entries)  # no point hides another
+    assert all(abs(x / e["mean_queries"] - 1) < 0.05 for x, e in zip(xs, entries))  # each near its own count
+    assert "points at one count are spread sideways" in ax.get_xlabel()
+    plt.close(fig)
+
+
+def test_query_ticks_and_dodge():
+    assert bench.query_ticks([40.0, 41.0, 80.0]) == [40.0, 80.0]  # 41 would print over 40
+    assert bench.query_ticks([10, 15, 23, 35, 52, 80, 120, 180, 270, 400]) == [10, 20, 50, 100, 200]
+    assert bench.dodge([40.0, 80.0, 40.0], 0.01) == [40.0 * 10 ** -0.005, 80.0, 40.0 * 10 ** 0.005]
+
+
+def test_every_wilson_interval_draws(tmp_path):
+    from metadagger.imitation.metrics import wilson_interval
+
+    entries = []
+    for n in range(1, 201):
+        for method, k in (("bc", 0), ("dagger", 1), ("dagger-random", n // 2), ("dagger-safe", n - 1), ("mdm-dm", n)):
+            low, high = wilson_interval(k, n)
+            entries.append({"method": method, "setting": str(n), "seeds": n, "successes": k, "success_rate": k / n,
+                            "success_ci_low": low, "success_ci_high": high, "mean_reward": 0.0, "mean_queries": float(n)})
+    path = bench.plot_queries({"entries": entries, "meta_training_queries": {}}, tmp_path / "queries.png")
+    assert path.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_failing_figure_keeps_the_rows_and_the_summary(toy_run, rows, tmp_path, capsys, monkeypatch):
+    layout = RunLayout(tmp_path / "run")
+    shutil.copytree(toy_run.root, layout.root)
+    for path in (layout.benchmark_table, layout.benchmark_summary, layout.benchmark_figure):
+        path.unlink()
+    monkeypatch.setattr(bench, "plot_queries", lambda summary, path: 1 / 0)
+    assert _run(layout) == rows  # every row from the log: nothing run again
+    assert layout.benchmark_table.read_bytes() == toy_run.benchmark_table.read_bytes()
+    assert layout.benchmark_summary.read_bytes() == toy_run.benchmark_summary.read_bytes()
+    assert not layout.benchmark_figure.exists()
+    assert capsys.readouterr().err.splitlines()[-1] == (f"warning: figure {layout.benchmark_figure} was not drawn "
+                                                         "(ZeroDivisionError: division by zero)")
+
+
+def test_a_failing_figure_is_a_line_in_the_report_section(tmp_path, monkeypatch):
+    from metadagger.evaluation import report_benchmark
+
+    monkeypatch.setattr(report_benchmark, "plot_queries", lambda summary, path: 1 / 0)
+    lines = _section(tmp_path, [_entry("dagger", "1", 0.5, 600), _entry("mdm-dm", "", 0.5, 100)])
+    assert "Figure `queries.png` could not be drawn (ZeroDivisionError: division by zero)." in lines
+    assert "| MDM DM | 50.0% | 500.0 | 50 |" in lines

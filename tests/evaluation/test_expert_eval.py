@@ -34,8 +34,10 @@ def test_expert_table():
         {"seed": 1, "success": False, "reward": 700.0, "steps": 1000},
     ]
     lines = expert_table(rows).splitlines()
-    assert lines[0] == "| episodes | successes | success rate | mean reward | mean steps |"
-    assert lines[2] == "| 2 | 1 | 50.0% | 800.0 | 900.0 |"
+    assert lines[0] == "| episodes | successes | success rate | mean reward | episode steps (min / mean / max) |"
+    assert lines[2] == "| 2 | 1 | 50.0% (9%-91%) | 800.0 | 800 / 900.0 / 1000 |"
+    timed = expert_table(rows, seconds=4.5).splitlines()
+    assert timed[0].endswith("| steps per second |") and timed[2].endswith("| 400 |")
 
 
 def test_expert_table_needs_rows():

@@ -93,3 +93,18 @@ def test_tensors_that_do_not_fit_the_recorded_networks_are_named_in_one_line(tmp
     assert "\n" not in message
     assert message == (f"mapper file {path} does not match its own metadata (missing tensor(s) networks.dm.1.bias; "
                        f"networks.dm.0.0.weight has shape (3, 3), expected {shape}); delete it and re-run train-mapper")
+
+
+def test_a_mapper_file_replaced_after_its_fingerprint_is_refused(tmp_path):
+    """A worker loads the bytes the stage's stamps fingerprinted, or refuses: a mapper swapped
+    while a stage runs never yields rows labelled with the old one."""
+    from metadagger.mapping.mappers import MapperFile, cached_mapper
+    from metadagger.runfolder.stamps import file_fingerprint
+
+    path = Mapper.pistar_head(np.zeros(4, dtype=np.float32)).save(tmp_path / "m.safetensors")
+    recorded = MapperFile(str(path), file_fingerprint(path))
+    assert cached_mapper(recorded).dim == 4
+    Mapper.pistar_head(np.ones(4, dtype=np.float32)).save(tmp_path / "other.safetensors").replace(path)
+    cached_mapper.cache_clear()  # a fresh worker
+    with pytest.raises(UserError, match="changed while this stage ran"):
+        cached_mapper(recorded)

@@ -46,8 +46,12 @@ def test_reproduce_ci_preset_writes_every_artifact_and_resumes(tmp_path):
     again = runner.invoke(app, ["reproduce", "--task", "carracing", "--preset", "ci", "--out", str(run)])
     assert again.exit_code == 0, again.output
     assert {p: p.stat().st_mtime_ns for p in run.rglob("*.safetensors")} == before
+    times = json.loads((run / "stage_times.json").read_text())
+    assert set(times) == {"groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark"}
+    assert all(t["total_seconds"] >= t["seconds"] >= 0 for t in times.values())
 
     # the report is rebuilt from the CSV/JSON alone
+    report = (run / "report" / "report.md").read_text()
     (run / "report" / "report.md").unlink()
     assert runner.invoke(app, ["report", "--out", str(run)]).exit_code == 0
     assert (run / "report" / "report.md").read_text() == report
@@ -105,20 +109,28 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
 
     # a finished run resumes without redoing any stage, from reproduce and from the CLI
     before = _stamps(run)
-    assert reproduce("fetch", "ci", run, options=StageOptions(progress=False)).read_text() == report
+    assert _without_times(reproduce("fetch", "ci", run, options=StageOptions(progress=False)).read_text()) == _without_times(report)
     again = runner.invoke(app, ["evaluate", "--out", str(run)])
     assert again.exit_code == 0, again.output
     assert "MDM: evaluated 2 seeds" in again.output and f"MDI: evaluated 2 seeds; wrote {run / 'eval' / 'mdi.csv'}" in again.output
     assert _stamps(run) == before
 
 
+def _without_times(report: str) -> str:
+    """A report without its "Run" section, the stages' wall times."""
+    head, _, rest = report.partition("\n## Run\n")
+    return head + ("\n## " + rest.partition("\n## ")[2] if rest else "")
+
+
 def _artifacts(run: Path) -> dict[str, bytes | list[bytes]]:
-    """Every artifact but the report (whose title names the run folder) and the lock file (which
-    names the process that wrote), by relative path. The JSON-lines resume logs list seeds in the
-    order workers finished them, so their lines are compared as a sorted list."""
+    """Every artifact but the report (whose title names the run folder), the lock file (which
+    names the process that wrote) and the stages' wall times, by relative path. The JSON-lines
+    resume logs list seeds in the order workers finished them, so their lines are compared as a
+    sorted list."""
     return {
         str(p.relative_to(run)): sorted(p.read_bytes().splitlines()) if p.suffix == ".jsonl" else p.read_bytes()
-        for p in sorted(run.rglob("*")) if p.is_file() and "report" not in p.parts and p.name != LOCK_FILE
+        for p in sorted(run.rglob("*"))
+        if p.is_file() and "report" not in p.parts and p.name not in (LOCK_FILE, "stage_times.json")
     }
 
 

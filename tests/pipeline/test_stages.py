@@ -164,3 +164,34 @@ def test_a_damaged_pair_file_is_named_by_train_mapper_and_collected_again_by_pai
              f"; run `metadagger pairs --out {layout.root}`, which collects that pair again")
     _ok(["pairs", "--out", layout.root])
     assert pair.read_bytes() == (finished / "pairs" / pair.name).read_bytes()
+
+
+def test_a_weak_pistar_stops_before_any_pair_and_names_its_rates(finished, tmp_path):
+    """pi* below groundtruth.min_success on its unseen seeds: one line with its rates and what to
+    try; pi* is kept (the threshold is not part of its stamp) and no pair is collected."""
+    layout = _copy(finished, tmp_path / "run")
+    shutil.rmtree(layout.pairs_dir)
+    pistar = layout.groundtruth.read_bytes()
+    line = _refused(["pairs", "--out", layout.root, "--set", "groundtruth.min_success=0.5"],
+                    "too weak to learn from", "own seeds 0/2", "unseen seeds 0/1 (0%, 95% interval 0%-79%)",
+                    "groundtruth.min_success=0.5", "Making pi* work on a new task")
+    assert "augment_shift" in line
+    assert layout.groundtruth.read_bytes() == pistar and not layout.pairs_dir.exists()
+
+
+def test_too_few_kept_pairs_names_the_outcomes_and_pistar(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    _refused(["train-mapper", "--out", layout.root, "--kind", "dm", "--set", "pairs.val_fraction=0.9"],
+             "only 4 kept pairs (pairs.keep=all)", "pairs.val_fraction=0.9", "of 4 pair seeds: bc_ok/da_ok 0",
+             "bc_fail/da_fail 4", "pi*: own seeds 0/2")
+
+
+def test_pairs_summary_records_how_far_dagger_moved_the_heads(finished):
+    from metadagger.metal.pairs import NEGLIGIBLE_HEAD_CHANGE, negligible_change_warning
+
+    summary = json.loads(RunLayout(finished).pairs_summary.read_text())
+    change = summary["head_change"]
+    assert 0 <= change["min"] <= change["median"] <= change["max"]
+    weak = {**summary, "head_change": {"median": NEGLIGIBLE_HEAD_CHANGE / 2, "min": 0.01, "max": 0.06}}
+    assert "DAgger moved the heads by a median 5.0%" in negligible_change_warning(weak)
+    assert negligible_change_warning({**summary, "head_change": {"median": 1.0, "min": 0.5, "max": 2.0}}) is None

@@ -116,6 +116,40 @@ def expert(
         typer.echo(f"wrote {out}")
 
 
+@app.command("check-task")
+@user_errors
+def check_task_cmd(
+    task: str = TASK,
+    seeds: str = typer.Option("0-9", "--seeds", help="Seeds the expert is measured on: a range '0-9', a list '1,5,9' or one seed."),
+) -> None:
+    """Check a task's code (observation and action spaces, the expert's labels, combine and
+    to_label, seeded episodes), then measure its expert on seeds: success, episode lengths and
+    steps per second. Each problem is one line naming the Task method; exit 2."""
+    import time
+
+    from metadagger.evaluation.expert import evaluate_expert, expert_table
+    from metadagger.tasks import make_task
+    from metadagger.tasks.checks import check_task_code
+    from metadagger.utils.yaml_config import parse_seeds
+
+    seed_list = parse_seeds(seeds)
+    built = make_task(task)
+    check_task_code(built)
+    env = built.make_base_env()
+    try:
+        typer.echo(f"{task}: the task's code passes the checks (observations {env.observation_space.dtype} "
+                   f"{tuple(env.observation_space.shape)}, learner actions {built.learner_action_space}, "
+                   f"{built.max_episode_steps} steps an episode at most)")
+    finally:
+        env.close()
+    start = time.perf_counter()
+    rows = evaluate_expert(built, seed_list)
+    typer.echo(expert_table(rows, seconds=time.perf_counter() - start))
+    if not any(r["success"] for r in rows):
+        typer.echo(f"warning: the expert succeeds on none of {len(rows)} seeds: is_success or the expert is wrong, "
+                   "and nothing can be imitated", err=True)
+
+
 OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
 SET = typer.Option([], "--set", help="Override a config field: section.key=value, the value read as YAML "
                    "(e.g. --set pairs.dagger_rounds=4 --set 'evaluate.methods=[dm, sam]'); repeatable.")
@@ -487,6 +521,10 @@ def main(argv: Optional[list[str]] = None) -> None:
 
     # Click's exceptions, from wherever this Typer takes them (Click itself, or its own copy)
     click_errors = importlib.import_module(typer.BadParameter.__module__)
+    # A pool stopped by a signal while it starts can leave its queues' semaphores to the
+    # multiprocessing resource tracker, which removes them at exit and warns; the tracker is a
+    # process of its own, started with this process's -W options: it removes them without a word.
+    sys.warnoptions.append("ignore:resource_tracker:UserWarning")
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, _stop)
     try:

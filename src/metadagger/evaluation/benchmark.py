@@ -22,9 +22,10 @@ the next round, which is deterministic, so nothing is rolled out twice).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
@@ -37,12 +38,13 @@ from metadagger.imitation.metrics import summarize
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.utils.io import write_json
 from metadagger.runfolder.layout import RunLayout
-from metadagger.mapping.mappers import cached_mapper
+from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.metal.method import Round, SeedLearner, bc_head, dagger_rounds, demonstration, map_head, seed_context, seeded
-from metadagger.utils.plotting import plt, save_figure
+from metadagger.utils.plotting import draw_figure, interval_errors, plt, save_figure
 from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
+from metadagger.tasks.identity import task_stamp
 
 #: Columns of ``benchmark/queries.csv``.
 FIELDS = ("method", "setting", "seed", "success", "reward", "steps", "expert_queries")
@@ -101,7 +103,7 @@ class BenchmarkJob(SeedJob):
 
     keys: tuple[MethodKey, ...]
     """The method keys this job runs (:mod:`metadagger.evaluation.methods`)."""
-    mappers: dict[str, str]
+    mappers: dict[str, MapperFile]
     """Mapper file of every MDM kind this job runs."""
     config: BenchmarkConfig
     rounds: int
@@ -178,7 +180,7 @@ def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> dict[MethodKey, dict[st
 def benchmark_stamps(task: Task, layout: RunLayout, job_settings: dict[str, Any], config: BenchmarkConfig,
                      keys: list[MethodKey], mdi: MDIConfig | None, mdi_mapper: str | None) -> dict[str, Stamp]:
     """What each method key's rows are made from: the shared fits, pi*, and the method's own inputs."""
-    common = {"protocol": "benchmark", "task": task.name, **job_settings,
+    common = {"protocol": "benchmark", **task_stamp(task), **job_settings,
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     stamps: dict[str, Stamp] = {}
     for key in keys:
@@ -207,7 +209,8 @@ def run_benchmark(
     meta_queries: dict[str, int],
     options: StageOptions = StageOptions(),
 ) -> list[dict[str, Any]]:
-    """Run the missing rows of the benchmark; write ``queries.csv``, ``summary.json`` and the figure.
+    """Run the missing rows of the benchmark; write ``queries.csv``, ``summary.json``, then the
+    figure (a figure that fails is a warning: the rows and the summary are on disk before it).
 
     Args:
         task: the task.
@@ -235,9 +238,11 @@ def run_benchmark(
     log = RowLog(layout.benchmark_log)
     todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="the benchmark",
                 fix=f"run `metadagger benchmark --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`")
-    mappers = {kind: str(layout.mapper(kind)) for kind in kinds}
-    if with_mdi:
-        mappers["mdi"] = str(layout.mapper(mdi.mapper))
+    # each mapper file as its stamps fingerprinted it: a worker refuses other bytes
+    mappers = {key.kind: MapperFile(str(layout.mapper(key.kind)), stamps[key.id]["mapper_fingerprint"])
+               for key in keys if isinstance(key, MapperKey)}
+    mappers.update({"mdi": MapperFile(str(layout.mapper(mdi.mapper)), stamps[key.id]["mapper_fingerprint"])
+                    for key in keys if isinstance(key, ShotKey) and mdi is not None})
     by_id = {key.id: key for key in keys}
     jobs = [BenchmarkJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods,
                          keys=tuple(by_id[m] for m in p.methods), mappers=mappers,
@@ -248,7 +253,7 @@ def run_benchmark(
     write_csv(layout.benchmark_table, rows, fields=FIELDS)
     summary = summarize_benchmark(rows, meta_queries)
     write_json(layout.benchmark_summary, summary)
-    plot_queries(summary, layout.benchmark_figure)
+    draw_figure(layout.benchmark_figure, lambda path: plot_queries(summary, path))
     return rows
 
 
@@ -268,21 +273,77 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
     return {"entries": entries, "meta_training_queries": dict(meta_queries)}
 
 
+#: Marker shapes, cycled with the colours so that methods stay apart past ten of them.
+MARKERS = ("o", "s", "D", "^", "v", "<", ">", "p", "h", "*")
+#: Sideways spread between points at one query count, as a share of the x axis's decades.
+DODGE = 0.012
+#: Most ticks placed at the points' own query counts; more become a 1-2-5 sequence.
+MAX_TICKS = 8
+
+
+def query_ticks(values: Sequence[float]) -> list[float]:
+    """Ticks of the query axis: the points' own counts (those within 4% of a smaller one left out)
+    when there are at most :data:`MAX_TICKS`, else the 1-2-5 sequence across their range."""
+    ticks: list[float] = []
+    for v in sorted(set(values)):
+        if not ticks or v > 1.04 * ticks[-1]:
+            ticks.append(v)
+    if len(ticks) <= MAX_TICKS:
+        return ticks
+    low, high = math.floor(math.log10(ticks[0])), math.ceil(math.log10(ticks[-1]))
+    steps = [m * 10.0 ** e for e in range(low, high + 1) for m in (1, 2, 5)]
+    inside = [t for t in steps if ticks[0] <= t <= ticks[-1]]
+    return inside if len(inside) >= 2 else [ticks[0], ticks[-1]]
+
+
+def dodge(xs: Sequence[float], step: float) -> list[float]:
+    """``xs`` spread sideways where several are equal: the k points at one value move to
+    ``value * 10 ** (step * (j - (k - 1) / 2))``, j = 0..k-1 in the order given (log axes)."""
+    groups: dict[float, list[int]] = {}
+    for i, x in enumerate(xs):
+        groups.setdefault(x, []).append(i)
+    out = list(xs)
+    for x, members in groups.items():
+        for j, i in enumerate(members):
+            out[i] = x * 10.0 ** (step * (j - (len(members) - 1) / 2))
+    return out
+
+
+def _tick_label(value: float) -> str:
+    return f"{value:.0f}" if value >= 100 else f"{value:.3g}"
+
+
 def plot_queries(summary: dict[str, Any], path: Path) -> Path:
-    """Success (95% intervals) against mean expert queries per seed, one line per method, log x."""
+    """Success (95% intervals) against mean expert queries per seed, one line per method, log x.
+
+    Ticks sit at the points' query counts (:func:`query_ticks`); points of several methods at one
+    count (BC and every MDM method spend only the demonstration's queries) are spread sideways
+    (:func:`dodge`) so that none hides another.
+    """
     by_method: dict[str, list[dict[str, Any]]] = {}
     for e in summary["entries"]:
         by_method.setdefault(e["method"], []).append(e)
-    fig, ax = plt.subplots(figsize=(7.5, 4.8), layout="constrained")
-    for method, points in by_method.items():
-        points = sorted(points, key=lambda e: e["mean_queries"])
-        x = [max(e["mean_queries"], 1.0) for e in points]
-        y = [e["success_rate"] for e in points]
-        err = [[e["success_rate"] - e["success_ci_low"] for e in points], [e["success_ci_high"] - e["success_rate"] for e in points]]
-        ax.errorbar(x, y, yerr=err, marker="o", ms=4, capsize=2, lw=1.2, label=method_label(method))
+    points = [(method, e) for method, group in by_method.items() for e in sorted(group, key=lambda e: e["mean_queries"])]
+    xs = [max(float(e["mean_queries"]), 1.0) for _, e in points]
+    span = math.log10(max(xs) / min(xs))
+    shown = dodge(xs, DODGE * max(span, 0.5))
+    fig, ax = plt.subplots(figsize=(8.5, 4.8), layout="constrained")
+    for i, method in enumerate(by_method):
+        mine = [k for k, (m, _) in enumerate(points) if m == method]
+        entries = [points[k][1] for k in mine]
+        rates = [e["success_rate"] for e in entries]
+        err = interval_errors(rates, [e["success_ci_low"] for e in entries], [e["success_ci_high"] for e in entries])
+        ax.errorbar([shown[k] for k in mine], rates, yerr=err, marker=MARKERS[i % len(MARKERS)], ms=4, capsize=2, lw=1.2,
+                    label=method_label(method))
     ax.set_xscale("log")
-    ax.set_xlabel("mean expert queries per seed (log)")
+    pad = 10.0 ** max(0.06 * span, 0.08)
+    ax.set_xlim(min(shown) / pad, max(shown) * pad)
+    ticks = query_ticks(xs)
+    ax.set_xticks(ticks, [_tick_label(t) for t in ticks])
+    ax.minorticks_off()
+    shared = len(set(xs)) < len(xs)
+    ax.set_xlabel("mean expert queries per seed (log)" + ("; points at one count are spread sideways" if shared else ""))
     ax.set_ylabel("success rate (95% Wilson interval)")
     ax.set_ylim(-0.03, 1.03)
-    ax.legend(fontsize="small", ncol=2)
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return save_figure(fig, path)

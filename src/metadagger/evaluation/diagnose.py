@@ -41,7 +41,7 @@ from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperConfig, MapperJob, mapper_stamp, train_mappers
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairSplit
-from metadagger.utils.plotting import plt, save_figure
+from metadagger.utils.plotting import draw_figure, plt, save_figure
 from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, drive, plan
 from metadagger.tasks.base import Task
 
@@ -251,7 +251,7 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
                "states_per_seed": config.states, "noise_ceiling": ceiling, "methods": methods, "scaling": scaling,
                "kinds": {kind: get_kind(kind).label for kind in mappers}}
     write_json(layout.diagnostics_summary, summary)
-    plot_scaling(scaling, methods, layout.diagnostics_figure)
+    draw_figure(layout.diagnostics_figure, lambda path: plot_scaling(scaling, methods, path))
     return summary
 
 

@@ -19,15 +19,19 @@ def evaluate_expert(task: Task, seeds: Iterable[int], *, progress: bool = True) 
     return evaluate_policy(task, None, list(seeds), label=f"expert {task.name}", progress=progress)
 
 
-def expert_table(rows: list[dict[str, Any]]) -> str:
-    """A one-row Markdown table: episodes, successes, success rate, mean reward, mean steps."""
+def expert_table(rows: list[dict[str, Any]], seconds: float | None = None) -> str:
+    """A one-row Markdown table: episodes, successes, success rate (95% Wilson interval), mean
+    reward, episode length (min / mean / max) and, given the rollouts' wall time ``seconds``,
+    environment steps per second."""
     if not rows:
         raise ValueError("expert_table needs at least one row (evaluate at least one seed)")
     s = summarize(rows)
-    return "\n".join(
-        [
-            "| episodes | successes | success rate | mean reward | mean steps |",
-            "|---:|---:|---:|---:|---:|",
-            f"| {s['episodes']} | {s['successes']} | {s['success_rate']:.1%} | {s['mean_reward']:.1f} | {s['mean_steps']:.1f} |",
-        ]
-    )
+    steps = [int(r["steps"]) for r in rows]
+    head = "| episodes | successes | success rate | mean reward | episode steps (min / mean / max) |"
+    cells = (f"| {s['episodes']} | {s['successes']} | {s['success_rate']:.1%} ({s['success_ci_low']:.0%}-{s['success_ci_high']:.0%}) "
+             f"| {s['mean_reward']:.1f} | {min(steps)} / {s['mean_steps']:.1f} / {max(steps)} |")
+    rule = "|---:|---:|---:|---:|---:|"
+    if seconds is not None:
+        head, rule = head + " steps per second |", rule + "---:|"
+        cells += f" {sum(steps) / seconds:.0f} |" if seconds > 0 else " - |"
+    return "\n".join([head, rule, cells])

@@ -45,13 +45,14 @@ from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.utils.io import save_tensors
 from metadagger.runfolder.layout import RunLayout
-from metadagger.mapping.mappers import cached_mapper
+from metadagger.mapping.mappers import MapperFile, cached_mapper, load_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.groundtruth import cached_groundtruth
 from metadagger.metal.method import SeedLearner, bc_head, dagger_rounds, demonstration, map_head, one_shot, seed_context, seeded
 from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
+from metadagger.tasks.identity import task_stamp
 
 #: The three methods of Table 6, in table order.
 METHODS = ("dagger-mdi", "dagger-bc", "dagger")
@@ -85,8 +86,8 @@ class MDIConfig:
     """The head-only fit on the demonstration (steps 2 and 5). None (the default): the run's
     ``pairs.bc``, the fit whose w_BC the mapper learned from; a run config rejects any other
     value. Its ``seed`` is replaced by the env seed."""
-    dagger_bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=2, head_only=True))
-    """The head-only refit of the DAgger round (step 8)."""
+    dagger_bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=12, head_only=True))
+    """The head-only refit of the DAgger round (step 8); the default is ``pairs.dagger_bc``'s."""
     early_stop: float | None = None
     """Threshold of the cosine early stop on every learner rollout (the Fetch presets: 40, docs/fetch.md); None: no early stop."""
     mapper: str = "dm"
@@ -133,7 +134,7 @@ class MDIConfig:
 class MDIJob(SeedJob):
     """One seed's MDI evaluation."""
 
-    mappers: dict[str, str]
+    mappers: dict[str, MapperFile]
     """Mapper file of every DAgger-MDI method of this job (see :attr:`MDIConfig.kinds`)."""
     config: MDIConfig
     """With ``bc`` resolved (never None here)."""
@@ -174,7 +175,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
         data = demo.to_dataset()
         w_bc = bc_head(learner, data, fit)
         # steps 3-4: each method's saved initialisation
-        mappers = {method: cached_mapper(path) for method, path in job.mappers.items()}
+        mappers = {method: cached_mapper(file) for method, file in job.mappers.items()}
         context = None
         if any(mapper.needs_context for mapper in mappers.values()):
             rolled = learner.roll(w_bc, early_stop=job.context_early_stop)
@@ -223,7 +224,7 @@ def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
         path = layout.mapper(kind)
         if not path.is_file():
             raise UserError(f"MDI mapper not found at {path}; run `metadagger train-mapper --out {layout.root} --kind {kind}` first")
-        mapper_dim = cached_mapper(str(path)).dim
+        mapper_dim = load_mapper(path).dim
         if mapper_dim != head_size:
             raise UserError(
                 f"the mapper at {path} maps heads of length {mapper_dim}, but pi*'s head has {head_size}; "
@@ -234,7 +235,7 @@ def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
 def mdi_stamps(task: Task, layout: RunLayout, config: MDIConfig, context_early_stop: float | None = None) -> dict[str, Stamp]:
     """What each MDI method's rows are made from: the protocol's settings, pi* and its initialiser
     (and, for an initialiser that reads the seed's context, the early stop of its BC rollout)."""
-    common = {"protocol": "mdi", "task": task.name, **stamp_of(config, drop=("seeds", "mapper", "controls")),
+    common = {"protocol": "mdi", **task_stamp(task), **stamp_of(config, drop=("seeds", "mapper", "controls")),
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     kinds = config.kinds
 
@@ -278,7 +279,8 @@ def evaluate_mdi(
     todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="MDI evaluation",
                 fix=f"run `metadagger evaluate --out {layout.root} --protocol mdi --rebuild` to redo it, or `metadagger reproduce`")
     jobs = [MDIJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config,
-                   mappers={m: str(layout.mapper(config.kinds[m])) for m in p.methods if m in config.kinds},
+                   mappers={m: MapperFile(str(layout.mapper(config.kinds[m])), stamps[m]["mapper_fingerprint"])
+                            for m in p.methods if m in config.kinds},
                    context_early_stop=context_early_stop) for p in todo]
 
     def save(result: dict[str, Any]) -> None:

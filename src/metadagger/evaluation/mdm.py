@@ -23,12 +23,13 @@ from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.utils.io import save_tensors
 from metadagger.runfolder.layout import RunLayout
-from metadagger.mapping.mappers import cached_mapper
+from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.method import SeedLearner, bc_head, demonstration, map_head, one_shot, seed_context, seeded
 from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
+from metadagger.tasks.identity import task_stamp
 
 #: Prefix of the one-shot rows of a mapper kind: ``oneshot-<kind>``.
 ONESHOT_PREFIX = "oneshot-"
@@ -60,7 +61,7 @@ class EvalConfig:
 class EvalJob(SeedJob):
     """One seed's MDM evaluation; its methods are ``bc`` and/or mapper kinds."""
 
-    mappers: dict[str, str]
+    mappers: dict[str, MapperFile]
     """Mapper file of every kind this job evaluates."""
     bc: BCConfig
     oneshot: bool
@@ -109,7 +110,7 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
 def mdm_stamps(task: Task, layout: RunLayout, config: EvalConfig, bc: BCConfig, early_stop: float | None = None) -> dict[str, Stamp]:
     """What each MDM method's rows are made from: the protocol's settings, pi* and its mapper (and,
     for a mapper with a context, the early stop of its BC rollout)."""
-    common = {"protocol": "mdm", "task": task.name, "bc": stamp_of(bc), "oneshot": config.oneshot,
+    common = {"protocol": "mdm", **task_stamp(task), "bc": stamp_of(bc), "oneshot": config.oneshot,
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     return {"bc": common, **{kind: {**common, "mapper_fingerprint": file_fingerprint(layout.mapper(kind)),
                                     **context_inputs(kind, early_stop)}
@@ -138,7 +139,7 @@ def evaluate_run(
     log = RowLog(layout.eval_log("mdm"))
     todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="MDM evaluation",
                 fix=f"run `metadagger evaluate --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`")
-    mappers = {m: str(layout.mapper(m)) for m in config.methods}
+    mappers = {m: MapperFile(str(layout.mapper(m)), stamps[m]["mapper_fingerprint"]) for m in config.methods}
     jobs = [EvalJob(task=task, groundtruth=str(layout.groundtruth), mappers=mappers, seed=p.seed, methods=p.methods,
                     bc=bc, oneshot=config.oneshot, early_stop=early_stop) for p in todo]
 

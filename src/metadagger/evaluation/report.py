@@ -1,12 +1,13 @@
 """``report/report.md`` and its figures, built only from a run's CSV/JSON artifacts.
 
-Sections appear for the stages a run has finished, one module each: the run itself (pi*, pairs,
-mappers: :mod:`~metadagger.evaluation.report_run`), MDM (Tables 1-2, Fig. 4:
+Sections appear for the stages a run has finished, one module each: the run itself (stage wall
+times, pi*, pairs and their split, mappers: :mod:`~metadagger.evaluation.report_run`), MDM (Tables 1-2, Fig. 4:
 :mod:`~metadagger.evaluation.report_mdm`), one-shot (Tables 3-5:
 :mod:`~metadagger.evaluation.report_oneshot`), MDI (Table 7, Fig. 5:
 :mod:`~metadagger.evaluation.report_mdi`) and success against expert queries
 (:mod:`~metadagger.evaluation.report_benchmark`); for a task family, each unseen seed's variation beside
-every method's outcome (:mod:`~metadagger.evaluation.report_family`).
+every method's outcome (:mod:`~metadagger.evaluation.report_family`). A figure that cannot be
+drawn is a warning on stderr and one line in its place: it never costs the report.
 """
 
 from __future__ import annotations
@@ -20,12 +21,12 @@ from metadagger.evaluation.report_family import family_section
 from metadagger.evaluation.report_mdi import mdi_section
 from metadagger.evaluation.report_mdm import mdm_section
 from metadagger.evaluation.report_oneshot import oneshot_section
-from metadagger.evaluation.report_run import groundtruth_section, mappers_section, pairs_section
+from metadagger.evaluation.report_run import groundtruth_section, mappers_section, pairs_section, run_section
 from metadagger.runfolder.layout import RunLayout
-from metadagger.utils.io import write_text
+from metadagger.utils.io import check_writable, write_text
 from metadagger.utils.yaml_config import read_run_data
 
-SECTIONS = (groundtruth_section, pairs_section, mappers_section, diagnostics_section, mdm_section, oneshot_section, mdi_section,
+SECTIONS = (run_section, groundtruth_section, pairs_section, mappers_section, diagnostics_section, mdm_section, oneshot_section, mdi_section,
             benchmark_section, family_section)
 
 
@@ -38,6 +39,7 @@ def build_report(layout: RunLayout) -> Path:
     if not layout.config.is_file():
         raise UserError(f"nothing has been run in {layout.root} (no config.yaml there); "
                         "pass the --out of a run started with `metadagger groundtruth` or `metadagger reproduce`")
+    check_writable(layout.report_dir)  # before any figure is drawn
     parts = [line for section in SECTIONS for line in section(layout)]
     if not parts:
         raise UserError(f"nothing to report in {layout.root}: no stage has finished yet; run `metadagger reproduce` or a stage first")

@@ -1,7 +1,8 @@
 """The benchmark section of a report ("Success against expert queries"), built only from
 ``benchmark/summary.json``: every (method, setting) with its success interval and queries, the
 cheapest setting of each method that reaches 90% of DAgger's final success, and what
-meta-training cost in expert queries against what MDM saves per new seed."""
+meta-training cost in expert queries against what MDM saves per new seed where it succeeds as
+often as DAgger."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import Any
 
 from metadagger.evaluation.benchmark import plot_queries
 from metadagger.evaluation.methods import MDM_PREFIX
-from metadagger.evaluation.tables import markdown_table, method_label, pct
+from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json
 
@@ -27,12 +28,11 @@ def benchmark_section(layout: RunLayout) -> list[str]:
     entries = summary["entries"]
     if not entries:
         return []
-    plot_queries(summary, layout.figures / FIGURE)
     seeds = max(e["seeds"] for e in entries)
     lines = ["## Success against expert queries", "",
              f"{seeds} unseen seeds. A query is one expert label of one state (the demonstration's steps included); "
-             "every method starts from pi*'s trunk and the seed's BC head.", "",
-             f"![success against expert queries](figures/{FIGURE})", ""]
+             "every method starts from pi*'s trunk and the seed's BC head.", ""]
+    lines += figure_lines(layout.figures, FIGURE, "success against expert queries", lambda path: plot_queries(summary, path)) + [""]
     cells = [(method_label(e["method"]), e["setting"] or "-",
               f"{pct(e['success_rate'])} ({e['successes']}/{e['seeds']}; {pct(e['success_ci_low'])}-{pct(e['success_ci_high'])})",
               f"{e['mean_reward']:.1f}", f"{e['mean_queries']:.1f}") for e in entries]
@@ -67,7 +67,9 @@ def _matching(entries: list[dict[str, Any]]) -> list[str]:
 
 
 def _amortisation(entries: list[dict[str, Any]], meta: dict[str, int]) -> list[str]:
-    """Queries spent on pi* and the pairs, and after how many new seeds MDM's saving repays them."""
+    """Queries spent on pi* and the pairs, and after how many new seeds each MDM method's saving
+    against DAgger's final round repays them: only where the method succeeds, and at least as
+    often as that round (a saving bought with lost successes repays nothing)."""
     final = _dagger_final(entries)
     spent = int(meta.get("pistar", 0)) + int(meta.get("pairs", 0))
     lines = ["### Amortised cost of MetaL DAgger", "",
@@ -78,8 +80,20 @@ def _amortisation(entries: list[dict[str, Any]], meta: dict[str, int]) -> list[s
     cells = []
     for e in mdm:
         saving = final["mean_queries"] - e["mean_queries"]
-        seeds = math.ceil(spent / saving) if saving > 0 else None
-        cells.append((method_label(e["method"]), pct(e["success_rate"]), f"{saving:.1f}", seeds if seeds is not None else "never"))
-    return lines + [f"Against DAgger after {final['setting']} rounds ({pct(final['success_rate'])} success); a saving "
-                    "buys nothing where the method's success is lower:", ""] + markdown_table(
+        cells.append((method_label(e["method"]), pct(e["success_rate"]), f"{saving:.1f}", _repaid_after(e, final, saving, spent)))
+    return lines + [f"Against DAgger after {final['setting']} rounds ({pct(final['success_rate'])} success, "
+                    f"{final['mean_queries']:.1f} queries per seed). A method repays meta-training only if it succeeds, at "
+                    "least as often as DAgger, with fewer queries; otherwise its saving buys nothing and the last column "
+                    "says why:", ""] + markdown_table(
         ("method", "success", "queries saved per seed", "new seeds to repay meta-training"), cells) + [""]
+
+
+def _repaid_after(entry: dict[str, Any], final: dict[str, Any], saving: float, spent: int) -> str:
+    """New seeds until ``saving`` per seed repays ``spent`` queries, or why it never does."""
+    if entry["success_rate"] == 0:
+        return "never (success 0%)"
+    if entry["success_rate"] < final["success_rate"]:
+        return f"never (success below DAgger's {pct(final['success_rate'])})"
+    if saving <= 0:
+        return "never (no queries saved)"
+    return str(math.ceil(spent / saving))

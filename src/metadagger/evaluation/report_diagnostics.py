@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from metadagger.evaluation.diagnose import plot_scaling
-from metadagger.evaluation.tables import markdown_table, method_label, method_order
+from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, method_order
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json
 
@@ -65,6 +65,5 @@ def diagnostics_section(layout: RunLayout) -> list[str]:
         by = {(r["kind"], r["fraction"]): r for r in s["scaling"]}
         header = ("kind", *(f"{f:.0%} ({by[(kinds[0], f)]['train_pairs']} pairs)" for f in fractions))
         lines += markdown_table(header, [(method_label(k), *(_scaling_cell(by[(k, f)]) for f in fractions)) for k in kinds])
-        plot_scaling(s["scaling"], s["methods"], layout.figures / FIGURE)
-        lines += ["", f"![data scaling](figures/{FIGURE})"]
+        lines += [""] + figure_lines(layout.figures, FIGURE, "data scaling", lambda path: plot_scaling(s["scaling"], s["methods"], path))
     return lines + [""]

@@ -10,11 +10,12 @@ variation is a pure function of the seed: ``Task.variation_of``).
 from __future__ import annotations
 
 import statistics
+from pathlib import Path
 from typing import Any
 
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order, rate
+from metadagger.evaluation.tables import by_method, figure_lines, markdown_table, method_label, method_order, rate
 from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
@@ -53,9 +54,8 @@ def family_section(layout: RunLayout) -> list[str]:
     lines += markdown_table(("seed", *keys, "size", *methods), [
         (s, *(f"{variations[s][k]:+.3f}" for k in keys), f"{sizes[s]:.3f}",
          *(_mark(outcomes[m].get(s)) for m in methods)) for s in seeds])
-    _figure(outcomes, sizes, layout)
-    return lines + ["", "### Success against the variation's size (one marker per seed; filled: success)", "",
-                    f"![success against variation](figures/{FIGURE})", ""]
+    return lines + ["", "### Success against the variation's size (one marker per seed; filled: success)", ""] + figure_lines(
+        layout.figures, FIGURE, "success against variation", lambda path: _figure(outcomes, sizes, path)) + [""]
 
 
 def _run_task(layout: RunLayout) -> Task | None:
@@ -100,7 +100,7 @@ def _mark(row: dict[str, Any] | None) -> str:
     return "✓" if row["success"] else "✗"
 
 
-def _figure(outcomes: dict[str, dict[int, dict[str, Any]]], sizes: dict[int, float], layout: RunLayout) -> None:
+def _figure(outcomes: dict[str, dict[int, dict[str, Any]]], sizes: dict[int, float], path: Path) -> Path:
     methods = list(outcomes)
     fig, ax = plt.subplots(figsize=(7.5, 0.45 * len(methods) + 1.2), layout="constrained")
     for row, method in enumerate(methods):
@@ -112,4 +112,4 @@ def _figure(outcomes: dict[str, dict[int, dict[str, Any]]], sizes: dict[int, flo
     ax.set_yticks(range(len(methods)), methods)
     ax.invert_yaxis()
     ax.set_xlabel("variation size")
-    save_figure(fig, layout.figures / FIGURE)
+    return save_figure(fig, path)

@@ -7,7 +7,7 @@ from typing import Any
 
 from metadagger.evaluation.mdi import METHODS
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import markdown_table, method_label, rate
+from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, rate
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.plotting import plt, save_figure
 
@@ -65,13 +65,21 @@ def _fig5(table: dict[str, dict[int, dict[str, Any]]], figures: Path) -> list[st
     lines = ["### Fig. 5: cosine distance to the expert in the final test (one point per seed)", "",
              "Below the diagonal: DAgger-MDI's actions are closer to the expert's than the other method's.", "",
              "| DAgger-MDI vs | seeds | DAgger-MDI lower: accumulated | DAgger-MDI lower: per action |", "|---|---|---|---|"]
+    for m in others:
+        lower = [sum(float(mdi[s][key]) < float(table[m][s][key]) for s in seeds[m]) for key, _ in COSINE_KEYS]
+        n = len(seeds[m])
+        lines.append(f"| {method_label(m)} | {n} | {lower[0]}/{n} | {lower[1]}/{n} |")
+    return lines + [""] + figure_lines(figures, FIGURE, "MDI cosine distances", lambda path: _draw_fig5(table, seeds, others, path)) + [""]
+
+
+def _draw_fig5(table: dict[str, dict[int, dict[str, Any]]], seeds: dict[str, list[int]], others: list[str], path: Path) -> Path:
+    """Fig. 5: per other method, DAgger-MDI's cosine distances against its own on each seed."""
+    mdi = table["dagger-mdi"]
     fig, axes = plt.subplots(len(COSINE_KEYS), len(others), figsize=(3.8 * len(others), 6.4), squeeze=False)
     for col, m in enumerate(others):
-        lower = []
         for row, (key, name) in enumerate(COSINE_KEYS):
             x = [float(table[m][s][key]) for s in seeds[m]]
             y = [float(mdi[s][key]) for s in seeds[m]]
-            lower.append(sum(b < a for a, b in zip(x, y)))
             ax = axes[row][col]
             ax.scatter(x, y, s=14)
             hi = max(x + y) or 1.0  # distances are >= 0: the diagonal starts at 0
@@ -80,8 +88,5 @@ def _fig5(table: dict[str, dict[int, dict[str, Any]]], figures: Path) -> list[st
             ax.set_ylabel(f"DAgger-MDI: {name}")
             if row == 0:
                 ax.set_title(f"DAgger-MDI vs {method_label(m)}")
-        n = len(seeds[m])
-        lines.append(f"| {method_label(m)} | {n} | {lower[0]}/{n} | {lower[1]}/{n} |")
     fig.tight_layout()
-    save_figure(fig, figures / FIGURE)
-    return lines + ["", f"![MDI cosine distances]({figures.name}/{FIGURE})", ""]
+    return save_figure(fig, path)

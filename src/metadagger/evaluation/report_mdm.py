@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import statistics
+from pathlib import Path
 from typing import Any
 
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order, rate
+from metadagger.evaluation.tables import by_method, figure_lines, markdown_table, method_label, method_order, rate
 from metadagger.imitation.metrics import summarize
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.plotting import plt, save_figure
@@ -43,20 +44,19 @@ def mdm_section(layout: RunLayout) -> list[str]:
         steps = [float(r["unlabelled_steps"]) for r in table[m].values()]
         lines += [f"{method_label(m)} also read the seed's context: one rollout of the BC head, never labelled, "
                   f"{sum(steps) / len(steps):.0f} env steps per seed on average.", ""]
-    if not _scatter(table, [m for m in methods if m != "bc"], layout):
+    others = [m for m in methods if m != "bc"]
+    if not others or "bc" not in table:
         return lines
-    return lines + ["### Fig. 4: each method against BC (one point per seed; filled: the method succeeded)", "",
-                    f"![MDM vs BC](figures/{FIGURE})", ""]
+    return lines + ["### Fig. 4: each method against BC (one point per seed; filled: the method succeeded)", ""] + figure_lines(
+        layout.figures, FIGURE, "MDM vs BC", lambda path: _scatter(table, others, path)) + [""]
 
 
 def _sd(rows: list[dict[str, Any]], key: str) -> float:
     return statistics.stdev(float(r[key]) for r in rows) if len(rows) > 1 else 0.0
 
 
-def _scatter(table: dict[str, dict[int, dict[str, Any]]], methods: list[str], layout: RunLayout) -> bool:
-    """Draw Fig. 4; False when there is nothing to draw."""
-    if not methods or "bc" not in table:
-        return False
+def _scatter(table: dict[str, dict[int, dict[str, Any]]], methods: list[str], path: Path) -> Path:
+    """Draw Fig. 4: each of ``methods`` against BC, seed by seed."""
     fig, axes = plt.subplots(2, len(methods), figsize=(3.4 * len(methods), 6.6), squeeze=False, layout="constrained")
     for col, m in enumerate(methods):
         seeds = sorted(set(table[m]) & set(table["bc"]))
@@ -76,5 +76,4 @@ def _scatter(table: dict[str, dict[int, dict[str, Any]]], methods: list[str], la
                 ax.set_title(method_label(m))
                 if col == 0:
                     ax.legend(fontsize="small")
-    save_figure(fig, layout.figures / FIGURE)
-    return True
+    return save_figure(fig, path)

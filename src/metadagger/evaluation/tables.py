@@ -1,13 +1,15 @@
 """What every report section shares: method labels, rows grouped by method, percentages and
-success cells with Wilson intervals, Markdown tables."""
+success cells with Wilson intervals, Markdown tables, figures that cannot cost the text."""
 
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import Any, Iterable, Sequence
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
 
 from metadagger.imitation.metrics import summarize
 from metadagger.mapping.registry import get_kind, kind_names
+from metadagger.utils.plotting import draw_figure
 
 #: Labels of the methods that are not mapper kinds.
 PROTOCOL_LABELS = {"bc": "BC", "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger",
@@ -60,3 +62,12 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list
     """A Markdown table as lines (cells as given, converted with ``str``)."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+
+
+def figure_lines(figures: Path, name: str, alt: str, draw: Callable[[Path], object]) -> list[str]:
+    """Draw figure ``name`` into the report's ``figures`` folder with ``draw(path)``; its Markdown
+    image line, or, if drawing failed (a warning on stderr), one line saying why in its place."""
+    reason = draw_figure(figures / name, draw)
+    if reason is None:
+        return [f"![{alt}]({figures.name}/{name})"]
+    return [f"Figure `{name}` could not be drawn ({reason})."]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import json
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,10 +25,11 @@ from torch import nn
 from metadagger.errors import CheckpointError, UserError
 from metadagger.mapping.registry import get_kind
 from metadagger.policies import tensor_mismatch
+from metadagger.runfolder.stamps import file_fingerprint
 from metadagger.utils.io import load_tensors, read_metadata, save_tensors
 from metadagger.version import __version__
 
-__all__ = ["ARCH_FIELDS", "Mapper", "Standardizer", "build_networks", "cached_mapper", "load_mapper"]
+__all__ = ["ARCH_FIELDS", "Mapper", "MapperFile", "Standardizer", "build_networks", "cached_mapper", "load_mapper"]
 
 #: Tensors of a mapper file where -inf marks an unused entry: the modes kind's empty groups
 #: (:class:`~metadagger.mapping.modes.GroupMeans`). Anywhere else a non-finite value is damage.
@@ -281,10 +283,24 @@ def load_mapper(path: str | Path) -> Mapper:
         raise CheckpointError(f"mapper file {path} does not match its own metadata ({exc}); delete it and re-run train-mapper") from None
 
 
+@dataclass(frozen=True)
+class MapperFile:
+    """A mapper file as a stage's stamps recorded it: its path and the fingerprint of its bytes."""
+
+    path: str
+    fingerprint: str
+
+
 @functools.lru_cache(maxsize=8)
-def cached_mapper(path: str) -> Mapper:
-    """:func:`load_mapper`, once per worker process and path (callers must not change it)."""
-    return load_mapper(path)
+def cached_mapper(file: MapperFile) -> Mapper:
+    """:func:`load_mapper`, once per worker process and file (callers must not change it),
+    checked to be the bytes the stage's stamps fingerprinted: a file replaced while the stage
+    runs is a :class:`UserError`, never results under the old mapper's name."""
+    mapper = load_mapper(file.path)
+    if file_fingerprint(file.path) != file.fingerprint:
+        raise UserError(f"mapper file {file.path} changed while this stage ran (another process rewrote it); "
+                        "run the stage again once that process is done")
+    return mapper
 
 
 def _as_float32(w: Any) -> torch.Tensor:

@@ -17,13 +17,14 @@ from metadagger.imitation.bc import BCConfig, fit_or_resume
 from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.episodes import evaluate_policy
-from metadagger.imitation.metrics import summarize
+from metadagger.imitation.metrics import summarize, wilson_interval
 from metadagger.imitation.rollouts import collect
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy, make_policy
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import describe_changes, stamp_of
 from metadagger.tasks.base import Task
+from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import read_json, write_json
 from metadagger.utils.yaml_config import LATER_OPTION
 
@@ -49,6 +50,12 @@ class GroundTruthConfig:
     default): pi* is the last epoch's. Needs ``dagger_rounds: 0``."""
     select_every: int = field(default=4, metadata=LATER_OPTION)
     """Epochs between the checks of ``select_seeds``."""
+    min_success: float = 0.2
+    """The least success rate pi* must reach on ``eval_seeds`` before pairs are collected. With
+    pi*'s trunk frozen, a seed's DAgger refit of the head rarely succeeds where pi* itself fails
+    on most unseen seeds, so a weaker pi* leaves no kept pairs and the later stages would measure
+    nothing (docs/custom_task.md, "Making pi* work on a new task"). 0 turns the check off (smoke
+    presets). Not part of pi*'s stamp: it judges pi*, it does not make it."""
 
     @property
     def used_seeds(self) -> set[int]:
@@ -69,13 +76,15 @@ class GroundTruthConfig:
             raise UserError(f"groundtruth.select_every must be an integer >= 1, got {self.select_every!r}")
         if self.dagger_rounds < 0:
             raise UserError(f"groundtruth.dagger_rounds must be >= 0, got {self.dagger_rounds}")
+        if isinstance(self.min_success, bool) or not isinstance(self.min_success, (int, float)) or not 0 <= self.min_success <= 1:
+            raise UserError(f"groundtruth.min_success must be a number in [0, 1], got {self.min_success!r}; e.g. 0.2")
         if self.bc.head_only:
             raise UserError("groundtruth.bc.head_only must be false: pi* trains the whole policy")
 
 
 def groundtruth_stamp(task: Task, config: GroundTruthConfig) -> dict:
     """What pi* is made from: the task and every setting of its training."""
-    return {"task": task.name, "max_episode_steps": task.max_episode_steps, **stamp_of(config)}
+    return {**task_stamp(task), **stamp_of(config, drop=("min_success",))}
 
 
 def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout) -> list[str]:
@@ -140,6 +149,29 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     policy.save(layout.groundtruth)
     write_json(layout.groundtruth_metrics, metrics)
     return metrics
+
+
+def pistar_rates(metrics: dict) -> str:
+    """pi*'s success on its own and on its unseen seeds, with 95% Wilson intervals, as one line."""
+    return "; ".join(f"{what} {_rate(metrics[key])}" for what, key in (("own seeds", "own_seeds"), ("unseen seeds", "unseen_seeds")))
+
+
+def _rate(summary: dict) -> str:
+    low, high = wilson_interval(summary["successes"], summary["episodes"])
+    return f"{summary['successes']}/{summary['episodes']} ({summary['successes'] / max(summary['episodes'], 1):.0%}, 95% interval {low:.0%}-{high:.0%})"
+
+
+def check_pistar(metrics: dict, config: GroundTruthConfig, layout: RunLayout) -> None:
+    """Raise a :class:`UserError` when pi*'s success on its unseen seeds is below
+    ``config.min_success``: later stages would measure nothing."""
+    unseen = metrics["unseen_seeds"]
+    if unseen["success_rate"] >= config.min_success:
+        return
+    raise UserError(f"pi* in {layout.groundtruth_dir} is too weak to learn from: {pistar_rates(metrics)}, below "
+                    f"groundtruth.min_success={config.min_success:g} on unseen seeds; with its trunk frozen the per-seed DAgger "
+                    "refits would rarely succeed and the later stages would measure nothing; make pi* stronger (more "
+                    "groundtruth.seeds, groundtruth.bc.augment_shift, more epochs or dagger_rounds, policy_arch; "
+                    "docs/custom_task.md, \"Making pi* work on a new task\"), or set groundtruth.min_success=0 to go on anyway")
 
 
 def load_groundtruth(layout: RunLayout) -> Policy:

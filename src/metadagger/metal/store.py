@@ -92,6 +92,12 @@ class PairSplit:
             context_train=None if self.context_train is None else self.context_train[rows])
 
 
+def validation_size(pairs: int, val_fraction: float) -> int:
+    """How many of ``pairs`` pairs validate: ``val_fraction`` of them rounded half up, at least one
+    when ``val_fraction`` is positive."""
+    return max(1, math.floor(val_fraction * pairs + 0.5)) if val_fraction > 0 else 0
+
+
 class PairStore:
     """Reads and writes the pairs of one run; only the driver process writes.
 
@@ -246,7 +252,7 @@ class PairStore:
             raise UserError(f"val_fraction must be in [0, 1), got {val_fraction!r}; e.g. 0.2 holds out a fifth of the pairs")
         wanted = None if seeds is None else set(seeds)
         seeds = [r["seed"] for r in self.records() if (r.get("kept") is True or not kept_only) and (wanted is None or r["seed"] in wanted)]
-        n_val = max(1, math.floor(val_fraction * len(seeds) + 0.5)) if val_fraction > 0 else 0
+        n_val = validation_size(len(seeds), val_fraction)
         if len(seeds) - n_val < 1:
             which = "kept pairs" if kept_only else "pairs"
             raise UserError(

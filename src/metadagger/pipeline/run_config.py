@@ -14,7 +14,9 @@ is refused with one line (:func:`check_version`).
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import functools
+import time
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -35,7 +37,7 @@ from metadagger.metal.pairs import PairConfig
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
 from metadagger.tasks import check_task
-from metadagger.utils.io import atomic_write, write_text
+from metadagger.utils.io import atomic_write, read_json, write_json, write_text
 from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
 from metadagger.version import __version__
@@ -269,6 +271,26 @@ def save_run(run: str | Path, config: RunConfig) -> None:
     write_text(RunLayout(run).config, dump_yaml(config))
 
 
+def _timed(stage: Callable[..., R], layout: RunLayout, config: RunConfig, *args: Any, **kwargs: Any) -> R:
+    """``stage(...)``, its wall time added to ``RUN/stage_times.json`` when it finishes (a run
+    folder made in code, without a ``config.yaml``, records none)."""
+    start = time.perf_counter()
+    result = stage(layout, config, *args, **kwargs)
+    if layout.config.is_file():
+        record_stage_time(layout, stage.__name__.removeprefix("stage_"), time.perf_counter() - start)
+    return result
+
+
+def record_stage_time(layout: RunLayout, stage: str, seconds: float) -> None:
+    """Add one finished call of ``stage`` to the run's stage times: ``seconds`` (this call's),
+    ``total_seconds`` (all calls') and ``finished`` (UTC, ISO 8601)."""
+    times = read_json(layout.stage_times, "the stage times") if layout.stage_times.is_file() else {}
+    total = float(times.get(stage, {}).get("total_seconds", 0.0)) + seconds
+    times[stage] = {"seconds": round(seconds, 3), "total_seconds": round(total, 3),
+                    "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    write_json(layout.stage_times, times)
+
+
 def records_config(stage: Callable[Concatenate[RunLayout, RunConfig, P], R]) -> Callable[Concatenate[RunLayout, RunConfig, P], R]:
     """``stage(layout, config, ...)`` run with ``config`` as the run's ``config.yaml``: written first
     when the file says otherwise (``--set`` overrides), and put back as it was when the stage
@@ -281,10 +303,10 @@ def records_config(stage: Callable[Concatenate[RunLayout, RunConfig, P], R]) -> 
         with run_lock(layout.root):  # one writer per run folder (runfolder/lock.py)
             before = layout.config.read_bytes() if layout.config.is_file() else None
             if before is None or before == dump_yaml(config).encode():
-                return stage(layout, config, *args, **kwargs)
+                return _timed(stage, layout, config, *args, **kwargs)
             save_run(layout.root, config)
             try:
-                return stage(layout, config, *args, **kwargs)
+                return _timed(stage, layout, config, *args, **kwargs)
             except UserError:
                 atomic_write(layout.config, lambda tmp: tmp.write_bytes(before))
                 raise

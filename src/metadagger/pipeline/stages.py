@@ -36,9 +36,9 @@ from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
 from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
 from metadagger.metal.export import export_run
-from metadagger.metal.groundtruth import groundtruth_changes, load_groundtruth, train_groundtruth
-from metadagger.metal.pairs import collect_pairs, pair_status
-from metadagger.metal.store import PairSplit, PairStore
+from metadagger.metal.groundtruth import check_pistar, groundtruth_changes, load_groundtruth, pistar_rates, train_groundtruth
+from metadagger.metal.pairs import OUTCOMES, collect_pairs, negligible_change_warning, pair_status
+from metadagger.metal.store import PairSplit, PairStore, validation_size
 from metadagger.pipeline.run_config import RunConfig, init_run, load_run, records_config, save_run
 from metadagger.policies import Policy
 from metadagger.runfolder.driver import StageOptions
@@ -47,16 +47,23 @@ from metadagger.runfolder.lock import run_lock
 from metadagger.runfolder.stamps import describe_changes
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
+from metadagger.tasks.checks import check_task_code
 from metadagger.utils.executors import default_workers
 from metadagger.utils.io import read_json
 from metadagger.utils.kernels import pin_cpu_kernels
+from metadagger.utils.plotting import draw_figure
 
 STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "report")
 
 
-def run_task(config: RunConfig) -> Task:
-    """The task a run was configured with."""
-    return make_task(config.task, **config.task_kwargs)
+def run_task(config: RunConfig, *, checked: bool = False) -> Task:
+    """The task a run was configured with; ``checked``: its code passed the cheap checks
+    (:func:`~metadagger.tasks.checks.check_task_code`), so that no wrong observation is ever
+    trained on and a mistake in it is one line before any work."""
+    task = make_task(config.task, **config.task_kwargs)
+    if checked:
+        check_task_code(task)
+    return task
 
 
 def _log(layout: RunLayout, config: RunConfig, runs: Callable[[], Mapping[str, list[Scalar]]]) -> None:
@@ -71,7 +78,7 @@ def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOption
     """Train pi* (skipped when done and made from this config)."""
     # pi*'s rollouts use this machine's cores (a local pool) whatever executor the per-seed stages use
     workers = options.workers if options.executor == "local" and options.workers else default_workers()
-    metrics = train_groundtruth(run_task(config), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress,
+    metrics = train_groundtruth(run_task(config, checked=True), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress,
                                 workers=workers)
     _log(layout, config, lambda: {"groundtruth": groundtruth_scalars(layout)})
     return metrics
@@ -89,9 +96,11 @@ def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Po
 
 @records_config
 def stage_pairs(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
-    """Collect the pairs of every seed not stored yet (with ``options.rebuild``, also the stale ones)."""
-    task = run_task(config)
+    """Collect the pairs of every seed not stored yet (with ``options.rebuild``, also the stale ones);
+    refuses before any pair when pi* is below ``groundtruth.min_success`` on its unseen seeds."""
+    task = run_task(config, checked=True)
     _current_groundtruth(layout, config, task)
+    check_pistar(read_json(layout.groundtruth_metrics, "pi*'s metrics"), config.groundtruth, layout)
     summary = collect_pairs(task, layout, config.pairs, options)
     _log(layout, config, lambda: {"pairs": pairs_scalars(layout, config.pairs.seeds)})
     return summary
@@ -109,13 +118,26 @@ def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSpli
             f"run `metadagger pairs --out {layout.root}`" + (" --rebuild" if changes else "") + " or `metadagger reproduce` first"
         )
     store = PairStore(layout.pairs_dir)
-    split = store.load_split(val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True, seeds=config.pairs.seeds)
-    if len(split.train_seeds) < 2:
-        raise UserError(
-            f"only {len(split.train_seeds) + len(split.val_seeds)} kept pairs in {layout.pairs_dir}; "
-            "collect more seeds (pairs.seeds) or relax pairs.keep"
-        )
-    return split
+    kept = sum(1 for r in store.records() if r.get("kept") is True and r["seed"] in set(config.pairs.seeds))
+    if kept - validation_size(kept, config.pairs.val_fraction) < 2:
+        raise UserError(f"only {kept} kept pairs (pairs.keep={config.pairs.keep}) in {layout.pairs_dir}, too few for a "
+                        f"training set with pairs.val_fraction={config.pairs.val_fraction:g}: {_pair_outcomes(layout)}; "
+                        "with few kept pairs, collect more pairs.seeds or relax pairs.keep; with none, make pi* stronger "
+                        "(docs/custom_task.md, \"Making pi* work on a new task\")")
+    return store.load_split(val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True, seeds=config.pairs.seeds)
+
+
+def _pair_outcomes(layout: RunLayout) -> str:
+    """The pairs' outcome counts and pi*'s success rates, as a clause of an error line."""
+    parts = []
+    if layout.pairs_summary.is_file():
+        summary = read_json(layout.pairs_summary, "the pairs' summary")
+        counts = ", ".join(f"{name} {summary['outcomes'].get(name, 0)}" for name in OUTCOMES)
+        parts.append(f"of {summary['seeds']} pair seeds: {counts}")
+    if layout.groundtruth_metrics.is_file():
+        metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics")
+        parts.append(f"pi*: {pistar_rates(metrics)}")
+    return "; ".join(parts) or "no pairs summary yet"
 
 
 @records_config
@@ -133,7 +155,7 @@ def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | N
             for kind in kinds]
     train_mappers(jobs, rebuild=options.rebuild, options=options)
     for kind in kinds:
-        plot_curves(layout.mapper_curves(kind), layout.mapper_curves_figure(kind))
+        draw_figure(layout.mapper_curves_figure(kind), lambda path, kind=kind: plot_curves(layout.mapper_curves(kind), path))
     _log(layout, config, lambda: {f"mapper/{kind}": mapper_scalars(layout, kind) for kind in kinds})
     return [layout.mapper(kind) for kind in kinds]
 
@@ -308,7 +330,12 @@ def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions) -> P
     ]
     for number, (heading, stage) in enumerate(stages, 1):
         _heading(number, heading, options.progress)
-        stage()
+        result = stage()
+        if number == 1 and options.progress:
+            print(f"pi*: {pistar_rates(result)}", file=sys.stderr, flush=True)
+        warning = negligible_change_warning(result) if number == 2 else None
+        if warning:
+            print(warning, file=sys.stderr, flush=True)
     _heading(len(STAGES), "report", options.progress)
     return build_report(layout)
 

@@ -30,6 +30,11 @@ class RunLayout:
         """The resolved run config (written first, read by every stage)."""
         return self.root / "config.yaml"
 
+    @property
+    def stage_times(self) -> Path:
+        """Wall time of each stage: its last call's and the sum over all its calls (JSON)."""
+        return self.root / "stage_times.json"
+
     # pi*
     @property
     def groundtruth_dir(self) -> Path:

@@ -43,6 +43,20 @@ def make_folder(folder: Path) -> None:
         raise UserError(f"cannot create folder {folder} ({exc.strerror}); choose an output path you can write to") from None
 
 
+def check_writable(folder: str | Path) -> None:
+    """Make sure files can be written in ``folder`` (created if missing), before any work that
+    ends with writing there: a full disk, a read-only folder or a missing permission is one
+    :class:`UserError` naming it and what to do."""
+    folder = Path(folder)
+    make_folder(folder)
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".probe.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise machine_fault(folder, exc) or UserError(f"cannot write in {folder} ({exc.strerror}); choose a folder you can write to") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
 def check_output_file(path: str | Path, option: str) -> None:
     """Make sure ``path`` (given as ``option``) can be written as a file, before any work that ends
     by writing it: not a folder, and under a writable folder (nothing is created here)."""
