@@ -165,16 +165,18 @@ ADDRESS = typer.Option(None, "--address", help="Ray cluster: ray://HEAD:10001, H
 def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets: Optional[Path] = PRESETS_FILE,
                 overrides: list[str] = SET, rebuild: bool = REBUILD) -> None:
     """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
-    from metadagger.runfolder.layout import RunLayout
+    from metadagger.metal.groundtruth import pistar_rates
     from metadagger.pipeline.stages import init_run, stage_groundtruth
-
     from metadagger.runfolder.driver import StageOptions
+    from metadagger.runfolder.layout import RunLayout
 
     layout = RunLayout(out)
-    metrics = stage_groundtruth(layout, init_run(out, task, preset, presets, overrides), StageOptions(rebuild=rebuild))
-    for name in ("own_seeds", "unseen_seeds"):
-        m = metrics[name]
-        typer.echo(f"pi* on {name.replace('_', ' ')}: {m['successes']}/{m['episodes']} successes ({m['success_rate']:.0%}), mean reward {m['mean_reward']:.1f}")
+    config = init_run(out, task, preset, presets, overrides)
+    metrics = stage_groundtruth(layout, config, StageOptions(rebuild=rebuild))
+    typer.echo(f"pi*: {pistar_rates(metrics)}")
+    if metrics["unseen_seeds"]["success_rate"] < config.groundtruth.min_success:
+        typer.echo(f"warning: pi* is below groundtruth.min_success={config.groundtruth.min_success:g} on its unseen seeds: "
+                   "the pairs stage will refuse it (docs/custom_task.md, \"Making pi* work on a new task\")", err=True)
     if metrics.get("bc_selection"):
         choice = metrics["bc_selection"]
         typer.echo(f"pi* is epoch {choice['epoch']} of its BC fit: {choice['successes']}/{choice['episodes']} held-out seeds")
