@@ -11,8 +11,8 @@ import pytest
 from toy_task import TINY_PRESETS, RunCorridorTask
 from typer.testing import CliRunner
 
-import metadagger
 from metadagger.cli.main import app
+from metadagger.tasks import _FACTORIES
 
 runner = CliRunner()
 
@@ -45,9 +45,9 @@ def _one_error_line(output: str, *needles: str) -> None:
         assert needle.lower() in errors[0].lower(), errors[0]
 
 
-def test_a_full_disk_and_a_read_only_folder_are_one_line_and_keep_finished_work(tmpfs, tmp_path):
+def test_a_full_disk_and_a_read_only_folder_are_one_line_and_keep_finished_work(tmpfs, tmp_path, monkeypatch):
     folder, remount = tmpfs
-    metadagger.register_task("corridor-run", RunCorridorTask)
+    monkeypatch.setitem(_FACTORIES, "corridor-run", RunCorridorTask)
     presets = tmp_path / "presets.yaml"
     presets.write_text(TINY_PRESETS)
     run = folder / "run"

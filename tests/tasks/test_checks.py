@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 import metadagger
 from metadagger.cli.main import app
 from metadagger.errors import UserError
+from metadagger.tasks import _FACTORIES
 from metadagger.tasks.checks import check_task_code
 from metadagger.tasks.identity import code_fingerprint, task_stamp
 
@@ -41,9 +42,14 @@ class OutOfRange(CorridorTask):
         return 7
 
 
-class GlobalRandomExpert(CorridorTask):
-    def expert(self, env):
-        return np.array([np.random.uniform(-1, 1)], np.float32)
+class GlobalRandomRoad(CorridorTask):
+    """Draws its road from the global generator, whatever the seed."""
+
+    def make_base_env(self, **kwargs):
+        env = super().make_base_env(**kwargs)
+        reset = env.reset
+        env.reset = lambda *, seed=None, options=None: reset(seed=int(np.random.randint(1 << 30)), options=options)
+        return env
 
 
 class LosesTheLabel(CorridorTask):
@@ -79,7 +85,7 @@ def test_packaged_and_toy_tasks_pass(task):
     (OneHotExpert(), ["OneHotExpert.to_label returned", "shape (3,)", "class index", "int in 0..2"]),
     (FloatLabel(), ["FloatLabel.to_label returned 1.0 (float)", "class index"]),
     (OutOfRange(), ["OutOfRange.to_label returned 7", "0..2"]),
-    (GlobalRandomExpert(), ["GlobalRandomExpert.make_base_env", "seed 0 differ", "reset(seed=...)"]),
+    (GlobalRandomRoad(), ["GlobalRandomRoad.make_base_env", "seed 0 differ", "reset(seed=...)"]),
     (LosesTheLabel(), ["LosesTheLabel.combine and to_label disagree", "expected 0"]),
     (ReadsMissingState(), ["ReadsMissingState.expert raised AttributeError", "'state'"]),
     (BoxShapeMismatch(), ["BoxShapeMismatch.to_label returned float32 of shape (2,)", "shape (1,)"]),
@@ -110,9 +116,9 @@ def test_wrong_observations_are_refused(transform, space, needles):
         assert needle in str(info.value)
 
 
-def test_a_bad_task_is_refused_before_any_work(tmp_path):
+def test_a_bad_task_is_refused_before_any_work(tmp_path, monkeypatch):
     """reproduce runs the checks before pi*: nothing is trained on a wrong observation."""
-    metadagger.register_task("corridor-onehot", OneHotRun)
+    monkeypatch.setitem(_FACTORIES, "corridor-onehot", OneHotRun)
     presets = tmp_path / "presets.yaml"
     from toy_task import TINY_PRESETS
     presets.write_text(TINY_PRESETS)
@@ -136,8 +142,8 @@ def test_check_task_measures_the_expert():
     assert "steps per second" in result.output
 
 
-def test_check_task_of_a_bad_task_is_one_line_exit_2():
-    metadagger.register_task("corridor-float-label", FloatLabelRun)
+def test_check_task_of_a_bad_task_is_one_line_exit_2(monkeypatch):
+    monkeypatch.setitem(_FACTORIES, "corridor-float-label", FloatLabelRun)
     result = CliRunner().invoke(app, ["check-task", "--task", "corridor-float-label", "--seeds", "0-1"])
     assert result.exit_code == 2
     errors = [line for line in result.output.splitlines() if line.startswith("error:")]
@@ -187,10 +193,10 @@ def test_a_changed_task_code_makes_its_artifacts_stale(tmp_path, monkeypatch):
     presets = tmp_path / "presets.yaml"
     presets.write_text(TINY_PRESETS)
     args = ["groundtruth", "--task", "edited", "--presets", str(presets), "--preset", "tiny", "--out", str(tmp_path / "run")]
-    metadagger.register_task("edited", _edited_task(tmp_path, 1.0))
+    monkeypatch.setitem(_FACTORIES, "edited", _edited_task(tmp_path, 1.0))
     assert CliRunner().invoke(app, args).exit_code == 0
     assert CliRunner().invoke(app, args).exit_code == 0  # unchanged: reused
-    metadagger.register_task("edited", _edited_task(tmp_path, 0.5))
+    monkeypatch.setitem(_FACTORIES, "edited", _edited_task(tmp_path, 0.5))
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2
     assert "task_code: changed" in result.output and "Traceback" not in result.output
