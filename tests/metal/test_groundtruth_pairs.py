@@ -118,6 +118,16 @@ def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_
     assert all(r["bc"]["expert_queries"] > 0 and r["da"]["expert_queries"] > r["bc"]["expert_queries"] for r in records)
 
 
+def test_a_damaged_pistar_is_named_before_any_pair_is_touched(gt_run, tmp_path):
+    first = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:2]})
+    layout = with_pistar(gt_run, tmp_path)
+    collect_pairs(CorridorTask(), layout, first, StageOptions(workers=1, progress=False))
+    before = {p.name: p.read_bytes() for p in (tmp_path / "pairs").iterdir()}
+    layout.groundtruth.write_bytes(layout.groundtruth.read_bytes()[:100])
+    with pytest.raises(CheckpointError, match=f"corrupt or not a safetensors file: {layout.groundtruth}"):
+        collect_pairs(CorridorTask(), layout, PAIRS, StageOptions(workers=1, progress=False))
+    assert {p.name: p.read_bytes() for p in (tmp_path / "pairs").iterdir()} == before
+
 def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
     first = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:2]})
     layout = with_pistar(gt_run, tmp_path)
