@@ -29,7 +29,8 @@ from typing import Any, Iterator, Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
-from metadagger.evaluation.methods import GATED, MDI_METHODS, METHODS, GateKey, MapperKey, MethodKey, RoundKey, ShotKey
+from metadagger.evaluation.methods import GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RoundKey, ShotKey
+from metadagger.evaluation.paired import paired_comparison
 from metadagger.evaluation.rows import write_csv
 from metadagger.evaluation.tables import method_label
 from metadagger.imitation.bc import BCConfig
@@ -39,6 +40,7 @@ from metadagger.imitation.rollouts import Trajectory
 from metadagger.utils.io import write_json
 from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import MapperFile, cached_mapper
+from metadagger.mapping.registry import control_names
 from metadagger.metal.method import Round, SeedLearner, bc_head, dagger_rounds, demonstration, map_head, seed_context, seeded
 from metadagger.utils.plotting import draw_figure, interval_errors, plt, save_figure
 from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
@@ -259,7 +261,8 @@ def run_benchmark(
 
 def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]) -> dict[str, Any]:
     """Per (method, setting): success rate with its 95% Wilson interval, mean reward and mean
-    queries per seed; and the queries spent on meta-training."""
+    queries per seed; the queries spent on meta-training; the references (:func:`references`)
+    and every method's paired comparison with each (:func:`comparisons`)."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault((r["method"], str(r["setting"])), []).append(r)
@@ -270,7 +273,41 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
                         "success_rate": s["success_rate"], "success_ci_low": s["success_ci_low"],
                         "success_ci_high": s["success_ci_high"], "mean_reward": s["mean_reward"],
                         "mean_queries": s["expert_queries"] / s["episodes"]})
-    return {"entries": entries, "meta_training_queries": dict(meta_queries)}
+    refs = references(entries)
+    return {"entries": entries, "meta_training_queries": dict(meta_queries), "references": refs,
+            "comparisons": comparisons(groups, refs)}
+
+
+def references(entries: list[dict[str, Any]]) -> list[dict[str, str]]:
+    """What every method is compared with: each MDM control, and the best gate (the gated DAgger
+    setting with the highest success, the fewest queries on a tie), as ``method``/``setting``."""
+    controls = {MDM_PREFIX + name for name in control_names()}
+    refs = [{"method": e["method"], "setting": e["setting"]} for e in entries if e["method"] in controls]
+    gates = [e for e in entries if e["method"] in GATED]
+    if gates:
+        best = max(gates, key=lambda e: (e["success_rate"], -e["mean_queries"]))
+        refs.append({"method": best["method"], "setting": best["setting"]})
+    return refs
+
+
+def comparisons(groups: dict[tuple[str, str], list[dict[str, Any]]], refs: list[dict[str, str]]) -> list[dict[str, Any]]:
+    """Every (method, setting) against every reference but itself, paired on the seeds both ran
+    (:func:`metadagger.evaluation.paired.paired_comparison`)."""
+    by_seed = {key: {r["seed"]: r for r in group} for key, group in groups.items()}
+    out = []
+    for ref in refs:
+        other = by_seed[(ref["method"], ref["setting"])]
+        for (method, setting), mine in by_seed.items():
+            if (method, setting) == (ref["method"], ref["setting"]):
+                continue
+            seeds = sorted(set(mine) & set(other))
+            if not seeds:
+                continue
+            a, b = [mine[s] for s in seeds], [other[s] for s in seeds]
+            stats = paired_comparison([r["success"] for r in a], [r["success"] for r in b],
+                                      [r["reward"] for r in a], [r["reward"] for r in b])
+            out.append({"method": method, "setting": setting, "against": ref["method"], "against_setting": ref["setting"], **stats})
+    return out
 
 
 #: Marker shapes, cycled with the colours so that methods stay apart past ten of them.

@@ -1,5 +1,6 @@
 """The benchmark section of a report ("Success against expert queries"), built only from
 ``benchmark/summary.json``: every (method, setting) with its success interval and queries, the
+paired comparisons of every method with the controls and the best gate, the
 cheapest setting of each method that reaches 90% of DAgger's final success, and what
 meta-training cost in expert queries against what MDM saves per new seed where it succeeds as
 often as DAgger."""
@@ -11,6 +12,7 @@ from typing import Any
 
 from metadagger.evaluation.benchmark import plot_queries
 from metadagger.evaluation.methods import MDM_PREFIX
+from metadagger.evaluation.paired import verdict
 from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json
@@ -37,7 +39,53 @@ def benchmark_section(layout: RunLayout) -> list[str]:
               f"{pct(e['success_rate'])} ({e['successes']}/{e['seeds']}; {pct(e['success_ci_low'])}-{pct(e['success_ci_high'])})",
               f"{e['mean_reward']:.1f}", f"{e['mean_queries']:.1f}") for e in entries]
     lines += markdown_table(("method", "setting", "success (95% Wilson interval)", "mean reward", "mean queries per seed"), cells)
-    return lines + [""] + _matching(entries) + _amortisation(entries, summary["meta_training_queries"])
+    return (lines + [""] + _paired(entries, summary.get("references", []), summary.get("comparisons", []))
+            + _matching(entries) + _amortisation(entries, summary["meta_training_queries"]))
+
+
+def _reference_label(method: str, setting: str) -> str:
+    return f"{method_label(method)}{f' {setting}' if setting else ''}"
+
+
+def _paired(entries: list[dict[str, Any]], refs: list[dict[str, str]], comparisons: list[dict[str, Any]]) -> list[str]:
+    """Each method against each control and the best gate on the same seeds, and what they show."""
+    if not refs or not comparisons:
+        return []
+    found = {(c["method"], c["setting"], c["against"], c["against_setting"]): c for c in comparisons}
+    names = [_reference_label(r["method"], r["setting"]) for r in refs]
+    cells = []
+    for e in entries:
+        row = [method_label(e["method"]), e["setting"] or "-"]
+        for r in refs:
+            c = found.get((e["method"], e["setting"], r["method"], r["setting"]))
+            row.append("-" if c is None else f"{_points(c['difference'])} ({_points(c['ci_low'])} to {_points(c['ci_high'])}); "
+                                             f"{c['only_a']}:{c['only_b']}, p {c['p_value']:.2g}; PI {c['p_improvement']:.2f}")
+        cells.append(tuple(row))
+    lines = ["### Paired comparisons with the controls and the best gate", "",
+             f"On the same seeds: the difference in success rate (points) with its 95% bootstrap interval over seeds; "
+             f"the seeds only this method : only the other solved, with the exact McNemar p; PI, the probability of "
+             f"improvement (the share of seeds with the higher reward, ties half). The best gate is the gated DAgger "
+             f"setting with the highest success here (chosen on these seeds, which favours it).", ""]
+    lines += markdown_table(("method", "setting", *(f"against {n}" for n in names)), cells) + [""]
+    return lines + _conclusions(entries, refs, found, names) + [""]
+
+
+def _points(value: float) -> str:
+    return f"{100 * value:+.1f}"
+
+
+def _conclusions(entries: list[dict[str, Any]], refs: list[dict[str, str]], found: dict[tuple[str, str, str, str], dict[str, Any]],
+                 names: list[str]) -> list[str]:
+    """Which methods the paired intervals show better than every reference, and which not."""
+    above_all = []
+    for e in entries:
+        cs = [found.get((e["method"], e["setting"], r["method"], r["setting"])) for r in refs]
+        if all(c is not None and verdict(c) == "better" for c in cs):
+            above_all.append(_reference_label(e["method"], e["setting"]))
+    against = ", ".join(names)
+    if above_all:
+        return [f"Better than every one of {against} (paired 95% interval above 0): {', '.join(above_all)}."]
+    return [f"No method is shown better than every one of {against}: no paired 95% interval lies above 0 against all of them."]
 
 
 def _dagger_final(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
