@@ -335,7 +335,7 @@ def test_sigterm_mid_stage_is_one_line_exit_143_and_leaves_no_temporary_files(tm
     import time
 
     run = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "metadagger.cli.main", "reproduce", "--task", "carracing", "--preset", "ci",
+    proc = subprocess.Popen([sys.executable, "-m", "metadagger.cli", "reproduce", "--task", "carracing", "--preset", "ci",
                              "--out", str(run)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not list((run / "pairs").glob("*.safetensors")) and time.monotonic() < deadline:
@@ -347,3 +347,21 @@ def test_sigterm_mid_stage_is_one_line_exit_143_and_leaves_no_temporary_files(tm
             in err.splitlines())
     assert "Traceback" not in err and "leaked" not in err and "Warning" not in err
     assert not [p for p in run.rglob("*") if ".tmp" in p.name]
+
+
+@pytest.mark.parametrize("signame, exit_code, said", [("SIGTERM", 143, "SIGTERM"), ("SIGINT", 130, "Ctrl-C")])
+def test_a_signal_while_the_command_line_loads_is_one_line(signame, exit_code, said):
+    """The console script answers a signal from its first moment: here one arrives while its
+    main module is being loaded (a stand-in that signals the process)."""
+    import subprocess
+    import sys
+
+    code = ("import os, signal, sys, time, types\n"
+            "loading = types.ModuleType('metadagger.cli.main')\n"
+            f"loading.main = lambda: (os.kill(os.getpid(), signal.{signame}), time.sleep(30))\n"
+            "sys.modules['metadagger.cli.main'] = loading\n"
+            "from metadagger.cli import run\n"
+            "run()\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == exit_code
+    assert done.stderr == f"error: stopped by {said} while the command line loaded: no work had started\n"

@@ -1,5 +1,5 @@
 """``python -m metadagger.cli``: the ``metadagger`` command line."""
 
-from metadagger.cli.main import main
+from metadagger.cli import run
 
-main()
+run()

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable, Optional, TypeVar
 
 import typer
 
+from metadagger.cli import SIGNAL_NAMES
 from metadagger.errors import UserError
 from metadagger.utils.kernels import pin_cpu_kernels
 
@@ -527,7 +528,7 @@ def main(argv: Optional[list[str]] = None) -> None:
     # multiprocessing resource tracker, which removes them at exit and warns; the tracker is a
     # process of its own, started with this process's -W options: it removes them without a word.
     sys.warnoptions.append("ignore:resource_tracker:UserWarning")
-    for signum in (signal.SIGTERM, signal.SIGINT):
+    for signum in SIGNAL_NAMES:
         signal.signal(signum, _stop)
     try:
         code = app(args=argv, prog_name="metadagger", standalone_mode=False)  # Typer returns 130 on an interrupt
@@ -544,8 +545,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         _print_error(message)
         sys.exit(exc.exit_code)
     if _stopped_by:
-        by = "SIGTERM" if _stopped_by[0] == signal.SIGTERM else "Ctrl-C"
-        _print_error(f"stopped by {by}: finished work is kept; run the same command again to resume where it stopped")
+        _print_error(f"stopped by {SIGNAL_NAMES[_stopped_by[0]]}: finished work is kept; run the same command again to resume where it stopped")
         sys.exit(128 + _stopped_by[0])  # the shell's convention: 143 for SIGTERM, 130 for Ctrl-C
     sys.exit(code if isinstance(code, int) else 0)
 
