@@ -11,7 +11,8 @@ import torch
 from toy_task import TINY_PRESETS, CorridorTask, RunCorridorTask
 from typer.testing import CliRunner
 
-from metadagger.cli.main import app, main
+from metadagger.cli.entry import main
+from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.pipeline.run_config import init_run
 from metadagger.policies import make_policy
@@ -358,9 +359,9 @@ def test_a_signal_while_the_command_line_loads_is_one_line(signame, exit_code, s
 
     code = ("import os, signal, sys, time, types\n"
             "loading = types.ModuleType('metadagger.cli.main')\n"
-            f"loading.main = lambda: (os.kill(os.getpid(), signal.{signame}), time.sleep(30))\n"
+            f"loading.__getattr__ = lambda name: (os.kill(os.getpid(), signal.{signame}), time.sleep(30))\n"
             "sys.modules['metadagger.cli.main'] = loading\n"
-            "from metadagger.cli import run\n"
+            "from metadagger.cli.entry import run\n"
             "run()\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == exit_code

@@ -64,7 +64,7 @@ def test_rows_made_on_a_two_node_cluster_equal_the_local_ones(cluster, tmp_path)
     # the driver in a process of its own: no Ray state of this process (an earlier test's local
     # ray.init) and none of this machine's (a fresh HOME)
     env = {**_without_ray_variables(os.environ), "HOME": str(home)}
-    result = subprocess.run([sys.executable, "-m", "metadagger.cli.main", "reproduce", "--task", "carracing", "--preset", "ci",
+    result = subprocess.run([sys.executable, "-m", "metadagger.cli", "reproduce", "--task", "carracing", "--preset", "ci",
                              "--out", str(remote), "--executor", "ray", "--address", address],
                             env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]

@@ -1,5 +1,5 @@
 """``python -m metadagger.cli``: the ``metadagger`` command line."""
 
-from metadagger.cli import run
+from metadagger.cli.entry import run
 
 run()

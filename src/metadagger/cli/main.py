@@ -1,10 +1,11 @@
 """The ``metadagger`` command line: thin wrappers that build a config and call the library.
 
-A :class:`~metadagger.errors.UserError`, and a usage error of the command line itself, becomes one
-``error: ...`` line on stderr and exit code 2.
+A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stderr and exit code 2
+(:func:`user_errors`); the process around the commands (usage errors, signals, exit codes) is
+:mod:`metadagger.cli.entry`.
 
 The command line runs on pinned CPU kernels (:func:`~metadagger.utils.kernels.pin_cpu_kernels`):
-:func:`main` pins them first thing, and this module pins them before its one import of
+:func:`metadagger.cli.entry.main` pins them first thing, and this module pins them before its one import of
 torch-using code (the mapper kinds named in ``--kind``'s help); the commands import the rest of
 the library when they run.
 """
@@ -13,13 +14,11 @@ from __future__ import annotations
 
 import functools
 import json
-import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Optional, TypeVar
 
 import typer
 
-from metadagger.cli import SIGNAL_NAMES
 from metadagger.errors import UserError
 from metadagger.utils.kernels import pin_cpu_kernels
 
@@ -58,13 +57,13 @@ def user_errors(fn: F) -> F:
         try:
             return fn(*args, **kwargs)
         except UserError as exc:
-            _print_error(str(exc))
+            print_error(str(exc))
             raise typer.Exit(code=2) from None
 
     return wrapper  # type: ignore[return-value]
 
 
-def _print_error(message: str) -> None:
+def print_error(message: str) -> None:
     """``message`` as the one ``error: ...`` line on stderr."""
     typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
 
@@ -498,57 +497,3 @@ def config_show(task: str = TASK, preset: str = PRESET, presets: Optional[Path] 
     from metadagger.pipeline.run_config import resolve_config
 
     typer.echo(dump_yaml(resolve_config(task, preset, presets, overrides)), nl=False)
-
-
-#: The signals that stopped this command (SIGTERM or SIGINT), for its last line.
-_stopped_by: list[int] = []
-
-
-def _stop(signum: int, frame: Any) -> None:
-    """SIGTERM and Ctrl-C stop the command where it is, as a KeyboardInterrupt: workers are
-    cancelled and temporary files removed on the way out; finished work stays."""
-    _stopped_by.append(signum)
-    raise KeyboardInterrupt
-
-
-def main(argv: Optional[list[str]] = None) -> None:
-    """Console-script entry point (``argv``: the arguments, default the process's).
-
-    The command line's own usage errors (an unknown command or option, a missing option, a value
-    that is not a number) are one ``error: ...`` line and exit code 2, like a :class:`UserError`.
-    """
-    pin_cpu_kernels()  # first thing: the command line's kernels, before any tensor operation
-
-    import importlib
-    import sys
-
-    # Click's exceptions, from wherever this Typer takes them (Click itself, or its own copy)
-    click_errors = importlib.import_module(typer.BadParameter.__module__)
-    # A pool stopped by a signal while it starts can leave its queues' semaphores to the
-    # multiprocessing resource tracker, which removes them at exit and warns; the tracker is a
-    # process of its own, started with this process's -W options: it removes them without a word.
-    sys.warnoptions.append("ignore:resource_tracker:UserWarning")
-    for signum in SIGNAL_NAMES:
-        signal.signal(signum, _stop)
-    try:
-        code = app(args=argv, prog_name="metadagger", standalone_mode=False)  # Typer returns 130 on an interrupt
-    except typer.Abort:  # a refused confirmation
-        typer.echo("Aborted!", err=True)
-        sys.exit(1)
-    except getattr(click_errors, "NoArgsIsHelpError", ()):
-        sys.exit(2)  # building the error printed the help
-    except click_errors.ClickException as exc:  # a UsageError (exit code 2) names its command
-        message = " ".join(exc.format_message().split())
-        ctx = getattr(exc, "ctx", None)
-        if ctx is not None:
-            message += f"{'' if message.endswith(('.', '?')) else '.'} See `{ctx.command_path} --help` for the usage."
-        _print_error(message)
-        sys.exit(exc.exit_code)
-    if _stopped_by:
-        _print_error(f"stopped by {SIGNAL_NAMES[_stopped_by[0]]}: finished work is kept; run the same command again to resume where it stopped")
-        sys.exit(128 + _stopped_by[0])  # the shell's convention: 143 for SIGTERM, 130 for Ctrl-C
-    sys.exit(code if isinstance(code, int) else 0)
-
-
-if __name__ == "__main__":
-    main()

@@ -8,7 +8,7 @@ AVX2 kernels, which every x86-64 CPU of the last decade has; a user who sets eit
 keeps their value (``ATEN_CPU_CAPABILITY=default`` restores the machine's own choice).
 
 Importing metadagger does not pin them: the command line does, first thing
-(:func:`metadagger.cli.main.main`), as do the pipeline's entry points (``reproduce``,
+(:func:`metadagger.cli.entry.main`), as do the pipeline's entry points (``reproduce``,
 ``init_run``, ``load_run``), the local pool's workers and every Ray task; a Python program calls
 ``metadagger.pin_cpu_kernels()`` itself, before its first tensor operation.
 """
