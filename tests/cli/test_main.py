@@ -118,6 +118,15 @@ def test_missing_run_and_missing_groundtruth(tmp_path):
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "pi* not found")
 
 
+def test_video_checks_its_methods_and_the_run_before_any_rollout(tmp_path):
+    _fails_cleanly(["video", "--out", str(tmp_path / "none"), "--seed", "5000"], "no run at")
+    (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
+    _fails_cleanly(["video", "--out", str(tmp_path), "--seed", "5000", "--methods", "bc,magic"],
+                   "--methods has magic", "expected some of expert, bc, dagger")
+    _fails_cleanly(["video", "--out", str(tmp_path), "--seed", "5000", "--fps", "0"], "--fps, --scale and --gif-stride must be >= 1")
+    _fails_cleanly(["video", "--out", str(tmp_path), "--seed", "5000", "--methods", "bc"], "pi* not found")
+
+
 @pytest.mark.parametrize("command", [["pairs"], ["evaluate", "--protocol", "mdm"], ["bench", "pairs", "--seeds", "1"]],
                          ids=["pairs", "evaluate", "bench-pairs"])
 def test_corrupt_checkpoint_is_a_clear_error(tmp_path, command):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import shutil
 
 import pytest
@@ -17,26 +18,15 @@ from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import collect
-from metadagger.mapping.mappers import Mapper
-from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
-from metadagger.policies import load_policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 
-GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
 SEEDS = (300, 301)
 CONFIG = BenchmarkConfig(seeds=SEEDS, grids={"dagger-random": [0.0, 0.5], "dagger-ensemble": [0.5], "dagger-safe": [0.5],
-                                             "dagger-novelty": [0.5]})
+                                             "dagger-novelty": [0.5], "dagger-thrifty": [0.25], "dagger-conformal": [0.5]},
+                         demo_fractions=(0.5, 1.0))
 ROUNDS = 2
-
-
-@pytest.fixture(scope="module")
-def toy_run(tmp_path_factory) -> RunLayout:
-    layout = RunLayout(tmp_path_factory.mktemp("bench"))
-    train_groundtruth(CorridorTask(), GT, layout, progress=False)
-    Mapper.pistar_head(load_policy(layout.groundtruth).head_vector()).save(layout.mapper("pistar-head"))
-    return layout
 
 
 def _run(layout: RunLayout, config: BenchmarkConfig = CONFIG, **kwargs) -> list[dict]:
@@ -52,52 +42,66 @@ def rows(toy_run) -> list[dict]:
 
 def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
     keys = method_keys(CONFIG, rounds=ROUNDS, kinds=("pistar-head",), mdi=False)
-    assert [key.id for key in keys] == ["bc@", "mdm-pistar-head@", "dagger@1", "dagger@2", "dagger-random@0", "dagger-random@0.5",
-                    "dagger-ensemble@0.5", "dagger-safe@0.5", "dagger-novelty@0.5"]
-    assert [(r['method'], r['setting']) for r in rows] == [(key.method, key.setting) for key in keys] * len(SEEDS)
+    gated = ["dagger-random@0", "dagger-random@0.5", "dagger-ensemble@0.5", "dagger-safe@0.5", "dagger-novelty@0.5",
+             "dagger-thrifty@0.25", "dagger-conformal@0.5"]
+    # the shorter demonstration for BC and the gates; pi*'s head never reads it, DAgger keeps the whole one
+    assert [key.id for key in keys] == ["bc@", "bc@@demo0.5", "mdm-pistar-head@", "dagger@1", "dagger@2",
+                                        *(k for g in gated for k in (g, g + "@demo0.5"))]
+    assert ([(r['method'], r['setting'], r["demo_fraction"]) for r in rows]
+            == [(key.method, key.setting, key.demo_fraction) for key in keys] * len(SEEDS))
     assert tuple(read_csv(toy_run.benchmark_table)[0]) == bench.FIELDS
 
 
 def test_queries_are_counted_exactly(toy_run, rows):
     task = CorridorTask()
     demos = {t.seed: t.steps for t in collect(task, SEEDS, policy=None)}
-    table = {(r["method"], str(r["setting"]), r["seed"]): r for r in rows}
+    table = {(r["method"], str(r["setting"]), r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
+    halves = {(r["method"], str(r["setting"]), r["seed"]): r for r in rows if r["demo_fraction"] == 0.5}
     for seed in SEEDS:
-        # BC and MDM: the demonstration only; a random gate with p = 0 labels nothing more
-        for key in (("bc", "", seed), ("mdm-pistar-head", "", seed), ("dagger-random", "0", seed)):
+        # BC: the demonstration only; a random gate with p = 0 labels nothing more
+        for key in (("bc", "", seed), ("dagger-random", "0", seed)):
             assert table[key]["expert_queries"] == demos[seed]
+            assert halves[key]["expert_queries"] == math.ceil(demos[seed] / 2)  # its first half only
+        assert table["mdm-pistar-head", "", seed]["expert_queries"] == 0  # a control asks the expert nothing
         # DAgger labels every state of the rollouts before each refit: BC's, then round 1's policy's
         steps_before = [table["bc", "", seed]["steps"], table["dagger", "1", seed]["steps"]]
         assert table["dagger", "1", seed]["expert_queries"] == demos[seed] + steps_before[0]
         assert table["dagger", "2", seed]["expert_queries"] == demos[seed] + sum(steps_before)
-        for method in ("dagger-random", "dagger-ensemble", "dagger-safe", "dagger-novelty"):
-            gated = table[method, "0.5", seed]["expert_queries"]
+        for method, setting in (("dagger-random", "0.5"), ("dagger-ensemble", "0.5"), ("dagger-safe", "0.5"),
+                                ("dagger-novelty", "0.5"), ("dagger-thrifty", "0.25"), ("dagger-conformal", "0.5")):
+            gated = table[method, setting, seed]["expert_queries"]
             assert demos[seed] <= gated <= table["dagger", "2", seed]["expert_queries"] + 30  # a gate labels a subset
+            assert math.ceil(demos[seed] / 2) <= halves[method, setting, seed]["expert_queries"]
 
 
-def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch):
-    """Every query is a state the gate selected: count the selections independently."""
-    selected = []
+@pytest.mark.parametrize("gate, value", [("novelty", 0.5), ("thrifty", 0.25), ("conformal", 0.5)])
+def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate, value):
+    """Every query is a state the gate selected: count the selections independently; a gate's memory
+    holds the demonstration, then each rollout it has gated, and nothing else."""
+    selected, remembered = [], []
     real = bench.make_gate
 
     def counting(name, setting, **options):
         gate = real(name, setting, **options)
 
         class Counting:
-            def select(self, *args, **kwargs):
-                mask = gate.select(*args, **kwargs)
+            def select(self, *args, memory, **kwargs):
+                remembered.append([(len(e.features), e.succeeded) for e in memory.episodes])
+                mask = gate.select(*args, memory=memory, **kwargs)
                 selected.append(int(mask.sum()))
                 return mask
         return Counting()
 
     monkeypatch.setattr(bench, "make_gate", counting)
-    key = GateKey("dagger-novelty", "0.5", gate="novelty", value=0.5)
+    key = GateKey(f"dagger-{gate}", f"{value:g}", gate=gate, value=value)
     job = bench.BenchmarkJob(task=CorridorTask(), groundtruth=str(toy_run.groundtruth), seed=SEEDS[0],
                              methods=(key.id,), keys=(key,), mappers={}, config=CONFIG, rounds=ROUNDS, bc=BC,
                              dagger_bc=BC, early_stop=None, mdi=None)
     [row] = bench.benchmark_seed(job)["entries"][key.id]  # in this process: the patch applies
-    demo = collect(CorridorTask(), SEEDS[:1], policy=None)[0].steps
-    assert len(selected) == ROUNDS and row["expert_queries"] == demo + sum(selected)
+    demo = collect(CorridorTask(), SEEDS[:1], policy=None)[0]
+    assert len(selected) == ROUNDS and row["expert_queries"] == demo.steps + sum(selected)
+    bc_row = bench.benchmark_seed(dataclasses.replace(job, methods=("bc@",), keys=(bench.MethodKey("bc", ""),)))["entries"]["bc@"][0]
+    assert remembered == [[(demo.steps, demo.success)], [(demo.steps, demo.success), (bc_row["steps"], bc_row["success"])]]
 
 
 def test_resume_and_widening_add_only_the_missing_rows(toy_run, rows, tmp_path):
@@ -268,3 +272,40 @@ def test_a_failing_figure_is_a_line_in_the_report_section(tmp_path, monkeypatch)
     lines = _section(tmp_path, [_entry("dagger", "1", 0.5, 600), _entry("mdm-dm", "", 0.5, 100)])
     assert "Figure `queries.png` could not be drawn (ZeroDivisionError: division by zero)." in lines
     assert "| MDM DM | 50.0% | 500.0 | 50 |" in lines
+
+
+def test_controls_sit_at_a_zero_tick_and_shorter_demonstrations_are_named(toy_run, rows, monkeypatch):
+    from metadagger.utils.plotting import plt
+
+    summary = json.loads(toy_run.benchmark_summary.read_text())
+    text = "\n".join(benchmark_section(toy_run))  # before the figure is patched to stay open
+    fig = _figure(monkeypatch, summary)
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_xticklabels()]
+    assert labels[0] == "0" and ax.get_xticks()[0] < ax.get_xticks()[1]
+    plt.close(fig)
+    assert "| BC | 50% of the demonstration |" in text and "| DAgger, random gate | 0.5, 50% of the demonstration |" in text
+    half = next(e for e in summary["entries"] if e["method"] == "bc" and e["demo_fraction"] == 0.5)
+    assert half["seeds"] == len(SEEDS)
+
+
+def test_demo_fractions_are_checked():
+    for bad in ((0.5,), (0.0, 1.0), (0.5, 0.5, 1.0), (1.5, 1.0)):
+        with pytest.raises(UserError, match=r"benchmark.demo_fractions must be distinct shares in \(0, 1\] with 1 among them"):
+            dataclasses.replace(CONFIG, demo_fractions=bad)
+
+
+def test_a_demonstration_share_is_its_first_steps():
+    from metadagger.metal.method import demonstration_share
+
+    [demo] = collect(CorridorTask(), SEEDS[:1], policy=None)
+    assert demonstration_share(demo, 1.0) is demo
+    assert demonstration_share(demo, 0.999) is demo  # ceil(0.999 T) = T steps: the whole of it
+    for fraction in (0.01, 0.25, 0.5, 0.9):
+        part = demonstration_share(demo, fraction)
+        n = max(1, math.ceil(fraction * demo.steps))
+        assert part.steps == part.expert_queries == len(part.obs) == len(part.expert_labels) == n
+        assert (part.obs == demo.obs[:n]).all() and (part.final_obs == demo.obs[n]).all() and part.success == demo.success
+        assert part.reward == pytest.approx(float(demo.step_rewards[:n].sum()))
+    with pytest.raises(ValueError, match="a demonstration share must be in"):
+        demonstration_share(demo, 0.0)

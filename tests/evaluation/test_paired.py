@@ -41,8 +41,8 @@ def test_one_seed_and_bad_shapes():
 
 
 def _rows(method: str, setting: str, successes: list[int], queries: int) -> list[dict]:
-    return [{"method": method, "setting": setting, "seed": seed, "success": bool(ok), "reward": float(ok), "steps": 10,
-             "expert_queries": queries} for seed, ok in enumerate(successes)]
+    return [{"method": method, "setting": setting, "demo_fraction": 1.0, "seed": seed, "success": bool(ok), "reward": float(ok),
+             "steps": 10, "expert_queries": queries} for seed, ok in enumerate(successes)]
 
 
 def test_the_summary_compares_every_method_with_each_control_and_the_best_gate():
@@ -51,8 +51,9 @@ def test_the_summary_compares_every_method_with_each_control_and_the_best_gate()
             + _rows("dagger-random", "0.05", [1, 1, 1, 1], 15) + _rows("dagger-novelty", "0.5", [1, 1, 0, 1], 12))
     summary = summarize_benchmark(rows, {"pistar": 1, "pairs": 2})
     # the best gate: the highest success, then the fewest queries
-    assert summary["references"] == [{"method": "mdm-mean-da", "setting": ""}, {"method": "mdm-pistar-head", "setting": ""},
-                                     {"method": "dagger-random", "setting": "0.05"}]
+    assert summary["references"] == [{"method": "mdm-mean-da", "setting": "", "demo_fraction": 1.0},
+                                     {"method": "mdm-pistar-head", "setting": "", "demo_fraction": 1.0},
+                                     {"method": "dagger-random", "setting": "0.05", "demo_fraction": 1.0}]
     pairs = {(c["method"], c["setting"], c["against"], c["against_setting"]): c for c in summary["comparisons"]}
     assert len(pairs) == 3 * 7 - 3  # every entry against every reference but itself
     assert ("mdm-mean-da", "", "mdm-mean-da", "") not in pairs

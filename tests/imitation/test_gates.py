@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from metadagger.errors import UserError
-from metadagger.imitation.gates import GATES, EnsembleGate, Labelled, NoveltyGate, RandomGate, SafeGate, above_quantile, make_gate
+from metadagger.imitation.gates import (GATES, ConformalGate, EnsembleGate, Episode, GateMemory, Labelled, NoveltyGate, RandomGate,
+                                       SafeGate, ThriftyGate, above_quantile, conformal_threshold, make_gate)
 
 F = 32
 N_NEAR = N_FAR = 100
@@ -132,16 +133,83 @@ def test_safe_gate_labels_everything_when_there_is_no_mismatch_to_learn_from(dis
     assert SafeGate(quantile=0.9).select(features, learner, labelled, generator=gen()).all()
 
 
+@both
+def test_thrifty_gate_without_outcomes_to_learn_from_labels_the_novel_states(discrete):
+    features, learner, labelled = scene(discrete)
+    memory = GateMemory(episodes=[Episode(labelled.features, succeeded=True)])  # the demonstration only: no risk
+    mask = ThriftyGate(rate=0.5).select(features, learner, labelled, generator=gen(), memory=memory)
+    assert mask[N_NEAR:].all() and not mask[:N_NEAR].any()
+    assert memory.notes["thrifty"]["risk"] == [] and len(memory.notes["thrifty"]["novelty"]) == 1
+
+
+def test_thrifty_risk_is_higher_where_episodes_failed():
+    g = gen(4)
+    a, b = torch.randn(2, F, generator=g)
+    near = lambda centre, n: centre + 0.3 * torch.randn(n, F, generator=g)  # noqa: E731
+    episodes = [Episode(near(a, 50), succeeded=True), Episode(near(b, 50), succeeded=False), Episode(near(a, 30), succeeded=True)]
+    gate = ThriftyGate(rate=0.2)
+    risk = gate.risk(torch.cat([near(a, 40), near(b, 40)]), episodes)
+    assert risk[40:].min() > risk[:40].max()
+    assert gate.risk(torch.cat([near(a, 5), near(b, 5)]), episodes[:1]) is None  # one outcome: nothing to learn
+
+
+def test_thrifty_gate_labels_the_risky_states_beside_the_novel_ones():
+    features, learner, labelled = mismatch_scene(False)  # queries: N_NEAR in blob A, then N_FAR in blob B
+    a, b = features[:N_NEAR], features[N_NEAR:]
+    memory = GateMemory(episodes=[Episode(a[::2], succeeded=True), Episode(b[::2], succeeded=False)])
+    gate = ThriftyGate(rate=0.3)
+    mask = gate.select(features, learner, labelled, generator=gen(), memory=memory)
+    novel = gate.select(features, learner, labelled, generator=gen(), memory=GateMemory())  # novelty alone
+    assert not (novel & ~mask).any()  # the union of both tests: every novel state, and
+    risky = mask & ~novel
+    assert risky.any() and not risky[:N_NEAR].any()  # risky ones only where the episodes failed
+    assert int(mask[N_NEAR:].sum()) >= 0.3 * len(features)  # the riskiest 30% of the states are all in blob B
+
+
+def test_thrifty_thresholds_hold_every_estimate_of_the_run():
+    features, learner, labelled = scene(True)  # N_NEAR familiar states, then N_FAR novel ones
+    gate, memory = ThriftyGate(rate=0.25), GateMemory()
+    first = gate.select(features, learner, labelled, generator=gen(), memory=memory)
+    assert first[N_NEAR:].sum() == 50 and not first[:N_NEAR].any()  # the top quarter of 200 states
+    # a round of familiar states only: the run's threshold sits among the novel states, so none is labelled,
+    # where a threshold from this round alone would label a quarter of them
+    again = gate.select(features[:N_NEAR], learner[:N_NEAR], labelled, generator=gen(), memory=memory)
+    assert not again.any() and len(memory.notes["thrifty"]["novelty"]) == 2
+    assert ThriftyGate(rate=0.25).select(features[:N_NEAR], learner[:N_NEAR], labelled, generator=gen()).sum() == 25
+
+
+def test_conformal_threshold_is_the_finite_sample_quantile():
+    scores = torch.arange(10.0)
+    assert conformal_threshold(scores, 0.5) == 5.0  # the ceil(11 * 0.5) = 6th smallest
+    assert conformal_threshold(scores, 0.1) == 9.0  # the 10th
+    assert conformal_threshold(scores, 0.05) == float("inf")  # rank 11 of 10: nothing is ever labelled
+
+
+@both
+def test_conformal_gate_calibrates_once_on_the_first_round(discrete):
+    features, learner, labelled = scene(discrete)
+    near, far = features[:N_NEAR], features[N_NEAR:]
+    gate, memory = ConformalGate(alpha=0.1), GateMemory()
+    first = gate.select(near, learner[:N_NEAR], labelled, generator=gen(), memory=memory)
+    assert int(first.sum()) == N_NEAR - 91  # above the ceil(101 * 0.9) = 91st smallest of 100 distinct distances
+    threshold = memory.notes["conformal"]
+    assert gate.select(far, learner[N_NEAR:], labelled, generator=gen(), memory=memory).all()  # far beyond it
+    assert memory.notes["conformal"] == threshold  # kept, not recalibrated on the far round
+    assert int(ConformalGate(alpha=0.1).select(far, learner[N_NEAR:], labelled, generator=gen()).sum()) == N_FAR - 91
+
+
 def test_make_gate_maps_the_sweep_value_and_options():
     assert make_gate("random", 0.2) == RandomGate(p=0.2)
     assert make_gate("ensemble", 0.8) == EnsembleGate(quantile=0.8, K=5)
     assert make_gate("ensemble", 0.8, K=3).K == 3
     assert make_gate("novelty", 0.7, k=4) == NoveltyGate(quantile=0.7, k=4)
     assert make_gate("safe", 0.6) == SafeGate(quantile=0.6)
+    assert make_gate("thrifty", 0.1, K=3) == ThriftyGate(rate=0.1, K=3)
+    assert make_gate("conformal", 0.2, k=2) == ConformalGate(alpha=0.2, k=2)
 
 
 def test_bad_names_settings_and_options_are_user_errors():
-    with pytest.raises(UserError, match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty"):
+    with pytest.raises(UserError, match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty, thrifty, conformal"):
         make_gate("dropout", 0.5)
     with pytest.raises(UserError, match=r"RandomGate.p must be in \[0, 1\], got 1.5"):
         make_gate("random", 1.5)
@@ -158,6 +226,11 @@ def test_bad_names_settings_and_options_are_user_errors():
         make_gate("safe", 0.5, ridge=0)
     with pytest.raises(UserError, match="unknown option.* k for gate 'ensemble': expected K, ridge"):
         make_gate("ensemble", 0.5, k=3)
+    for value in (0.0, 1.0):
+        with pytest.raises(UserError, match=rf"ThriftyGate.rate must be in \(0, 1\), got {value}"):
+            make_gate("thrifty", value)
+        with pytest.raises(UserError, match=rf"ConformalGate.alpha must be in \(0, 1\), got {value}"):
+            make_gate("conformal", value)
 
 
 def test_mismatched_inputs_are_user_errors():

@@ -311,7 +311,8 @@ def benchmark(
     out: Path = OUT,
     seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's benchmark.seeds)."),
     methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated: bc, mdm, dagger, dagger-random, "
-                                          "dagger-ensemble, dagger-safe, dagger-novelty, mdi (default: benchmark.methods)."),
+                                          "dagger-ensemble, dagger-safe, dagger-novelty, dagger-thrifty, dagger-conformal, mdi "
+                                          "(default: benchmark.methods)."),
     overrides: list[str] = SET,
     rebuild: bool = REBUILD,
     executor: str = EXECUTOR,
@@ -386,6 +387,29 @@ def export(
                else ", no stored pair of these seeds to compare the re-run with")
     typer.echo(f"export: {summary['episodes']} episodes, {summary['steps']} steps{checked}; wrote Minari dataset {name} "
                f"({summary['dataset']}); read it with minari.load_dataset({name!r})")
+
+
+@app.command()
+@user_errors
+def video(
+    out: Path = OUT,
+    seed: int = typer.Option(..., "--seed", help="The seed to show, e.g. one of benchmark.seeds."),
+    methods: str = typer.Option("bc,dm,dagger", "--methods", help="Comma-separated: expert, bc, dagger and mapper kinds of the run "
+                                "(dm, ridge, pistar-head, ...)."),
+    fps: int = typer.Option(30, "--fps", help="Frames (env steps) per second."),
+    scale: int = typer.Option(3, "--scale", help="Pixels per observation pixel."),
+    gif_stride: int = typer.Option(3, "--gif-stride", help="The GIF keeps every n-th frame (the MP4 keeps all)."),
+    overrides: list[str] = SET,
+) -> None:
+    """One seed's rollouts side by side, as the learner saw them, with method, step, reward and
+    expert queries: RUN/videos/<seed>-<methods>.mp4 and .gif (needs the video extra)."""
+    from metadagger.pipeline.stages import load_run, stage_video
+    from metadagger.runfolder.layout import RunLayout
+
+    names = [m.strip() for m in methods.split(",") if m.strip()]
+    mp4, gif = stage_video(RunLayout(out), load_run(out, overrides), seed=seed, methods=names, fps=fps, scale=scale,
+                           gif_stride=gif_stride)
+    typer.echo(f"wrote {mp4} and {gif}")
 
 
 @app.command()

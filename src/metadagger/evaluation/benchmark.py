@@ -4,17 +4,23 @@ Every method starts where the pairs start: pi*'s frozen trunk and a head fitted 
 seed's expert demonstration (w_BC). A *query* is one expert label of one state: each
 demonstration step, and each visited state a DAgger round chooses to label; the part of the
 action the environment's expert always drives (CarRacing's gas and brake, Fetch's gripper) is not
-a query. Per seed, with rows ``(method, setting, seed)``:
+a query. Per seed, with rows ``(method, setting, demo_fraction, seed)``:
 
 - ``bc``: w_BC rolled out (the demonstration's queries only).
-- ``mdm-<kind>``: each mapper kind and control applied to w_BC (MDM: no further query).
+- ``mdm-<kind>``: each mapper kind applied to w_BC (MDM: no further query); the controls (pi*'s
+  head, mean-DA) never read the demonstration and are charged no query at all.
 - ``dagger``: rounds 1..R of the pairs' DAgger (every visited state labelled), one row per round
   (setting = the round), with cumulative queries.
-- ``dagger-random``, ``dagger-ensemble``, ``dagger-safe``, ``dagger-novelty``: the same R rounds,
-  labelling only the states their gate (:mod:`metadagger.imitation.gates`) selects; one row per
-  setting of the gate's grid (the random share p, or the score quantile), after round R.
+- ``dagger-random``, ``dagger-ensemble``, ``dagger-safe``, ``dagger-novelty``, ``dagger-thrifty``,
+  ``dagger-conformal``: the same R rounds, labelling only the states their gate
+  (:mod:`metadagger.imitation.gates`) selects; one row per setting of the gate's grid (the random
+  share p, the score quantile, the target rate or the miscoverage), after round R.
 - ``dagger-mdi``, ``dagger-bc-init``, ``dagger-xavier`` (runs with an ``mdi`` section): Table 6's
   one-shot and two-shot tests (settings ``one-shot``, ``two-shot``).
+
+With ``demo_fractions`` below 1, BC, the learned MDM kinds and the gated settings run again from
+the demonstration's first share of steps (:func:`~metadagger.metal.method.demonstration_share`),
+so that the chart shows whether mapping can replace part of the demonstration.
 
 A row's outcome is one rollout of the policy after that many rounds (the rollout that also starts
 the next round, which is deterministic, so nothing is rolled out twice).
@@ -29,7 +35,8 @@ from typing import Any, Iterator, Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
-from metadagger.evaluation.methods import GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RoundKey, ShotKey
+from metadagger.evaluation.methods import (GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RoundKey, ShotKey,
+                                           reads_demonstration, with_demo_fractions)
 from metadagger.evaluation.paired import paired_comparison
 from metadagger.evaluation.rows import write_csv
 from metadagger.evaluation.tables import method_label
@@ -41,7 +48,8 @@ from metadagger.utils.io import write_json
 from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.registry import control_names
-from metadagger.metal.method import Round, SeedLearner, bc_head, dagger_rounds, demonstration, map_head, seed_context, seeded
+from metadagger.metal.method import (Round, SeedLearner, bc_head, dagger_rounds, demonstration, demonstration_share, map_head,
+                                     seed_context, seeded)
 from metadagger.utils.plotting import draw_figure, interval_errors, plt, save_figure
 from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
@@ -49,7 +57,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 
 #: Columns of ``benchmark/queries.csv``.
-FIELDS = ("method", "setting", "seed", "success", "reward", "steps", "expert_queries")
+FIELDS = ("method", "setting", "demo_fraction", "seed", "success", "reward", "steps", "expert_queries")
 
 
 @dataclass(frozen=True)
@@ -62,14 +70,21 @@ class BenchmarkConfig:
     """``bc``, ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, the gated methods, and
     ``mdi`` (the MDI protocol's methods; runs with an ``mdi`` section)."""
     grids: dict = field(default_factory=lambda: {"dagger-random": [0.05, 0.2, 0.5], "dagger-ensemble": [0.5, 0.8, 0.95],
-                                                "dagger-safe": [0.5, 0.8, 0.95], "dagger-novelty": [0.5, 0.8, 0.95]})
-    """Each gated method's sweep: the random share p, or the score quantile above which a state is
-    labelled (about 1 - quantile of each round's states). The defaults span label shares of about
-    50%, 20% and 5%, fixed before any benchmark ran (not tuned on any seeds)."""
+                                                "dagger-safe": [0.5, 0.8, 0.95], "dagger-novelty": [0.5, 0.8, 0.95],
+                                                "dagger-thrifty": [0.025, 0.1, 0.25], "dagger-conformal": [0.05, 0.2, 0.5]})
+    """Each gated method's sweep: the random share p; the score quantile above which a state is
+    labelled (about 1 - quantile of each round's states); ThriftyDAgger's target rate of each of
+    its two tests (their union labels at most twice it); the conformal gate's miscoverage (about
+    that share of the first round's states). The defaults span label shares of about 50%, 20% and
+    5%, fixed before any benchmark ran (not tuned on any seeds)."""
     ensemble_heads: int = 5
-    """K, the ensemble gate's bootstrap heads."""
+    """K, the bootstrap heads of the ensemble and ThriftyDAgger gates."""
     novelty_k: int = 1
-    """k, the novelty gate's neighbour."""
+    """k, the neighbour of the novelty and conformal gates."""
+    demo_fractions: tuple[float, ...] = (1.0,)
+    """Shares of the demonstration's steps that BC, the learned MDM kinds and the gated settings
+    start from, in (0, 1], 1 (the whole demonstration) among them; plain DAgger and MDI always
+    start from the whole one."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -90,13 +105,18 @@ class BenchmarkConfig:
                     raise UserError(f"benchmark.grids.{method} is missing or empty; give its settings, e.g. [0.5, 0.8, 0.95]")
                 for value in grid:
                     make_gate(GATED[method], value, **self.gate_options(method))  # range checks now, not hours later
+        if 1.0 not in self.demo_fractions or any(not 0.0 < f <= 1.0 for f in self.demo_fractions) \
+                or len(set(self.demo_fractions)) != len(self.demo_fractions):
+            raise UserError(f"benchmark.demo_fractions must be distinct shares in (0, 1] with 1 among them, got "
+                            f"{list(self.demo_fractions)}; e.g. [0.25, 0.5, 1.0]")
         if self.ensemble_heads < 2 or self.novelty_k < 1:
             raise UserError(f"benchmark.ensemble_heads must be >= 2 and benchmark.novelty_k >= 1, got "
                             f"{self.ensemble_heads} and {self.novelty_k}")
 
     def gate_options(self, method: str) -> dict[str, Any]:
         """Keyword options of a gated method's gate."""
-        return {"dagger-ensemble": {"K": self.ensemble_heads}, "dagger-novelty": {"k": self.novelty_k}}.get(method, {})
+        return {"dagger-ensemble": {"K": self.ensemble_heads}, "dagger-novelty": {"k": self.novelty_k},
+                "dagger-thrifty": {"K": self.ensemble_heads}, "dagger-conformal": {"k": self.novelty_k}}.get(method, {})
 
 
 @dataclass(frozen=True)
@@ -119,12 +139,13 @@ class BenchmarkJob(SeedJob):
 
 def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...], mdi: bool) -> list[MethodKey]:
     """Every method key the benchmark rows of one seed are made of, in table order."""
-    return [key for method in config.methods for key in METHODS[method](rounds, kinds, config.grids, mdi)]
+    keys = [key for method in config.methods for key in METHODS[method](rounds, kinds, config.grids, mdi)]
+    return with_demo_fractions(keys, config.demo_fractions)
 
 
 def _row(key: MethodKey, seed: int, traj: Trajectory, queries: int) -> dict[str, Any]:
-    return {"method": key.method, "setting": key.setting, "seed": seed, "success": bool(traj.success), "reward": float(traj.reward),
-            "steps": int(traj.steps), "expert_queries": int(queries)}
+    return {"method": key.method, "setting": key.setting, "demo_fraction": key.demo_fraction, "seed": seed,
+            "success": bool(traj.success), "reward": float(traj.reward), "steps": int(traj.steps), "expert_queries": int(queries)}
 
 
 def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
@@ -132,33 +153,45 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
     seed, keys = job.seed, job.keys
     rows: dict[MethodKey, dict[str, Any]] = {}
     with SeedLearner(job.task, job.groundtruth, seed, head_init_seed=job.bc.head_init_seed(seed)) as learner:
+        fresh = learner.head()
         demo = demonstration(learner)
-        data = demo.to_dataset()
-        w_bc = bc_head(learner, data, seeded(job.bc, seed))
-        # w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round
-        first = learner.roll(w_bc, early_stop=job.early_stop)
-        rows.update({key: _row(key, seed, first, len(data)) for key in keys if type(key) is MethodKey and key.method == "bc"})
-        mdm = {key: cached_mapper(job.mappers[key.kind]) for key in keys if isinstance(key, MapperKey)}
-        context = seed_context(learner.cache, data.obs, first.obs) if any(m.needs_context for m in mdm.values()) else None
-        for key, mapper in mdm.items():
-            rows[key] = _row(key, seed, learner.roll(map_head(mapper, w_bc, context), early_stop=job.early_stop), len(data))
-
-        def dagger(gate: Gate | None) -> Iterator[Round]:
-            return dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=job.rounds, fit=seeded(job.dagger_bc, seed),
-                                 gate=gate, early_stop=job.early_stop)
-
-        by_round = {key.round: key for key in keys if isinstance(key, RoundKey)}
-        if by_round:
-            for round_ in dagger(None):
-                if round_.index in by_round:
-                    rows[by_round[round_.index]] = _row(by_round[round_.index], seed, round_.rollout, round_.queries)
-        for key in (k for k in keys if isinstance(k, GateKey)):
-            *_, last = dagger(make_gate(key.gate, key.value, **job.config.gate_options(key.method)))
-            rows[key] = _row(key, seed, last.rollout, last.queries)
+        for fraction in sorted({key.demo_fraction for key in keys}, reverse=True):
+            learner.load(fresh)
+            mine = [key for key in keys if key.demo_fraction == fraction]
+            rows.update(_demonstration_rows(job, learner, demonstration_share(demo, fraction), mine))
     shots = [key for key in keys if isinstance(key, ShotKey)]
     if job.mdi is not None and shots:
         rows.update(_mdi_rows(job, shots))
     return {"seed": seed, "entries": {key.id: [rows[key]] for key in keys if key in rows}}
+
+
+def _demonstration_rows(job: BenchmarkJob, learner: SeedLearner, demo: Trajectory, keys: list[MethodKey]) -> dict[MethodKey, dict[str, Any]]:
+    """The rows of ``keys`` (all but MDI's) that start from w_BC fitted on ``demo`` by the learner's fresh head."""
+    seed, rows = job.seed, {}
+    data = demo.to_dataset()
+    w_bc = bc_head(learner, data, seeded(job.bc, seed))
+    # w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round
+    first = learner.roll(w_bc, early_stop=job.early_stop)
+    rows.update({key: _row(key, seed, first, len(data)) for key in keys if type(key) is MethodKey and key.method == "bc"})
+    mdm = {key: cached_mapper(job.mappers[key.kind]) for key in keys if isinstance(key, MapperKey)}
+    context = seed_context(learner.cache, data.obs, first.obs) if any(m.needs_context for m in mdm.values()) else None
+    for key, mapper in mdm.items():
+        queries = len(data) if reads_demonstration(key) else 0
+        rows[key] = _row(key, seed, learner.roll(map_head(mapper, w_bc, context), early_stop=job.early_stop), queries)
+
+    def dagger(gate: Gate | None) -> Iterator[Round]:
+        return dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=job.rounds, fit=seeded(job.dagger_bc, seed),
+                             gate=gate, early_stop=job.early_stop)
+
+    by_round = {key.round: key for key in keys if isinstance(key, RoundKey)}
+    if by_round:
+        for round_ in dagger(None):
+            if round_.index in by_round:
+                rows[by_round[round_.index]] = _row(by_round[round_.index], seed, round_.rollout, round_.queries)
+    for key in (k for k in keys if isinstance(k, GateKey)):
+        *_, last = dagger(make_gate(key.gate, key.value, **job.config.gate_options(key.method)))
+        rows[key] = _row(key, seed, last.rollout, last.queries)
+    return rows
 
 
 def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> dict[MethodKey, dict[str, Any]]:
@@ -171,7 +204,7 @@ def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> dict[MethodKey, dict[st
     for key in keys:
         r = outcomes[key.mdi_method]
         two = key.shot == "twoshot" and r["two_shot_run"]
-        out[key] = {"method": key.method, "setting": key.setting, "seed": job.seed,
+        out[key] = {"method": key.method, "setting": key.setting, "demo_fraction": key.demo_fraction, "seed": job.seed,
                     "success": r["two_shot_success"] if key.shot == "twoshot" else r["one_shot_success"],
                     "reward": r["two_shot_reward"] if two else r["one_shot_reward"],
                     "steps": r["two_shot_steps"] if two else r["one_shot_steps"],
@@ -186,11 +219,12 @@ def benchmark_stamps(task: Task, layout: RunLayout, job_settings: dict[str, Any]
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     stamps: dict[str, Stamp] = {}
     for key in keys:
-        own: dict[str, Any] = {}
+        own: dict[str, Any] = {} if key.demo_fraction == 1.0 else {"demo_fraction": key.demo_fraction}
         if isinstance(key, MapperKey):
-            own = {"mapper_fingerprint": file_fingerprint(layout.mapper(key.kind))}
+            own = {**own, "mapper_fingerprint": file_fingerprint(layout.mapper(key.kind)),
+                   **({} if reads_demonstration(key) else {"charged": "no query"})}
         elif isinstance(key, GateKey):
-            own = {"gate": config.gate_options(key.method)}
+            own = {**own, "gate": config.gate_options(key.method)}
         elif isinstance(key, ShotKey) and mdi is not None and mdi_mapper is not None:
             own = {"mdi": stamp_of(mdi, drop=("seeds", "controls")), "mapper_fingerprint": file_fingerprint(layout.mapper(mdi_mapper))}
         stamps[key.id] = {**common, **own}
@@ -259,17 +293,21 @@ def run_benchmark(
     return rows
 
 
+#: What a summary entry is keyed by: (method, setting, demonstration share).
+Group = tuple[str, str, float]
+
+
 def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]) -> dict[str, Any]:
-    """Per (method, setting): success rate with its 95% Wilson interval, mean reward and mean
-    queries per seed; the queries spent on meta-training; the references (:func:`references`)
-    and every method's paired comparison with each (:func:`comparisons`)."""
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    """Per (method, setting, demonstration share): success rate with its 95% Wilson interval, mean
+    reward and mean queries per seed; the queries spent on meta-training; the references
+    (:func:`references`) and every method's paired comparison with each (:func:`comparisons`)."""
+    groups: dict[Group, list[dict[str, Any]]] = {}
     for r in rows:
-        groups.setdefault((r["method"], str(r["setting"])), []).append(r)
+        groups.setdefault((r["method"], str(r["setting"]), float(r["demo_fraction"])), []).append(r)
     entries = []
-    for (method, setting), group in groups.items():
+    for (method, setting, fraction), group in groups.items():
         s = summarize(group)
-        entries.append({"method": method, "setting": setting, "seeds": s["episodes"], "successes": s["successes"],
+        entries.append({"method": method, "setting": setting, "demo_fraction": fraction, "seeds": s["episodes"], "successes": s["successes"],
                         "success_rate": s["success_rate"], "success_ci_low": s["success_ci_low"],
                         "success_ci_high": s["success_ci_high"], "mean_reward": s["mean_reward"],
                         "mean_queries": s["expert_queries"] / s["episodes"]})
@@ -278,27 +316,28 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
             "comparisons": comparisons(groups, refs)}
 
 
-def references(entries: list[dict[str, Any]]) -> list[dict[str, str]]:
+def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """What every method is compared with: each MDM control, and the best gate (the gated DAgger
-    setting with the highest success, the fewest queries on a tie), as ``method``/``setting``."""
+    setting with the highest success, the fewest queries on a tie), as
+    ``method``/``setting``/``demo_fraction``."""
     controls = {MDM_PREFIX + name for name in control_names()}
-    refs = [{"method": e["method"], "setting": e["setting"]} for e in entries if e["method"] in controls]
+    refs = [e for e in entries if e["method"] in controls]
     gates = [e for e in entries if e["method"] in GATED]
     if gates:
-        best = max(gates, key=lambda e: (e["success_rate"], -e["mean_queries"]))
-        refs.append({"method": best["method"], "setting": best["setting"]})
-    return refs
+        refs.append(max(gates, key=lambda e: (e["success_rate"], -e["mean_queries"])))
+    return [{"method": e["method"], "setting": e["setting"], "demo_fraction": e["demo_fraction"]} for e in refs]
 
 
-def comparisons(groups: dict[tuple[str, str], list[dict[str, Any]]], refs: list[dict[str, str]]) -> list[dict[str, Any]]:
-    """Every (method, setting) against every reference but itself, paired on the seeds both ran
-    (:func:`metadagger.evaluation.paired.paired_comparison`)."""
+def comparisons(groups: dict[Group, list[dict[str, Any]]], refs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every (method, setting, demonstration share) against every reference but itself, paired on
+    the seeds both ran (:func:`metadagger.evaluation.paired.paired_comparison`)."""
     by_seed = {key: {r["seed"]: r for r in group} for key, group in groups.items()}
     out = []
     for ref in refs:
-        other = by_seed[(ref["method"], ref["setting"])]
-        for (method, setting), mine in by_seed.items():
-            if (method, setting) == (ref["method"], ref["setting"]):
+        against = (ref["method"], ref["setting"], ref["demo_fraction"])
+        other = by_seed[against]
+        for (method, setting, fraction), mine in by_seed.items():
+            if (method, setting, fraction) == against:
                 continue
             seeds = sorted(set(mine) & set(other))
             if not seeds:
@@ -306,7 +345,8 @@ def comparisons(groups: dict[tuple[str, str], list[dict[str, Any]]], refs: list[
             a, b = [mine[s] for s in seeds], [other[s] for s in seeds]
             stats = paired_comparison([r["success"] for r in a], [r["success"] for r in b],
                                       [r["reward"] for r in a], [r["reward"] for r in b])
-            out.append({"method": method, "setting": setting, "against": ref["method"], "against_setting": ref["setting"], **stats})
+            out.append({"method": method, "setting": setting, "demo_fraction": fraction, "against": ref["method"],
+                        "against_setting": ref["setting"], "against_demo_fraction": ref["demo_fraction"], **stats})
     return out
 
 
@@ -355,13 +395,16 @@ def plot_queries(summary: dict[str, Any], path: Path) -> Path:
 
     Ticks sit at the points' query counts (:func:`query_ticks`); points of several methods at one
     count (BC and every MDM method spend only the demonstration's queries) are spread sideways
-    (:func:`dodge`) so that none hides another.
+    (:func:`dodge`) so that none hides another. Methods that ask no query (the MDM controls) sit
+    at a tick "0", half the smallest count left of it.
     """
     by_method: dict[str, list[dict[str, Any]]] = {}
     for e in summary["entries"]:
         by_method.setdefault(e["method"], []).append(e)
     points = [(method, e) for method, group in by_method.items() for e in sorted(group, key=lambda e: e["mean_queries"])]
-    xs = [max(float(e["mean_queries"]), 1.0) for _, e in points]
+    counts = [float(e["mean_queries"]) for _, e in points]
+    zero_at = min((q for q in counts if q > 0), default=2.0) / 2
+    xs = [q if q > 0 else zero_at for q in counts]
     span = math.log10(max(xs) / min(xs))
     shown = dodge(xs, DODGE * max(span, 0.5))
     fig, ax = plt.subplots(figsize=(8.5, 4.8), layout="constrained")
@@ -375,8 +418,11 @@ def plot_queries(summary: dict[str, Any], path: Path) -> Path:
     ax.set_xscale("log")
     pad = 10.0 ** max(0.06 * span, 0.08)
     ax.set_xlim(min(shown) / pad, max(shown) * pad)
-    ticks = query_ticks(xs)
-    ax.set_xticks(ticks, [_tick_label(t) for t in ticks])
+    ticks = query_ticks([x for x, q in zip(xs, counts) if q > 0] or [zero_at])
+    labels = [_tick_label(t) for t in ticks]
+    if 0 in counts:
+        ticks, labels = [zero_at, *ticks], ["0", *labels]
+    ax.set_xticks(ticks, labels)
     ax.minorticks_off()
     shared = len(set(xs)) < len(xs)
     ax.set_xlabel("mean expert queries per seed (log)" + ("; points at one count are spread sideways" if shared else ""))

@@ -1,18 +1,22 @@
 """Every method the query benchmark compares, declared once: a typed key per row.
 
-A row of ``benchmark/queries.csv`` is one method at one setting on one seed. The key of that
-method and setting is a :class:`MethodKey` built by the method's entry in :data:`METHODS`, never
-parsed back from text: its subclasses carry what the method needs (the mapper kind, the DAgger
-round, the gate and its value, the MDI test). ``MethodKey.id`` names its rows in the run's logs
-and stamps; it is written, never read back into a key.
+A row of ``benchmark/queries.csv`` is one method at one setting, from one share of the
+demonstration, on one seed. The key of that method and setting is a :class:`MethodKey` built by
+the method's entry in :data:`METHODS`, never parsed back from text: its subclasses carry what the
+method needs (the mapper kind, the DAgger round, the gate and its value, the MDI test), and
+:func:`with_demo_fractions` adds the keys of the methods that start from a shorter
+demonstration. ``MethodKey.id`` names its rows in the run's logs and stamps; it is written, never
+read back into a key.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
 
 from metadagger.imitation.gates import GATES
+from metadagger.mapping.registry import control_names
 
 #: Prefix of the MDM methods: ``mdm-<mapper kind>``.
 MDM_PREFIX = "mdm-"
@@ -29,11 +33,14 @@ class MethodKey:
 
     method: str
     setting: str
+    demo_fraction: float = field(default=1.0, kw_only=True)
+    """The share of the demonstration's steps the method starts from (BC on its first steps)."""
 
     @property
     def id(self) -> str:
         """The name of its rows in the run's logs and stamps (written, never parsed)."""
-        return f"{self.method}@{self.setting}"
+        full = f"{self.method}@{self.setting}"
+        return full if self.demo_fraction == 1.0 else f"{full}@demo{self.demo_fraction:g}"
 
 
 @dataclass(frozen=True)
@@ -110,3 +117,24 @@ METHODS: dict[str, Callable[[int, tuple[str, ...], dict[str, list[float]], bool]
 }
 #: The gated methods and the gate each one uses.
 GATED = {f"dagger-{gate}": gate for gate in GATES}
+
+
+def reads_demonstration(key: MethodKey) -> bool:
+    """Whether the method's head depends on the demonstration: every method but the MDM controls
+    (pi*'s head, mean-DA), which ask the expert nothing and are charged no query."""
+    return not (isinstance(key, MapperKey) and key.kind in control_names())
+
+
+def starts_from_demonstration(key: MethodKey) -> bool:
+    """Whether the method also runs from a shorter demonstration: BC, the learned MDM kinds and the
+    gated DAgger settings (plain DAgger and MDI keep the whole one, the reference they are read against)."""
+    return (type(key) is MethodKey and key.method == "bc") or isinstance(key, GateKey) or (
+        isinstance(key, MapperKey) and reads_demonstration(key))
+
+
+def with_demo_fractions(keys: Sequence[MethodKey], fractions: Sequence[float]) -> list[MethodKey]:
+    """``keys`` (each on the whole demonstration), each followed by its keys on every shorter
+    share in ``fractions`` (ascending) where :func:`starts_from_demonstration`."""
+    shorter = sorted(f for f in fractions if f < 1.0)
+    return [k for key in keys for k in (key, *(dataclasses.replace(key, demo_fraction=f) for f in shorter
+                                                if starts_from_demonstration(key)))]

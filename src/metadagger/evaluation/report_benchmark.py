@@ -35,7 +35,7 @@ def benchmark_section(layout: RunLayout) -> list[str]:
              f"{seeds} unseen seeds. A query is one expert label of one state (the demonstration's steps included); "
              "every method starts from pi*'s trunk and the seed's BC head.", ""]
     lines += figure_lines(layout.figures, FIGURE, "success against expert queries", lambda path: plot_queries(summary, path)) + [""]
-    cells = [(method_label(e["method"]), e["setting"] or "-",
+    cells = [(method_label(e["method"]), setting_cell(e),
               f"{pct(e['success_rate'])} ({e['successes']}/{e['seeds']}; {pct(e['success_ci_low'])}-{pct(e['success_ci_high'])})",
               f"{e['mean_reward']:.1f}", f"{e['mean_queries']:.1f}") for e in entries]
     lines += markdown_table(("method", "setting", "success (95% Wilson interval)", "mean reward", "mean queries per seed"), cells)
@@ -43,21 +43,35 @@ def benchmark_section(layout: RunLayout) -> list[str]:
             + _matching(entries) + _amortisation(entries, summary["meta_training_queries"]))
 
 
-def _reference_label(method: str, setting: str) -> str:
-    return f"{method_label(method)}{f' {setting}' if setting else ''}"
+def setting_cell(entry: dict[str, Any]) -> str:
+    """An entry's setting, and its share of the demonstration where that is not all of it."""
+    share = float(entry.get("demo_fraction", 1.0))
+    setting = entry["setting"] or "-"
+    if share == 1.0:
+        return setting
+    return f"{'' if setting == '-' else setting + ', '}{share:.0%} of the demonstration"
 
 
-def _paired(entries: list[dict[str, Any]], refs: list[dict[str, str]], comparisons: list[dict[str, Any]]) -> list[str]:
+def _key(entry: dict[str, Any], prefix: str = "") -> tuple[str, str, float]:
+    return entry[prefix + "method"] if prefix else entry["method"], entry[prefix + "setting"], float(entry.get(prefix + "demo_fraction", 1.0))
+
+
+def _reference_label(entry: dict[str, Any]) -> str:
+    setting = setting_cell(entry)
+    return f"{method_label(entry['method'])}{f' {setting}' if setting != '-' else ''}"
+
+
+def _paired(entries: list[dict[str, Any]], refs: list[dict[str, Any]], comparisons: list[dict[str, Any]]) -> list[str]:
     """Each method against each control and the best gate on the same seeds, and what they show."""
     if not refs or not comparisons:
         return []
-    found = {(c["method"], c["setting"], c["against"], c["against_setting"]): c for c in comparisons}
-    names = [_reference_label(r["method"], r["setting"]) for r in refs]
+    found = {(_key(c), (c["against"], c["against_setting"], float(c.get("against_demo_fraction", 1.0)))): c for c in comparisons}
+    names = [_reference_label(r) for r in refs]
     cells = []
     for e in entries:
-        row = [method_label(e["method"]), e["setting"] or "-"]
+        row = [method_label(e["method"]), setting_cell(e)]
         for r in refs:
-            c = found.get((e["method"], e["setting"], r["method"], r["setting"]))
+            c = found.get((_key(e), _key(r)))
             row.append("-" if c is None else f"{_points(c['difference'])} ({_points(c['ci_low'])} to {_points(c['ci_high'])}); "
                                              f"{c['only_a']}:{c['only_b']}, p {c['p_value']:.2g}; PI {c['p_improvement']:.2f}")
         cells.append(tuple(row))
@@ -74,14 +88,14 @@ def _points(value: float) -> str:
     return f"{100 * value:+.1f}"
 
 
-def _conclusions(entries: list[dict[str, Any]], refs: list[dict[str, str]], found: dict[tuple[str, str, str, str], dict[str, Any]],
+def _conclusions(entries: list[dict[str, Any]], refs: list[dict[str, Any]], found: dict[tuple, dict[str, Any]],
                  names: list[str]) -> list[str]:
     """Which methods the paired intervals show better than every reference, and which not."""
     above_all = []
     for e in entries:
-        cs = [found.get((e["method"], e["setting"], r["method"], r["setting"])) for r in refs]
+        cs = [found.get((_key(e), _key(r))) for r in refs]
         if all(c is not None and verdict(c) == "better" for c in cs):
-            above_all.append(_reference_label(e["method"], e["setting"]))
+            above_all.append(_reference_label(e))
     against = ", ".join(names)
     if above_all:
         return [f"Better than every one of {against} (paired 95% interval above 0): {', '.join(above_all)}."]
@@ -106,7 +120,7 @@ def _matching(entries: list[dict[str, Any]]) -> list[str]:
         ok = sorted((e for e in entries if e["method"] == method and e["success_rate"] >= target), key=lambda e: e["mean_queries"])
         if ok:
             e = ok[0]
-            cells.append((method_label(method), e["setting"] or "-", pct(e["success_rate"]), f"{e['mean_queries']:.1f}"))
+            cells.append((method_label(method), setting_cell(e), pct(e["success_rate"]), f"{e['mean_queries']:.1f}"))
         else:
             cells.append((method_label(method), "never", "-", "-"))
     return ([f"### Cheapest setting reaching {MATCH_SHARE:.0%} of DAgger's final success ({pct(final['success_rate'])} after "
@@ -128,7 +142,7 @@ def _amortisation(entries: list[dict[str, Any]], meta: dict[str, int]) -> list[s
     cells = []
     for e in mdm:
         saving = final["mean_queries"] - e["mean_queries"]
-        cells.append((method_label(e["method"]), pct(e["success_rate"]), f"{saving:.1f}", _repaid_after(e, final, saving, spent)))
+        cells.append((_reference_label(e), pct(e["success_rate"]), f"{saving:.1f}", _repaid_after(e, final, saving, spent)))
     return lines + [f"Against DAgger after {final['setting']} rounds ({pct(final['success_rate'])} success, "
                     f"{final['mean_queries']:.1f} queries per seed). A method repays meta-training only if it succeeds, at "
                     "least as often as DAgger, with fewer queries; otherwise its saving buys nothing and the last column "

@@ -15,7 +15,8 @@ from metadagger.utils.plotting import draw_figure
 PROTOCOL_LABELS = {"bc": "BC", "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger",
                    "dagger-bc-init": "DAgger-BC (MDI protocol)", "dagger-xavier": "DAgger from Xavier (MDI protocol)",
                    "dagger-random": "DAgger, random gate", "dagger-ensemble": "DAgger, ensemble gate",
-                   "dagger-safe": "DAgger, SafeDAgger gate", "dagger-novelty": "DAgger, novelty gate"}
+                   "dagger-safe": "DAgger, SafeDAgger gate", "dagger-novelty": "DAgger, novelty gate",
+                   "dagger-thrifty": "DAgger, ThriftyDAgger gate", "dagger-conformal": "DAgger, conformal gate"}
 
 
 def method_label(method: str) -> str:

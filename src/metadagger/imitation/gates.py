@@ -14,10 +14,20 @@ The gates:
 - ``safe(quantile)``: a ridge classifier of "the learner's action differs from the expert's" fitted
   on the labelled states; a state's score is its predicted mismatch.
 - ``novelty(k, quantile)``: a state's score is its distance to the ``k``-th nearest labelled state.
+- ``thrifty(rate)``: ThriftyDAgger's two tests (Hoque et al., CoRL 2021): a state is labelled when
+  it is novel (the ensemble's output variance) or risky (a learned estimate that an episode from
+  it fails), each threshold the ``1 - rate`` quantile of every estimate of the run so far.
+- ``conformal(alpha)``: CRSAIL's rule (arXiv 2512.00453): the distance to the ``k``-th nearest
+  labelled state, above one threshold calibrated by conformal prediction on the first round's
+  states (the first policy's rollout) at miscoverage ``alpha``, then kept for the whole run.
 
 Score-based gates label a state when its score is strictly above the ``quantile``-quantile of
 this round's scores (:func:`above_quantile`), so about a ``1 - quantile`` share of distinct
 scores is labelled whatever the task's feature scale: one grid of settings serves every task.
+The thrifty and conformal gates set their thresholds from the run so far instead, so their share
+falls as the learner's states grow familiar; what they remember across the rounds of one run is
+in a :class:`GateMemory` that the DAgger loop keeps. docs/benchmark.md says where the two differ
+from the published methods.
 
 Discrete tasks are told apart from continuous ones by the dtype of the labels: int64 class
 indices or float32 action vectors. Gates take no number of classes: a head fitted on the
@@ -29,7 +39,8 @@ from __future__ import annotations
 
 import dataclasses
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import torch
@@ -71,6 +82,30 @@ class Labelled:
     def discrete(self) -> bool:
         """Whether the labels are class indices."""
         return self.labels.dtype == torch.int64
+
+
+@dataclass(frozen=True)
+class Episode:
+    """A finished episode of the run: its visited states' trunk features and its outcome."""
+
+    features: Tensor
+    """Trunk features of every visited state, float32 [T, F]."""
+    succeeded: bool
+    """The task's success rule at its end."""
+
+
+@dataclass
+class GateMemory:
+    """What the gates of one DAgger run may know of its earlier rounds (one per run).
+
+    The DAgger loop adds each episode once its states have been gated (the demonstration first);
+    a gate keeps its own thresholds and estimates in ``notes``, under its name.
+    """
+
+    episodes: list[Episode] = field(default_factory=list)
+    """The finished episodes before this round's rollout, in order."""
+    notes: dict[str, Any] = field(default_factory=dict)
+    """Each gate's own record across rounds."""
 
 
 def _check_round(features: Tensor, learner_actions: Tensor, labelled: Labelled) -> None:
@@ -135,7 +170,8 @@ class Gate(ABC):
     setting: ClassVar[str]
     """The field set by the sweep value of :func:`make_gate`."""
 
-    def select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, *, generator: torch.Generator) -> Tensor:
+    def select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, *, generator: torch.Generator,
+               memory: GateMemory | None = None) -> Tensor:
         """The states of this round to label.
 
         Args:
@@ -143,15 +179,18 @@ class Gate(ABC):
             learner_actions: the learner's actions there, int64 [N] or float32 [N, d] as the labels.
             labelled: every state labelled so far, for gates that fit on it.
             generator: the source of all randomness.
+            memory: the run's earlier rounds, for gates that remember (updated in place); None is
+                a run's first round with nothing remembered.
 
         Returns:
             A bool mask [N]: True for a state to label.
         """
         _check_round(features, learner_actions, labelled)
-        return self._select(features, learner_actions, labelled, generator)
+        return self._select(features, learner_actions, labelled, generator, GateMemory() if memory is None else memory)
 
     @abstractmethod
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor: ...
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
+                memory: GateMemory) -> Tensor: ...
 
 
 @dataclass(frozen=True)
@@ -166,7 +205,8 @@ class RandomGate(Gate):
         if not 0.0 <= self.p <= 1.0:
             raise UserError(f"RandomGate.p must be in [0, 1], got {self.p!r}")
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
+                memory: GateMemory) -> Tensor:
         return torch.rand(len(features), generator=generator) < self.p
 
 
@@ -176,7 +216,8 @@ class ScoreGate(Gate):
     setting: ClassVar[str] = "quantile"
     quantile: float
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
+                memory: GateMemory) -> Tensor:
         return above_quantile(self.scores(features, learner_actions, labelled, generator), self.quantile)
 
     @abstractmethod
@@ -212,15 +253,7 @@ class EnsembleGate(ScoreGate):
 
     def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
         """Disagreement of the ``K`` bootstrap heads at each state [N]."""
-        targets = labelled.labels
-        if labelled.discrete:
-            targets = torch.nn.functional.one_hot(targets, int(targets.max()) + 1)
-        m, x = len(targets), _with_bias(features)
-        heads = []
-        for _ in range(self.K):
-            rows = torch.randint(m, (m,), generator=generator)
-            heads.append(x @ _ridge(labelled.features[rows], targets[rows], self.ridge))
-        outputs = torch.stack(heads)
+        outputs = bootstrap_outputs(features, labelled, self.K, self.ridge, generator)
         variance = outputs.var(dim=0, unbiased=False).sum(dim=1)
         if not labelled.discrete:
             return variance
@@ -228,6 +261,20 @@ class EnsembleGate(ScoreGate):
         entropy = -(votes * votes.clamp_min(1e-12).log()).sum(dim=1)
         # rank by (entropy, variance): unique(dim=0) sorts rows lexicographically, equal pairs share a rank
         return torch.unique(torch.stack([entropy, variance], dim=1), dim=0, return_inverse=True)[1].double()
+
+
+def bootstrap_outputs(features: Tensor, labelled: Labelled, heads: int, ridge: float, generator: torch.Generator) -> Tensor:
+    """The outputs [K, N, T] at ``features`` of ``heads`` ridge heads, each fitted on the labelled
+    rows resampled with replacement, of one-hot class targets or of the action vectors."""
+    targets = labelled.labels
+    if labelled.discrete:
+        targets = torch.nn.functional.one_hot(targets, int(targets.max()) + 1)
+    m, x = len(targets), _with_bias(features)
+    outputs = []
+    for _ in range(heads):
+        rows = torch.randint(m, (m,), generator=generator)
+        outputs.append(x @ _ridge(labelled.features[rows], targets[rows], ridge))
+    return torch.stack(outputs)
 
 
 @dataclass(frozen=True)
@@ -253,10 +300,11 @@ class SafeGate(ScoreGate):
         _check_quantile("SafeGate", self.quantile)
         _check_ridge("SafeGate", self.ridge)
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
+                memory: GateMemory) -> Tensor:
         if len(_mismatch(labelled).unique()) < 2:
             return torch.ones(len(features), dtype=torch.bool)
-        return super()._select(features, learner_actions, labelled, generator)
+        return super()._select(features, learner_actions, labelled, generator, memory)
 
     def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
         """Predicted mismatch of the learner's action at each state [N]."""
@@ -289,12 +337,112 @@ class NoveltyGate(ScoreGate):
 
     def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
         """Distance of each state to its ``k``-th nearest labelled state [N]."""
-        if self.k > len(labelled.features):
-            raise UserError(f"NoveltyGate.k = {self.k} needs at least {self.k} labelled states, got {len(labelled.features)}; lower k")
-        return torch.cdist(features, labelled.features).kthvalue(self.k, dim=1).values
+        return neighbour_distance(features, labelled, self.k, "NoveltyGate")
 
 
-GATES: dict[str, type[Gate]] = {"random": RandomGate, "ensemble": EnsembleGate, "safe": SafeGate, "novelty": NoveltyGate}
+def neighbour_distance(features: Tensor, labelled: Labelled, k: int, owner: str) -> Tensor:
+    """Euclidean distance [N] of each state to its ``k``-th nearest labelled state."""
+    if k > len(labelled.features):
+        raise UserError(f"{owner}.k = {k} needs at least {k} labelled states, got {len(labelled.features)}; lower k")
+    return torch.cdist(features, labelled.features).kthvalue(k, dim=1).values
+
+
+@dataclass(frozen=True)
+class ThriftyGate(Gate):
+    """ThriftyDAgger's query rule: label a state that is novel or risky.
+
+    Novelty is the variance of ``K`` bootstrap ridge heads' outputs, summed over output dimensions
+    (one-hot class scores for a discrete task). Risk is one minus a ridge regression's estimate,
+    on the trunk features, that an episode through the state succeeds, fitted on every state of
+    the run's finished episodes (the demonstration and the rollouts of earlier rounds) with its
+    episode's outcome; while those episodes hold one outcome only there is nothing to learn risk
+    from, and novelty decides alone. Each threshold is the ``1 - rate`` quantile of that
+    estimate over every state the run's gate has scored so far (this round's included), so at
+    most about ``2 * rate`` of the states are labelled, fewer as the learner's states grow
+    familiar.
+    """
+
+    setting: ClassVar[str] = "rate"
+    rate: float
+    """The target share of states each test flags, in (0, 1)."""
+    K: int = 5
+    """Bootstrap heads of the novelty test, >= 2."""
+    ridge: float = 1e-3
+    """Ridge penalty of the novelty heads, relative to the features' mean energy, > 0."""
+    risk_ridge: float = 0.1
+    """Ridge penalty of the risk estimate (smoothing noisy 0/1 outcomes, as the safe gate's), > 0."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.rate < 1.0:
+            raise UserError(f"ThriftyGate.rate must be in (0, 1), got {self.rate!r}")
+        if not isinstance(self.K, int) or self.K < 2:
+            raise UserError(f"ThriftyGate.K must be an integer >= 2, got {self.K!r}")
+        _check_ridge("ThriftyGate", self.ridge)
+        _check_ridge("ThriftyGate.risk", self.risk_ridge)
+
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
+                memory: GateMemory) -> Tensor:
+        record = memory.notes.setdefault("thrifty", {"novelty": [], "risk": []})
+        novelty = bootstrap_outputs(features, labelled, self.K, self.ridge, generator).var(dim=0, unbiased=False).sum(dim=1)
+        record["novelty"].append(novelty)
+        mask = novelty > torch.quantile(torch.cat(record["novelty"]), 1.0 - self.rate)
+        risk = self.risk(features, memory.episodes)
+        if risk is not None:
+            record["risk"].append(risk)
+            mask |= risk > torch.quantile(torch.cat(record["risk"]), 1.0 - self.rate)
+        return mask
+
+    def risk(self, features: Tensor, episodes: list[Episode]) -> Tensor | None:
+        """One minus the estimated chance that an episode through each state succeeds [N]; None
+        while the finished ``episodes`` hold one outcome only."""
+        if len({e.succeeded for e in episodes}) < 2:
+            return None
+        seen = torch.cat([e.features for e in episodes])
+        outcome = torch.cat([torch.full((len(e.features), 1), float(e.succeeded), dtype=torch.float64) for e in episodes])
+        return 1.0 - (_with_bias(features) @ _ridge(seen, outcome, self.risk_ridge)).squeeze(1)
+
+
+def conformal_threshold(scores: Tensor, alpha: float) -> float:
+    """The split-conformal threshold of calibration ``scores`` at miscoverage ``alpha``: the
+    ceil((n + 1)(1 - alpha))-th smallest score (infinite when that rank exceeds n), which a new
+    score from the same distribution exceeds with probability at most ``alpha``."""
+    n = len(scores)
+    rank = math.ceil((n + 1) * (1.0 - alpha))
+    return math.inf if rank > n else float(scores.double().sort().values[rank - 1])
+
+
+@dataclass(frozen=True)
+class ConformalGate(Gate):
+    """CRSAIL's query rule: label a state far from every labelled one, by one calibrated threshold.
+
+    The score is the distance to the ``k``-th nearest labelled state (the novelty gate's). In the
+    run's first round the threshold is calibrated once (:func:`conformal_threshold`) on that
+    round's scores, the first policy's rollout against the demonstration, and then kept: later
+    rounds label only the states farther than it from everything labelled by then.
+    """
+
+    setting: ClassVar[str] = "alpha"
+    alpha: float
+    """Miscoverage: about this share of the first round's states is labelled, in (0, 1)."""
+    k: int = 1
+    """Which nearest labelled neighbour measures the distance, >= 1."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.alpha < 1.0:
+            raise UserError(f"ConformalGate.alpha must be in (0, 1), got {self.alpha!r}")
+        if not isinstance(self.k, int) or self.k < 1:
+            raise UserError(f"ConformalGate.k must be an integer >= 1, got {self.k!r}")
+
+    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
+                memory: GateMemory) -> Tensor:
+        scores = neighbour_distance(features, labelled, self.k, "ConformalGate")
+        if "conformal" not in memory.notes:
+            memory.notes["conformal"] = conformal_threshold(scores, self.alpha)
+        return scores.double() > memory.notes["conformal"]
+
+
+GATES: dict[str, type[Gate]] = {"random": RandomGate, "ensemble": EnsembleGate, "safe": SafeGate, "novelty": NoveltyGate,
+                                "thrifty": ThriftyGate, "conformal": ConformalGate}
 """Every gate by name."""
 
 
@@ -303,9 +451,11 @@ def make_gate(name: str, setting: float, **options: Any) -> Gate:
 
     Args:
         name: a key of :data:`GATES`.
-        setting: ``p`` for ``random``, ``quantile`` for the others.
+        setting: ``p`` for ``random``, ``rate`` for ``thrifty``, ``alpha`` for ``conformal``,
+            ``quantile`` for the others.
         **options: the gate's other fields (``K`` and ``ridge`` for ``ensemble``, ``ridge`` for
-            ``safe``, ``k`` for ``novelty``), left at their defaults when not given.
+            ``safe``, ``k`` for ``novelty`` and ``conformal``, ``K``, ``ridge`` and ``risk_ridge``
+            for ``thrifty``), left at their defaults when not given.
 
     Returns:
         The gate.

@@ -3,7 +3,8 @@
 Every protocol starts a seed the same way: pi*'s trunk, frozen, with a fresh head of the seed's
 own (:class:`SeedLearner`), driving the seed's env. The steps (docs/method.md):
 
-1. :func:`demonstration` -- the expert drives the seed once; each of its steps is one query.
+1. :func:`demonstration` -- the expert drives the seed once; each of its steps is one query
+   (:func:`demonstration_share`: its first steps only, a smaller budget).
 2. :func:`bc_head` -- the head fitted by BC on the demonstration: w_BC (paper 3.4.2).
 3. :func:`seed_context` and :func:`map_head` -- a mapper's head for the seed from w_BC (and, for
    a mapper that reads one, the seed's context): MDM, no further query (paper 4.1).
@@ -22,6 +23,7 @@ one the next step starts from, and nothing is rolled out twice.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, Iterator, Protocol
 
@@ -31,7 +33,7 @@ import torch
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop
-from metadagger.imitation.gates import Gate, Labelled
+from metadagger.imitation.gates import Episode, Gate, GateMemory, Labelled
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
@@ -101,6 +103,19 @@ def demonstration(learner: SeedLearner) -> Trajectory:
     return rollout(learner.env, seed=learner.seed, policy=None)
 
 
+def demonstration_share(demo: Trajectory, fraction: float) -> Trajectory:
+    """Step 1 on a smaller budget: the demonstration's first ``ceil(fraction * T)`` steps (at least
+    one), as if the expert had been stopped there; its outcome stays the whole episode's."""
+    if not 0.0 < fraction <= 1.0:
+        raise ValueError(f"a demonstration share must be in (0, 1], got {fraction!r}")
+    n = max(1, math.ceil(fraction * demo.steps))
+    if n == demo.steps:
+        return demo
+    return dataclasses.replace(demo, obs=demo.obs[:n], expert_labels=demo.expert_labels[:n], learner_actions=demo.learner_actions[:n],
+                               step_rewards=demo.step_rewards[:n], reward=float(demo.step_rewards[:n].sum()), steps=n,
+                               expert_queries=n, final_obs=demo.obs[n], final_label=demo.expert_labels[n], terminated=False)
+
+
 def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig, *, what: str = "the BC head's fit") -> np.ndarray:
     """Step 2: fit the learner's current head (a fresh one: w_BC) by BC on the demonstration."""
     fit_bc(learner.policy, demo, fit, cache=learner.cache, what=what)
@@ -166,10 +181,14 @@ def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory,
     data = Aggregate([demo.to_dataset()])
     actions = demo.expert_labels
     queries = len(data)
+    memory = GateMemory()
     learner.load(start)
     trajectory = first
     for index in range(1, rounds + 1):
-        keep = np.ones(trajectory.steps, dtype=bool) if gate is None else _gate_mask(gate, learner.cache, data, actions, trajectory, generator)
+        if gate is None:
+            keep = np.ones(trajectory.steps, dtype=bool)
+        else:
+            keep = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory, demo)
         labelled = None
         if keep.any():
             labelled = Dataset(obs=trajectory.obs[keep], labels=trajectory.expert_labels[keep])
@@ -183,10 +202,16 @@ def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory,
 
 
 def _gate_mask(gate: Gate, cache: FeatureCache, data: Aggregate, actions: np.ndarray, trajectory: Trajectory,
-               generator: torch.Generator) -> np.ndarray:
-    """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far."""
+               generator: torch.Generator, memory: GateMemory, demo: Trajectory) -> np.ndarray:
+    """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far
+    and the run's finished episodes (``memory``: the demonstration first, then each gated rollout)."""
+    if not memory.episodes:
+        memory.episodes.append(Episode(features=cache.features(demo.obs), succeeded=bool(demo.success)))
     labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
-    return gate.select(cache.features(trajectory.obs), _tensor(trajectory.learner_actions), labelled, generator=generator).numpy()
+    features = cache.features(trajectory.obs)
+    keep = gate.select(features, _tensor(trajectory.learner_actions), labelled, generator=generator, memory=memory).numpy()
+    memory.episodes.append(Episode(features=features, succeeded=bool(trajectory.success)))
+    return keep
 
 
 def _tensor(values: np.ndarray) -> torch.Tensor:

@@ -29,6 +29,7 @@ from metadagger.evaluation.diagnose import diagnose_mappers
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
+from metadagger.evaluation.video import FIXED_METHODS, check_methods, compose, require_imageio, seed_clips, write_video
 from metadagger.evaluation.tensorboard import (Scalar, benchmark_scalars, groundtruth_scalars, mapper_scalars, pairs_scalars,
                                                table_scalars, write_tensorboard)
 from metadagger.mapping.mappers import load_mapper
@@ -286,6 +287,25 @@ def stage_export(layout: RunLayout, config: RunConfig, *, what: str, name: str, 
         _current_groundtruth(layout, config, task)
     return export_run(task, layout, config.pairs, what=what, name=name,
                       seeds=sorted(set(config.pairs.seeds if seeds is None else seeds)), options=options)
+
+
+def stage_video(layout: RunLayout, config: RunConfig, *, seed: int, methods: Sequence[str], fps: int = 30, scale: int = 3,
+                gif_stride: int = 3) -> tuple[Path, Path]:
+    """``methods`` rolled out on ``seed`` side by side (:mod:`metadagger.evaluation.video`), as
+    ``RUN/videos/<seed>-<methods>.mp4`` and ``.gif``; returns their paths."""
+    if fps < 1 or scale < 1 or gif_stride < 1:
+        raise UserError(f"--fps, --scale and --gif-stride must be >= 1, got {fps}, {scale} and {gif_stride}")
+    require_imageio()
+    check_methods(methods, layout)
+    task = run_task(config, checked=True)
+    pistar = _current_groundtruth(layout, config, task)
+    _check_mappers(layout, config, task, [m for m in methods if m not in FIXED_METHODS], pistar)
+    clips = seed_clips(task, layout, seed, methods, bc=config.pairs.bc, dagger_bc=config.pairs.dagger_bc,
+                       rounds=config.pairs.dagger_rounds, early_stop=config.pairs.early_stop)
+    stem = layout.root / "videos" / f"{seed}-{'-'.join(methods)}"
+    with run_lock(layout.root):
+        return write_video(compose(clips, scale=scale), stem.with_suffix(".mp4"), stem.with_suffix(".gif"), fps=fps,
+                           gif_stride=gif_stride)
 
 
 def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:
