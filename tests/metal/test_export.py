@@ -17,7 +17,7 @@ from metadagger.errors import UserError  # noqa: E402
 from metadagger.imitation.minari_io import read_demonstrations  # noqa: E402
 from metadagger.imitation.rollouts import collect  # noqa: E402
 from metadagger.metal.export import export_run  # noqa: E402
-from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth  # noqa: E402
+from metadagger.metal.groundtruth import train_groundtruth  # noqa: E402
 from metadagger.metal.pairs import collect_pairs, run_pair  # noqa: E402
 from metadagger.runfolder.driver import StageOptions  # noqa: E402
 from metadagger.runfolder.layout import RunLayout  # noqa: E402

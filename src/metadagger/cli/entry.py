@@ -18,6 +18,7 @@ from typing import Any, Optional
 
 import typer
 
+from metadagger.cli.options import print_error
 from metadagger.utils.kernels import pin_cpu_kernels
 
 #: The shell's names of the signals the command line answers.
@@ -54,7 +55,7 @@ def main(argv: Optional[list[str]] = None) -> None:
     (the module docstring says how usage errors and signals end it)."""
     pin_cpu_kernels()  # first thing: the command line's kernels, before any tensor operation
 
-    from metadagger.cli.main import app, print_error  # loaded here, under run()'s handlers
+    from metadagger.cli.main import app  # loaded here, under run()'s handlers
 
     # Click's exceptions, from wherever this Typer takes them (Click itself, or its own copy)
     click_errors = importlib.import_module(typer.BadParameter.__module__)

@@ -1,8 +1,9 @@
 """The ``metadagger`` command line: thin wrappers that build a config and call the library.
 
 A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stderr and exit code 2
-(:func:`user_errors`); the process around the commands (usage errors, signals, exit codes) is
-:mod:`metadagger.cli.entry`.
+(:func:`~metadagger.cli.options.user_errors`, beside the options every command shares); the
+process around the commands (usage errors, signals, exit codes) is :mod:`metadagger.cli.entry`;
+the ``bench`` commands are :mod:`metadagger.cli.bench_commands`.
 
 The command line runs on pinned CPU kernels (:func:`~metadagger.utils.kernels.pin_cpu_kernels`):
 :func:`metadagger.cli.entry.main` pins them first thing, and this module pins them before its one import of
@@ -12,10 +13,9 @@ the library when they run.
 
 from __future__ import annotations
 
-import functools
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Optional, TypeVar
+from typing import Optional
 
 import typer
 
@@ -24,19 +24,16 @@ from metadagger.utils.kernels import pin_cpu_kernels
 
 pin_cpu_kernels()  # before the registry below loads torch, and before any command's tensor operation
 
+from metadagger.cli.bench_commands import bench_app  # noqa: E402
+from metadagger.cli.options import (ADDRESS, BUILTIN_PRESET, EXECUTOR, OUT, PRESET, PRESETS_FILE, REBUILD, SET, TASK,  # noqa: E402
+                                    WORKERS, stage_options, user_errors)
 from metadagger.mapping.registry import kind_names, trained_names  # noqa: E402
-
-if TYPE_CHECKING:
-    from metadagger.runfolder.driver import StageOptions
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.")
-bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
 app.add_typer(bench_app, name="bench")
 config_app = typer.Typer(no_args_is_help=True, help="Inspect run configs.")
 app.add_typer(config_app, name="config")
-
-F = TypeVar("F", bound=Callable[..., object])
 
 
 @app.callback()
@@ -47,31 +44,6 @@ def _setup() -> None:
     # one thread everywhere (driver and workers): the same config and seeds give the same
     # weights on any machine, whatever its core count
     torch.set_num_threads(1)
-
-
-def user_errors(fn: F) -> F:
-    """Turn a UserError raised by ``fn`` into one clear line and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except UserError as exc:
-            print_error(str(exc))
-            raise typer.Exit(code=2) from None
-
-    return wrapper  # type: ignore[return-value]
-
-
-def print_error(message: str) -> None:
-    """``message`` as the one ``error: ...`` line on stderr."""
-    typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
-
-
-TASK = typer.Option("carracing", "--task", help="Task name: carracing, fetch, or one an installed package adds.")
-PRESET = typer.Option("quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci) or from --presets.")
-PRESETS_FILE = typer.Option(None, "--presets", help="YAML file of your own presets (same layout as pipeline/presets/<task>.yaml).")
-BUILTIN_PRESET = typer.Option("quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci).")
 
 
 @app.command()
@@ -150,16 +122,6 @@ def check_task_cmd(
                    "and nothing can be imitated", err=True)
 
 
-OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
-SET = typer.Option([], "--set", help="Override a config field: section.key=value, the value read as YAML "
-                   "(e.g. --set pairs.dagger_rounds=4 --set 'evaluate.methods=[dm, sam]'); repeatable.")
-REBUILD = typer.Option(False, "--rebuild", help="Redo this stage's work that was made from other inputs (another pi*, "
-                       "other pairs or settings) instead of refusing.")
-EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
-WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
-ADDRESS = typer.Option(None, "--address", help="Ray cluster: ray://HEAD:10001, HEAD:6379 or auto (default: start a local Ray instance).")
-
-
 @app.command()
 @user_errors
 def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets: Optional[Path] = PRESETS_FILE,
@@ -191,7 +153,7 @@ def pairs(out: Path = OUT, overrides: list[str] = SET, rebuild: bool = REBUILD, 
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_pairs
 
-    options = _options(rebuild, executor, workers, address)  # before any work
+    options = stage_options(rebuild, executor, workers, address)  # before any work
     layout = RunLayout(out)
     summary = stage_pairs(layout, load_run(out, overrides), options)
     typer.echo(json.dumps(summary, indent=2))
@@ -214,7 +176,7 @@ def train_mapper_cmd(
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_mappers
 
-    options = _options(rebuild, executor, workers, address)  # before any work
+    options = stage_options(rebuild, executor, workers, address)  # before any work
     kinds = kind_names() if kind == "all" else (kind,)
     for path in stage_mappers(RunLayout(out), load_run(out, overrides), kinds, options):
         typer.echo(f"wrote {path}")
@@ -244,7 +206,7 @@ def tune(
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_tune
 
-    options = _options(rebuild, executor, workers, address)
+    options = stage_options(rebuild, executor, workers, address)
     layout = RunLayout(out)
     result = stage_tune(layout, load_run(out, overrides), kind, trials=trials, seed=seed, apply=apply, options=options)
     baseline = "" if result.baseline_value is None else f" (trial 0, the run's settings: {result.baseline_value:.6g})"
@@ -258,15 +220,6 @@ def tune(
 
 
 PROTOCOLS = ("mdm", "mdi", "all")
-
-
-def _options(rebuild: bool, executor: str, workers: int | None, address: str | None) -> StageOptions:
-    """A stage's options from the command line, its executor options checked before any work."""
-    from metadagger.utils.executors import check_executor_options
-    from metadagger.runfolder.driver import StageOptions
-
-    check_executor_options(executor, workers, address)
-    return StageOptions(rebuild=rebuild, executor=executor, workers=workers, address=address)
 
 
 @app.command()
@@ -288,7 +241,7 @@ def evaluate(
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_evaluate, stage_mdi
 
-    options = _options(rebuild, executor, workers, address)
+    options = stage_options(rebuild, executor, workers, address)
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; expected {', '.join(PROTOCOLS)}")
     layout = RunLayout(out)
@@ -325,7 +278,7 @@ def benchmark(
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_benchmark
 
-    options = _options(rebuild, executor, workers, address)
+    options = stage_options(rebuild, executor, workers, address)
     layout = RunLayout(out)
     config = load_run(out, overrides)
     if config.benchmark is None:
@@ -351,7 +304,7 @@ def diagnose(
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_diagnose
 
-    options = _options(False, executor, workers, address)
+    options = stage_options(False, executor, workers, address)
     layout = RunLayout(out)
     summary = stage_diagnose(layout, load_run(out, overrides), options=options)
     typer.echo(f"diagnostics: {len(summary['methods']) - 1} kinds and controls on {summary['val_pairs']} validation pairs; "
@@ -381,7 +334,7 @@ def export(
 
     seed_list = parse_seeds(seeds) if seeds is not None else None  # a malformed value before the dataset store is read
     check_export(what, fmt, name)
-    options = _options(False, executor, workers, address)
+    options = stage_options(False, executor, workers, address)
     summary = stage_export(RunLayout(out), load_run(out, overrides), what=what, name=name, seeds=seed_list, options=options)
     checked = ("" if what == "demos" else f", {summary['checked']} re-run pairs equal to the stored ones" if summary["checked"]
                else ", no stored pair of these seeds to compare the re-run with")
@@ -446,71 +399,12 @@ def reproduce(
     if log is not None:
         check_log(log, "--log")
     overrides = [*overrides, f"log={log}"] if log is not None else overrides
-    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, options=_options(False, executor, workers, address))
+    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, options=stage_options(False, executor, workers, address))
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
     if load_run(out).log == "tensorboard":
         tb = RunLayout(out).tb_dir
         typer.echo(f"wrote TensorBoard scalars to {tb}; view them with `tensorboard --logdir {tb}`")
-
-
-@bench_app.command("env")
-@user_errors
-def bench_env_cmd(
-    task: str = TASK,
-    seeds: str = typer.Option("0-2", "--seeds", help="Seeds to step."),
-    steps: int = typer.Option(1000, "--steps", min=1, help="Steps per seed (1000: a full episode, as upstream registers it)."),
-    out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
-) -> None:
-    """Steps per second of our env against upstream's, on the same seeds and actions."""
-    from metadagger.cli.bench import bench_env, write_bench
-    from metadagger.utils.yaml_config import parse_seeds
-    from metadagger.utils.io import check_output_file
-
-    check_output_file(out, "--out")
-    result = bench_env(task, seeds=parse_seeds(seeds), steps=steps)
-    write_bench(result, out)
-    typer.echo({k: v for k, v in result.items() if not isinstance(v, (dict, list))})
-    typer.echo(f"wrote {out}")
-
-
-@bench_app.command("bc")
-@user_errors
-def bench_bc_cmd(
-    images: int = typer.Option(2000, "--images", min=10, help="Random 96x96x3 images to fit on."),
-    epochs: int = typer.Option(3, "--epochs", min=1, help="Epochs of each fit."),
-    out: Path = typer.Option(Path("runs/bench/bc.json"), "--out", help="JSON file to write."),
-) -> None:
-    """Full BC fit vs head-only refit on cached trunk features, and inference latency."""
-    from metadagger.cli.bench import bench_bc, write_bench
-    from metadagger.utils.io import check_output_file
-
-    check_output_file(out, "--out")
-    result = bench_bc(images=images, epochs=epochs)
-    write_bench(result, out)
-    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
-    typer.echo(f"wrote {out}")
-
-
-@bench_app.command("pairs")
-@user_errors
-def bench_pairs_cmd(
-    out: Path = OUT,
-    seeds: int = typer.Option(4, "--seeds", help="How many of the run's pair seeds to time."),
-    json_out: Path = typer.Option(Path("runs/bench/pairs.json"), "--json", help="JSON file to write."),
-    target_kept: int = typer.Option(375, "--target-kept", help="Kept pairs to extrapolate the time for (the paper's: 375)."),
-    nodes: list[int] = typer.Option([4, 16], "--nodes", help="Ray cluster sizes to extrapolate to (nodes like this machine); repeatable."),
-) -> None:
-    """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
-    pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
-    from metadagger.cli.bench import bench_pairs, write_bench
-    from metadagger.utils.io import check_output_file
-
-    check_output_file(json_out, "--json")
-    result = bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes)
-    write_bench(result, json_out)
-    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
-    typer.echo(f"wrote {json_out}")
 
 
 @config_app.command("show")

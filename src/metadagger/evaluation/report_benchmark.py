@@ -52,8 +52,14 @@ def setting_cell(entry: dict[str, Any]) -> str:
     return f"{'' if setting == '-' else setting + ', '}{share:.0%} of the demonstration"
 
 
-def _key(entry: dict[str, Any], prefix: str = "") -> tuple[str, str, float]:
-    return entry[prefix + "method"] if prefix else entry["method"], entry[prefix + "setting"], float(entry.get(prefix + "demo_fraction", 1.0))
+def _key(entry: dict[str, Any]) -> tuple[str, str, float]:
+    """An entry's (or a reference's) method, setting and demonstration share."""
+    return entry["method"], entry["setting"], float(entry.get("demo_fraction", 1.0))
+
+
+def _against(comparison: dict[str, Any]) -> tuple[str, str, float]:
+    """The :func:`_key` of the reference a comparison was made against."""
+    return comparison["against"], comparison["against_setting"], float(comparison.get("against_demo_fraction", 1.0))
 
 
 def _reference_label(entry: dict[str, Any]) -> str:
@@ -65,7 +71,7 @@ def _paired(entries: list[dict[str, Any]], refs: list[dict[str, Any]], compariso
     """Each method against each control and the best gate on the same seeds, and what they show."""
     if not refs or not comparisons:
         return []
-    found = {(_key(c), (c["against"], c["against_setting"], float(c.get("against_demo_fraction", 1.0)))): c for c in comparisons}
+    found = {(_key(c), _against(c)): c for c in comparisons}
     names = [_reference_label(r) for r in refs]
     cells = []
     for e in entries:
@@ -76,10 +82,10 @@ def _paired(entries: list[dict[str, Any]], refs: list[dict[str, Any]], compariso
                                              f"{c['only_a']}:{c['only_b']}, p {c['p_value']:.2g}; PI {c['p_improvement']:.2f}")
         cells.append(tuple(row))
     lines = ["### Paired comparisons with the controls and the best gate", "",
-             f"On the same seeds: the difference in success rate (points) with its 95% bootstrap interval over seeds; "
-             f"the seeds only this method : only the other solved, with the exact McNemar p; PI, the probability of "
-             f"improvement (the share of seeds with the higher reward, ties half). The best gate is the gated DAgger "
-             f"setting with the highest success here (chosen on these seeds, which favours it).", ""]
+             "On the same seeds: the difference in success rate (points) with its 95% bootstrap interval over seeds; "
+             "the seeds only this method : only the other solved, with the exact McNemar p; PI, the probability of "
+             "improvement (the share of seeds with the higher reward, ties half). The best gate is the gated DAgger "
+             "setting with the highest success here (chosen on these seeds, which favours it).", ""]
     lines += markdown_table(("method", "setting", *(f"against {n}" for n in names)), cells) + [""]
     return lines + _conclusions(entries, refs, found, names) + [""]
 

@@ -16,11 +16,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from metadagger.errors import UserError
+from metadagger.evaluation.methods import MDM_PREFIX, MapperKey, reads_demonstration
 from metadagger.evaluation.tables import method_label
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
-from metadagger.mapping.registry import control_names
 from metadagger.metal.method import SeedLearner, bc_head, dagger_rounds, demonstration, map_head, seed_context, seeded
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint
@@ -72,9 +72,9 @@ def seed_clips(task: Task, layout: RunLayout, seed: int, methods: Sequence[str],
             mapper = cached_mapper(MapperFile(str(layout.mapper(kind)), file_fingerprint(layout.mapper(kind))))
             if mapper.needs_context and context is None:
                 context = seed_context(learner.cache, data.obs, first.obs)
-            queries = 0 if kind in control_names() else len(data)
-            clips[kind] = Clip(method_label('mdm-' + kind), learner.roll(map_head(mapper, w_bc, context), early_stop=early_stop),
-                               queries)
+            key = MapperKey(MDM_PREFIX + kind, "", kind=kind)
+            clips[kind] = Clip(method_label(key.method), learner.roll(map_head(mapper, w_bc, context), early_stop=early_stop),
+                               len(data) if reads_demonstration(key) else 0)
         if "dagger" in methods:
             *_, last = dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=rounds, fit=seeded(dagger_bc, seed),
                                      early_stop=early_stop)

@@ -126,6 +126,18 @@ def _check_quantile(owner: str, quantile: float) -> None:
         raise UserError(f"{owner}.quantile must be in [0, 1), got {quantile!r}")
 
 
+def _check_share(owner: str, value: float) -> None:
+    """A setting that is a share strictly between 0 and 1 (``owner`` as ``Gate.field``)."""
+    if not 0.0 < value < 1.0:
+        raise UserError(f"{owner} must be in (0, 1), got {value!r}")
+
+
+def _check_count(owner: str, value: int, least: int) -> None:
+    """An integer setting of at least ``least`` (``owner`` as ``Gate.field``)."""
+    if not isinstance(value, int) or value < least:
+        raise UserError(f"{owner} must be an integer >= {least}, got {value!r}")
+
+
 def above_quantile(scores: Tensor, quantile: float) -> Tensor:
     """The states whose score is strictly above the ``quantile``-quantile of ``scores``.
 
@@ -247,8 +259,7 @@ class EnsembleGate(ScoreGate):
 
     def __post_init__(self) -> None:
         _check_quantile("EnsembleGate", self.quantile)
-        if not isinstance(self.K, int) or self.K < 2:
-            raise UserError(f"EnsembleGate.K must be an integer >= 2, got {self.K!r}")
+        _check_count("EnsembleGate.K", self.K, 2)
         _check_ridge("EnsembleGate", self.ridge)
 
     def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
@@ -332,8 +343,7 @@ class NoveltyGate(ScoreGate):
 
     def __post_init__(self) -> None:
         _check_quantile("NoveltyGate", self.quantile)
-        if not isinstance(self.k, int) or self.k < 1:
-            raise UserError(f"NoveltyGate.k must be an integer >= 1, got {self.k!r}")
+        _check_count("NoveltyGate.k", self.k, 1)
 
     def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
         """Distance of each state to its ``k``-th nearest labelled state [N]."""
@@ -373,10 +383,8 @@ class ThriftyGate(Gate):
     """Ridge penalty of the risk estimate (smoothing noisy 0/1 outcomes, as the safe gate's), > 0."""
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.rate < 1.0:
-            raise UserError(f"ThriftyGate.rate must be in (0, 1), got {self.rate!r}")
-        if not isinstance(self.K, int) or self.K < 2:
-            raise UserError(f"ThriftyGate.K must be an integer >= 2, got {self.K!r}")
+        _check_share("ThriftyGate.rate", self.rate)
+        _check_count("ThriftyGate.K", self.K, 2)
         _check_ridge("ThriftyGate", self.ridge)
         _check_ridge("ThriftyGate.risk", self.risk_ridge)
 
@@ -428,10 +436,8 @@ class ConformalGate(Gate):
     """Which nearest labelled neighbour measures the distance, >= 1."""
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.alpha < 1.0:
-            raise UserError(f"ConformalGate.alpha must be in (0, 1), got {self.alpha!r}")
-        if not isinstance(self.k, int) or self.k < 1:
-            raise UserError(f"ConformalGate.k must be an integer >= 1, got {self.k!r}")
+        _check_share("ConformalGate.alpha", self.alpha)
+        _check_count("ConformalGate.k", self.k, 1)
 
     def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
                 memory: GateMemory) -> Tensor:

@@ -181,14 +181,15 @@ def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory,
     data = Aggregate([demo.to_dataset()])
     actions = demo.expert_labels
     queries = len(data)
-    memory = GateMemory()
+    # what a gate may know of the run: the demonstration first, then each rollout it has gated
+    memory = GateMemory() if gate is None else GateMemory([Episode(learner.cache.features(demo.obs), bool(demo.success))])
     learner.load(start)
     trajectory = first
     for index in range(1, rounds + 1):
         if gate is None:
             keep = np.ones(trajectory.steps, dtype=bool)
         else:
-            keep = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory, demo)
+            keep = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory)
         labelled = None
         if keep.any():
             labelled = Dataset(obs=trajectory.obs[keep], labels=trajectory.expert_labels[keep])
@@ -202,11 +203,9 @@ def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory,
 
 
 def _gate_mask(gate: Gate, cache: FeatureCache, data: Aggregate, actions: np.ndarray, trajectory: Trajectory,
-               generator: torch.Generator, memory: GateMemory, demo: Trajectory) -> np.ndarray:
+               generator: torch.Generator, memory: GateMemory) -> np.ndarray:
     """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far
-    and the run's finished episodes (``memory``: the demonstration first, then each gated rollout)."""
-    if not memory.episodes:
-        memory.episodes.append(Episode(features=cache.features(demo.obs), succeeded=bool(demo.success)))
+    and the run's finished episodes (``memory``), to which ``trajectory`` is then added."""
     labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
     features = cache.features(trajectory.obs)
     keep = gate.select(features, _tensor(trajectory.learner_actions), labelled, generator=generator, memory=memory).numpy()

@@ -1,0 +1,71 @@
+"""``metadagger bench ...``: the speed benchmarks (:mod:`metadagger.cli.bench`), each writing JSON."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from metadagger.cli.options import OUT, TASK, user_errors
+
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
+
+
+@bench_app.command("env")
+@user_errors
+def bench_env_cmd(
+    task: str = TASK,
+    seeds: str = typer.Option("0-2", "--seeds", help="Seeds to step."),
+    steps: int = typer.Option(1000, "--steps", min=1, help="Steps per seed (1000: a full episode, as upstream registers it)."),
+    out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
+) -> None:
+    """Steps per second of our env against upstream's, on the same seeds and actions."""
+    from metadagger.cli.bench import bench_env, write_bench
+    from metadagger.utils.yaml_config import parse_seeds
+    from metadagger.utils.io import check_output_file
+
+    check_output_file(out, "--out")
+    result = bench_env(task, seeds=parse_seeds(seeds), steps=steps)
+    write_bench(result, out)
+    typer.echo({k: v for k, v in result.items() if not isinstance(v, (dict, list))})
+    typer.echo(f"wrote {out}")
+
+
+@bench_app.command("bc")
+@user_errors
+def bench_bc_cmd(
+    images: int = typer.Option(2000, "--images", min=10, help="Random 96x96x3 images to fit on."),
+    epochs: int = typer.Option(3, "--epochs", min=1, help="Epochs of each fit."),
+    out: Path = typer.Option(Path("runs/bench/bc.json"), "--out", help="JSON file to write."),
+) -> None:
+    """Full BC fit vs head-only refit on cached trunk features, and inference latency."""
+    from metadagger.cli.bench import bench_bc, write_bench
+    from metadagger.utils.io import check_output_file
+
+    check_output_file(out, "--out")
+    result = bench_bc(images=images, epochs=epochs)
+    write_bench(result, out)
+    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+    typer.echo(f"wrote {out}")
+
+
+@bench_app.command("pairs")
+@user_errors
+def bench_pairs_cmd(
+    out: Path = OUT,
+    seeds: int = typer.Option(4, "--seeds", help="How many of the run's pair seeds to time."),
+    json_out: Path = typer.Option(Path("runs/bench/pairs.json"), "--json", help="JSON file to write."),
+    target_kept: int = typer.Option(375, "--target-kept", help="Kept pairs to extrapolate the time for (the paper's: 375)."),
+    nodes: list[int] = typer.Option([4, 16], "--nodes", help="Ray cluster sizes to extrapolate to (nodes like this machine); repeatable."),
+) -> None:
+    """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
+    pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
+    from metadagger.cli.bench import bench_pairs, write_bench
+    from metadagger.utils.io import check_output_file
+
+    check_output_file(json_out, "--json")
+    result = bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes)
+    write_bench(result, json_out)
+    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+    typer.echo(f"wrote {json_out}")
