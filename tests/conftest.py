@@ -1,20 +1,37 @@
-"""Shared fixtures: one thread for torch (CI has 2 cores), metadagger's Gymnasium ids registered
-(tests ``gym.make`` them directly; importing metadagger does not register them), a seeded
-generator and a closed port."""
+"""Shared fixtures: the command line's CPU kernels, pinned before numpy loads; one thread for torch
+(CI has 2 cores); metadagger's Gymnasium ids registered (tests ``gym.make`` them directly;
+importing metadagger does not register them); a seeded generator and a closed port."""
 
 from __future__ import annotations
 
-import socket
-from collections.abc import Iterator
+import metadagger
 
-import numpy as np
-import pytest
-import torch
+metadagger.pin_cpu_kernels()  # before numpy, OpenCV and torch load, as the command line does
 
-from metadagger.tasks.gym_ids import register_envs
+import socket  # noqa: E402
+from collections.abc import Iterator  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+from metadagger.tasks.gym_ids import register_envs  # noqa: E402
 
 torch.set_num_threads(1)
 register_envs()
+
+
+@pytest.fixture(scope="session")
+def carracing_ci_run(tmp_path_factory) -> Path:
+    """A finished CarRacing ci run (pi*, 4 pairs, every mapper, 2 evaluation seeds, benchmark,
+    report), made once per test session; copy it before changing it."""
+    from metadagger.pipeline.stages import reproduce
+    from metadagger.runfolder.driver import StageOptions
+
+    run = tmp_path_factory.mktemp("carracing-ci") / "run"
+    reproduce("carracing", "ci", run, options=StageOptions(workers=2, progress=False))
+    return run
 
 
 @pytest.fixture

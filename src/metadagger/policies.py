@@ -11,10 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import functools
 import inspect
 import json
-import subprocess
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
@@ -26,7 +24,7 @@ from torch.nn.utils import parameters_to_vector, vector_to_parameters
 from metadagger.errors import CheckpointError, UserError
 from metadagger.tasks.base import Task
 from metadagger.utils.io import load_tensors, read_metadata, save_tensors
-from metadagger.version import __version__
+from metadagger.version import __version__, source_revision
 
 #: Defaults sized for 96x96x3 -> 20 classes: about 150K parameters (paper Sec. 3.2).
 DEFAULT_CONV_CHANNELS = (8, 16, 32, 32)
@@ -272,7 +270,7 @@ class Policy:
             "arch": json.dumps(self.net.arch, sort_keys=True),
             "task": self.task,
             "version": __version__,
-            "git_revision": _git_revision(),
+            "git_revision": source_revision(),
         }
         return save_tensors(path, self.net.state_dict(), metadata=metadata)
 
@@ -288,18 +286,6 @@ def _one_torch_thread() -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(threads)
-
-
-@functools.lru_cache(maxsize=1)
-def _git_revision() -> str:
-    """The source tree's git commit, or "" outside a git checkout."""
-    try:
-        result = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5, check=False
-        )
-    except (OSError, subprocess.SubprocessError):
-        return ""
-    return result.stdout.strip() if result.returncode == 0 else ""
 
 
 def load_policy(path: str | Path) -> Policy:

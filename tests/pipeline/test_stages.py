@@ -35,11 +35,16 @@ def _refused(args: list[str], *needles: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def finished(tmp_path_factory) -> Path:
+def finished(carracing_ci_run) -> Path:
     """A finished CarRacing ci run (pi*, 4 pairs, every mapper, 2 evaluation seeds, report)."""
-    run = tmp_path_factory.mktemp("ci") / "run"
-    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", run, "--workers", "2"])
-    return run
+    return carracing_ci_run
+
+
+def test_the_pairs_command_warns_when_dagger_barely_moved_the_heads(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    result = runner.invoke(app, ["pairs", "--out", str(layout.root)])
+    assert result.exit_code == 0, result.output
+    assert "warning: DAgger moved the heads by a median" in result.output  # the ci preset's fits barely move them
 
 
 def _copy(run: Path, to: Path) -> RunLayout:

@@ -1,10 +1,16 @@
-"""Benchmarks that write JSON: ``bench_env`` times our base env against upstream's."""
+"""Benchmarks that write JSON: ``bench_env`` times our base env against upstream's, ``bench_bc`` a
+full BC fit against a head refit, ``bench_pairs`` the pair stage, ``bench_kernels`` the kernel pins."""
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import platform
+import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -16,6 +22,7 @@ import numpy as np
 from metadagger.errors import UserError
 from metadagger.tasks.gym_ids import register_envs
 from metadagger.utils.io import read_json, write_json
+from metadagger.utils.kernels import KERNEL_ENV, NATIVE_SWITCH, machine_description
 
 #: task -> (our base env id, the upstream id it reproduces)
 ENV_PAIRS = {"carracing": ("metadagger/CarRacing-v0", "CarRacing-v3")}
@@ -311,4 +318,45 @@ def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:
         "speedup_cached_refit": full_s / head_s,
         "inference_ms_batch1": 1000 * (time.perf_counter() - start) / 500,
         "machine": _machine(),
+    }
+
+
+def _kernel_environment(kernels: str) -> dict[str, str]:
+    """This process's environment without any kernel setting, plus ``native``'s switch."""
+    env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV and k != NATIVE_SWITCH}
+    return {**env, NATIVE_SWITCH: "native"} if kernels == "native" else env
+
+
+def bench_kernels(task: str = "carracing", *, preset: str = "ci", repeats: int = 2, progress: bool = True) -> dict:
+    """The cost of the kernel pins: one whole ``reproduce`` of ``preset``, in fresh processes, on
+    the pinned kernels and on the machine's own (``METADAGGER_KERNELS=native``), alternated
+    ``repeats`` times so both share the machine's load; median seconds, their ratio, and whether
+    the two give the same ``eval/mdm.csv``."""
+    seconds: dict[str, list[float]] = {"pinned": [], "native": []}
+    digests: dict[str, set[str]] = {"pinned": set(), "native": set()}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(repeats):
+            for kernels in ("pinned", "native") if r % 2 == 0 else ("native", "pinned"):
+                out = Path(tmp) / f"{kernels}-{r}"
+                command = [sys.executable, "-m", "metadagger.cli", "reproduce", "--task", task, "--preset", preset,
+                           "--out", str(out)]
+                start = time.perf_counter()
+                done = subprocess.run(command, env=_kernel_environment(kernels), capture_output=True, text=True)
+                if done.returncode != 0:
+                    raise RuntimeError(f"reproduce on {kernels} kernels failed: {done.stderr.strip()[-2000:]}")
+                seconds[kernels].append(time.perf_counter() - start)
+                digests[kernels].add(hashlib.sha256((out / "eval" / "mdm.csv").read_bytes()).hexdigest())
+                if progress:
+                    print(f"{kernels} kernels, repeat {r + 1}/{repeats}: {seconds[kernels][-1]:.1f} s", file=sys.stderr)
+    median = {k: statistics.median(v) for k, v in seconds.items()}
+    return {
+        "task": task,
+        "preset": preset,
+        "repeats": repeats,
+        "seconds": seconds,
+        "median_s": median,
+        "pinned_over_native": median["pinned"] / median["native"],
+        "mdm_csv_sha256": {k: sorted(v) for k, v in digests.items()},
+        "same_numbers": digests["pinned"] == digests["native"],
+        "machine": {**_machine(), "cpu": machine_description()},
     }

@@ -69,3 +69,23 @@ def bench_pairs_cmd(
     write_bench(result, json_out)
     typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
     typer.echo(f"wrote {json_out}")
+
+
+@bench_app.command("kernels")
+@user_errors
+def bench_kernels_cmd(
+    task: str = TASK,
+    preset: str = typer.Option("ci", "--preset", help="The built-in preset whole runs of which are timed."),
+    repeats: int = typer.Option(2, "--repeats", min=1, help="Runs on each kind of kernels, alternated."),
+    out: Path = typer.Option(Path("runs/bench/kernels.json"), "--out", help="JSON file to write."),
+) -> None:
+    """What the CPU kernel pins cost: whole runs of --preset on the pinned kernels and on this
+    machine's own, side by side, and whether the two give the same numbers."""
+    from metadagger.cli.bench import bench_kernels, write_bench
+    from metadagger.utils.io import check_output_file
+
+    check_output_file(out, "--out")
+    result = bench_kernels(task, preset=preset, repeats=repeats)
+    write_bench(result, out)
+    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+    typer.echo(f"wrote {out}")

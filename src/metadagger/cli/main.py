@@ -3,7 +3,8 @@
 A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stderr and exit code 2
 (:func:`~metadagger.cli.options.user_errors`, beside the options every command shares); the
 process around the commands (usage errors, signals, exit codes) is :mod:`metadagger.cli.entry`;
-the ``bench`` commands are :mod:`metadagger.cli.bench_commands`.
+the ``bench`` commands are :mod:`metadagger.cli.bench_commands`, the ``results`` ones
+:mod:`metadagger.cli.results_commands`.
 
 The command line runs on pinned CPU kernels (:func:`~metadagger.utils.kernels.pin_cpu_kernels`):
 :func:`metadagger.cli.entry.main` pins them first thing, and this module pins them before its one import of
@@ -27,11 +28,13 @@ pin_cpu_kernels()  # before the registry below loads torch, and before any comma
 from metadagger.cli.bench_commands import bench_app  # noqa: E402
 from metadagger.cli.options import (ADDRESS, BUILTIN_PRESET, EXECUTOR, OUT, PRESET, PRESETS_FILE, REBUILD, SET, TASK,  # noqa: E402
                                     WORKERS, stage_options, user_errors)
+from metadagger.cli.results_commands import results_app  # noqa: E402
 from metadagger.mapping.registry import kind_names, trained_names  # noqa: E402
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.")
 app.add_typer(bench_app, name="bench")
+app.add_typer(results_app, name="results")
 config_app = typer.Typer(no_args_is_help=True, help="Inspect run configs.")
 app.add_typer(config_app, name="config")
 
@@ -155,8 +158,13 @@ def pairs(out: Path = OUT, overrides: list[str] = SET, rebuild: bool = REBUILD, 
 
     options = stage_options(rebuild, executor, workers, address)  # before any work
     layout = RunLayout(out)
+    from metadagger.metal.pairs import negligible_change_warning
+
     summary = stage_pairs(layout, load_run(out, overrides), options)
     typer.echo(json.dumps(summary, indent=2))
+    warning = negligible_change_warning(summary)
+    if warning:
+        typer.echo(warning, err=True)
     typer.echo(f"wrote {layout.pairs_dir}")
 
 
@@ -390,7 +398,8 @@ def reproduce(
                                       "TensorBoard scalars under OUT/tb (needs the tensorboard extra); none: off. Sets the "
                                       "run's log key (default: the run's, none for a new run)."),
 ) -> None:
-    """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> report,
+    """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> benchmark
+    (runs with a benchmark section) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, reproduce as run_all

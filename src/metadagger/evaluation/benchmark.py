@@ -55,6 +55,7 @@ from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, dr
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.kernels import kernel_stamp
 
 #: Columns of ``benchmark/queries.csv``.
 FIELDS = ("method", "setting", "demo_fraction", "seed", "success", "reward", "steps", "expert_queries")
@@ -215,7 +216,7 @@ def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> dict[MethodKey, dict[st
 def benchmark_stamps(task: Task, layout: RunLayout, job_settings: dict[str, Any], config: BenchmarkConfig,
                      keys: list[MethodKey], mdi: MDIConfig | None, mdi_mapper: str | None) -> dict[str, Stamp]:
     """What each method key's rows are made from: the shared fits, pi*, and the method's own inputs."""
-    common = {"protocol": "benchmark", **task_stamp(task), **job_settings,
+    common = {"protocol": "benchmark", **kernel_stamp(), **task_stamp(task), **job_settings,
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     stamps: dict[str, Stamp] = {}
     for key in keys:

@@ -53,6 +53,7 @@ from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, dr
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.kernels import kernel_stamp
 
 #: The three methods of Table 6, in table order.
 METHODS = ("dagger-mdi", "dagger-bc", "dagger")
@@ -98,7 +99,8 @@ class MDIConfig:
     fresh Xavier head for DAgger) or ``one-shot`` (the step-5 head that failed the one-shot test)."""
     controls: tuple[str, ...] = ()
     """Further mapper kinds that initialise DAgger-MDI, each in rows of method ``dagger-mdi-<kind>``
-    (the Fetch presets: the controls ``mean-da`` and ``pistar-head``); () for none."""
+    (the Fetch presets: the controls ``mean-da`` and ``pistar-head``, and in the family's also
+    ``conditioned``); () for none."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -235,7 +237,7 @@ def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
 def mdi_stamps(task: Task, layout: RunLayout, config: MDIConfig, context_early_stop: float | None = None) -> dict[str, Stamp]:
     """What each MDI method's rows are made from: the protocol's settings, pi* and its initialiser
     (and, for an initialiser that reads the seed's context, the early stop of its BC rollout)."""
-    common = {"protocol": "mdi", **task_stamp(task), **stamp_of(config, drop=("seeds", "mapper", "controls")),
+    common = {"protocol": "mdi", **kernel_stamp(), **task_stamp(task), **stamp_of(config, drop=("seeds", "mapper", "controls")),
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     kinds = config.kinds
 

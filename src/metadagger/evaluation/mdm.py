@@ -30,6 +30,7 @@ from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, dr
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.kernels import kernel_stamp
 
 #: Prefix of the one-shot rows of a mapper kind: ``oneshot-<kind>``.
 ONESHOT_PREFIX = "oneshot-"
@@ -110,7 +111,7 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
 def mdm_stamps(task: Task, layout: RunLayout, config: EvalConfig, bc: BCConfig, early_stop: float | None = None) -> dict[str, Stamp]:
     """What each MDM method's rows are made from: the protocol's settings, pi* and its mapper (and,
     for a mapper with a context, the early stop of its BC rollout)."""
-    common = {"protocol": "mdm", **task_stamp(task), "bc": stamp_of(bc), "oneshot": config.oneshot,
+    common = {"protocol": "mdm", **kernel_stamp(), **task_stamp(task), "bc": stamp_of(bc), "oneshot": config.oneshot,
               "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
     return {"bc": common, **{kind: {**common, "mapper_fingerprint": file_fingerprint(layout.mapper(kind)),
                                     **context_inputs(kind, early_stop)}

@@ -38,8 +38,8 @@ def run_section(layout: RunLayout) -> list[str]:
     stages = [s for s in STAGE_ORDER if s in times] + [s for s in times if s not in STAGE_ORDER]
     totals = {s: times[s].get("total_seconds", times[s]["seconds"]) for s in stages}
     reruns = any(totals[s] != times[s]["seconds"] for s in stages)  # a stage resumed or rebuilt: show its sum too
-    cells = [(s, _duration(times[s]["seconds"]), *([_duration(totals[s])] if reruns else []), times[s]["finished"]) for s in stages]
-    cells.append(("all stages", _duration(sum(times[s]["seconds"] for s in stages)), *([""] if reruns else []), ""))
+    cells = [(s, duration(times[s]["seconds"]), *([duration(totals[s])] if reruns else []), times[s]["finished"]) for s in stages]
+    cells.append(("all stages", duration(sum(times[s]["seconds"] for s in stages)), *([""] if reruns else []), ""))
     header = ("stage", "wall time", *(["all calls"] if reruns else []), "finished")
     note = "Wall time of each stage's last call" + ("; all calls: summed over every call of the stage" if reruns else "") + "."
     return lines + [note, ""] + markdown_table(header, cells) + [""]
@@ -60,7 +60,7 @@ def _stage_times(data: Any) -> dict[str, dict[str, Any]]:
     return data
 
 
-def _duration(seconds: float) -> str:
+def duration(seconds: float) -> str:
     """``12.3 s``, ``4 min 05 s`` or ``2 h 03 min``."""
     if round(seconds, 1) < 60:
         return f"{seconds:.1f} s"

@@ -35,6 +35,7 @@ from metadagger.runfolder.stamps import data_fingerprint, describe_changes, stam
 from metadagger.utils.executors import default_workers, make_executor
 from metadagger.utils.io import write_text
 from metadagger.utils.progress import note, progress_bar
+from metadagger.utils.kernels import kernel_stamp
 
 __all__ = ["CURVE_COLUMNS", "MapperConfig", "MapperJob", "evaluate_mapping", "fit_mapper", "fit_mapper_job", "paper_config", "train_mapper",
            "train_mappers"]
@@ -54,8 +55,7 @@ class MapperConfig:
     """
 
     kind: str = "sam"
-    """A kind of :mod:`metadagger.mapping.registry`: ``dm``, ``sam``, ``tam``, ``ridge``, ``mean-da``,
-    ``pistar-head``."""
+    """A kind of :mod:`metadagger.mapping.registry` (``metadagger train-mapper --help`` lists them)."""
     hidden: tuple[int, ...] = (256, 256)
     """Hidden widths of the mapping MLP (DM's network, or h for SAM/TAM)."""
     latent: int = 64
@@ -282,7 +282,7 @@ def mapper_stamp(split: PairSplit, config: MapperConfig, pistar_head: np.ndarray
         parts += [t.contiguous().numpy().tobytes() for t in (split.context_train, split.context_val)]
     if pistar_head is not None and config.kind == "pistar-head":
         parts.append(torch.as_tensor(pistar_head, dtype=torch.float32).numpy().tobytes())
-    return {"config": stamp_of(config), "pairs_fingerprint": data_fingerprint(*parts)}
+    return {**kernel_stamp(), "config": stamp_of(config), "pairs_fingerprint": data_fingerprint(*parts)}
 
 
 def _train(

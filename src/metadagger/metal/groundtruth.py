@@ -27,6 +27,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import read_json, write_json
 from metadagger.utils.yaml_config import LATER_OPTION
+from metadagger.utils.kernels import kernel_stamp
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,7 @@ class GroundTruthConfig:
 
 def groundtruth_stamp(task: Task, config: GroundTruthConfig) -> dict:
     """What pi* is made from: the task and every setting of its training."""
-    return {**task_stamp(task), **stamp_of(config, drop=("min_success",))}
+    return {**kernel_stamp(), **task_stamp(task), **stamp_of(config, drop=("min_success",))}
 
 
 def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout) -> list[str]:

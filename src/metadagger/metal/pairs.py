@@ -30,6 +30,7 @@ from metadagger.runfolder.driver import SeedJob, StageOptions, drive, plan
 from metadagger.runfolder.stamps import describe_changes, file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.kernels import kernel_stamp
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")
 
@@ -157,7 +158,7 @@ def collect_pair(job: PairJob) -> dict[str, Any]:
 
 def pair_stamp(task: Task, layout: RunLayout, config: PairConfig) -> dict[str, Any]:
     """What a pair is made from: the task, the pair settings (not the seed list) and pi*."""
-    return {**task_stamp(task), **stamp_of(config, drop=("seeds", "val_fraction")),
+    return {**kernel_stamp(), **task_stamp(task), **stamp_of(config, drop=("seeds", "val_fraction")),
             "context": list(CONTEXT_PARTS), "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
 
 

@@ -38,9 +38,9 @@ from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
 from metadagger.tasks import check_task
 from metadagger.utils.io import atomic_write, read_json, write_json, write_text
-from metadagger.utils.kernels import pin_cpu_kernels
+from metadagger.utils.kernels import machine_description, pin_cpu_kernels
 from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
-from metadagger.version import __version__
+from metadagger.version import __version__, source_revision
 
 LOGS = ("none", "tensorboard")
 """Values of :attr:`RunConfig.log`."""
@@ -283,12 +283,21 @@ def _timed(stage: Callable[..., R], layout: RunLayout, config: RunConfig, *args:
 
 def record_stage_time(layout: RunLayout, stage: str, seconds: float) -> None:
     """Add one finished call of ``stage`` to the run's stage times: ``seconds`` (this call's),
-    ``total_seconds`` (all calls') and ``finished`` (UTC, ISO 8601)."""
+    ``total_seconds`` (all calls'), ``finished`` (UTC, ISO 8601), and the source commits and CPUs
+    of all its calls (``commits``, ``cpus``: each once, in order of first use)."""
     times = read_json(layout.stage_times, "the stage times") if layout.stage_times.is_file() else {}
-    total = float(times.get(stage, {}).get("total_seconds", 0.0)) + seconds
+    before = times.get(stage, {})
+    total = float(before.get("total_seconds", 0.0)) + seconds
+    cpu = machine_description()["cpu"]
     times[stage] = {"seconds": round(seconds, 3), "total_seconds": round(total, 3),
-                    "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+                    "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                    "commits": _once(before.get("commits", []), source_revision() or "unknown"),
+                    "cpus": _once(before.get("cpus", []), cpu)}
     write_json(layout.stage_times, times)
+
+
+def _once(seen: list[str], item: str) -> list[str]:
+    return list(seen) if item in seen else [*seen, item]
 
 
 def records_config(stage: Callable[Concatenate[RunLayout, RunConfig, P], R]) -> Callable[Concatenate[RunLayout, RunConfig, P], R]:

@@ -25,7 +25,7 @@ from typing import Any, Callable, Generic, Iterable, Iterator, TypeVar
 import torch
 
 from metadagger.errors import UserError
-from metadagger.utils.kernels import pin_cpu_kernels
+from metadagger.utils.kernels import pin_cpu_kernels, pinned_environment
 from metadagger.utils.ray_cluster import ADDRESS_HINT, bounded_gcs_wait, check_reachable, import_ray, token_hint
 
 __all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "check_executor_options", "default_workers", "in_order",
@@ -85,7 +85,6 @@ def _limit_threads() -> None:
 
 
 def _init_pool_worker() -> None:
-    pin_cpu_kernels()  # every worker on the pinned kernels, whether or not the driver pinned them
     _limit_threads()
     # A terminal Ctrl-C reaches the whole process group; only the driver should react (it
     # terminates the pool), so workers do not die mid-task with tracebacks of their own.
@@ -215,6 +214,9 @@ class LocalExecutor(Executor[futures.Future]):
 
     def __init__(self, *, workers: int) -> None:
         super().__init__(workers=workers)
+        # The workers (and the forkserver they fork from) start with this environment and load
+        # numpy before any code of theirs runs: the pins must be in it now.
+        pin_cpu_kernels()
         self._pool = futures.ProcessPoolExecutor(max_workers=workers, mp_context=_mp_context(), initializer=_init_pool_worker)
 
     def _submit(self, fn: Callable[[T], R], item: T) -> futures.Future:
@@ -257,7 +259,6 @@ def _check_picklable(fn: Callable[..., Any]) -> None:
 
 
 def _run_ray_task(fn: Callable[[T], R], item: T) -> R:
-    pin_cpu_kernels()  # a worker on another node does not inherit the driver's environment
     _limit_threads()
     return fn(item)
 
@@ -288,7 +289,9 @@ class RayExecutor(Executor[Any]):
         if workers is None:
             workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         super().__init__(workers=workers)
-        self._task = ray.remote(num_cpus=1)(_run_ray_task)
+        # a worker on another node does not inherit the driver's environment: the kernel pins go
+        # with each task, into the worker process's environment before it loads numpy
+        self._task = ray.remote(num_cpus=1, runtime_env={"env_vars": pinned_environment()})(_run_ray_task)
         self._fn_ref: tuple[Callable[..., Any], Any] | None = None
 
     def _submit(self, fn: Callable[[T], R], item: T) -> Any:

@@ -1,35 +1,133 @@
-"""One set of CPU kernels on every x86-64 machine, so that a run gives the same numbers anywhere.
+"""One set of CPU kernels on every x86-64 machine, as far as the libraries allow.
 
-PyTorch and oneDNN pick their CPU kernels by the instruction set of the machine they run on: AVX2
-on one machine and AVX-512 on another, whose floating-point sums differ in their last bits. A
-training run amplifies that: the CarRacing quick preset's MDM table differs in most of its rows
-between the two (docs/architecture.md, "Determinism"). :func:`pin_cpu_kernels` asks both for their
-AVX2 kernels, which every x86-64 CPU of the last decade has; a user who sets either variable
-keeps their value (``ATEN_CPU_CAPABILITY=default`` restores the machine's own choice).
+Several libraries metadagger computes with pick their kernels by the CPU they run on, and two
+kernels of one operation round differently in the last bits, which a training run amplifies: the
+quick CarRacing preset gave another MDM table on an Intel AVX-512 machine than on an AMD one.
+:func:`pin_cpu_kernels` puts into the environment, for each library, the setting that asks for
+kernels every x86-64 CPU of the last decade has (AVX2 and FMA):
 
-Importing metadagger does not pin them: the command line does, first thing
-(:func:`metadagger.cli.entry.main`), as do the pipeline's entry points (``reproduce``,
-``init_run``, ``load_run``), the local pool's workers and every Ray task; a Python program calls
-``metadagger.pin_cpu_kernels()`` itself, before its first tensor operation.
+=====================  ===========================  ==========================================
+library                what it computes here         pin
+=====================  ===========================  ==========================================
+PyTorch (ATen)         elementwise ops, reductions   ``ATEN_CPU_CAPABILITY=avx2``
+oneDNN                 convolutions                  ``ONEDNN_MAX_CPU_ISA=AVX2``
+MKL                    torch's matrix products,      ``MKL_CBWR=COMPATIBLE``: the one branch of
+                       eigh, solve                   MKL's reproducibility modes documented to
+                                                     agree on Intel and non-Intel processors
+OpenBLAS (numpy's)     numpy's dot, norm, matmul     ``OPENBLAS_CORETYPE=Haswell``
+numpy's SIMD loops     exp, log, sums, sorting       ``NPY_DISABLE_CPU_FEATURES`` = its AVX-512
+                                                     targets
+OpenCV                 CarRacing's frames            ``OPENCV_CPU_DISABLE=AVX512-SKX``
+Mesa llvmpipe          Fetch's frames (EGL, no GPU)  ``LP_NATIVE_VECTOR_WIDTH=256``
+=====================  ===========================  ==========================================
+
+ATen, oneDNN and MKL read their setting at their first kernel; OpenBLAS, numpy and OpenCV when
+they load. So the pin must come before numpy is imported: the command line pins first thing
+(:func:`metadagger.cli.entry.main`), importing :mod:`metadagger` loads no numerical library, and
+the executors' workers start with the driver's environment (a Ray worker gets it through its
+``runtime_env``). A process that loaded numpy or OpenCV unpinned computes on its machine's own
+kernels; :func:`kernel_stamp` records that, so its artifacts are never mixed with pinned ones.
+
+A variable the user set keeps its value; ``METADAGGER_KERNELS=native`` pins nothing (each library
+chooses for its CPU: faster on AVX-512 machines, numbers that hold on that machine kind only).
+What is still left to the machine (oneDNN's and MKL's blocking by cache size, Mesa's code
+generation) is listed in docs/architecture.md, "Determinism".
 """
 
 from __future__ import annotations
 
 import os
 import platform
+import sys
+from typing import Any
 
-#: The environment that selects the AVX2 kernels of ATen and of oneDNN.
-KERNEL_ENV = {"ATEN_CPU_CAPABILITY": "avx2", "ONEDNN_MAX_CPU_ISA": "AVX2"}
+#: The environment that pins each library's kernels (x86-64).
+KERNEL_ENV = {
+    "ATEN_CPU_CAPABILITY": "avx2",
+    "ONEDNN_MAX_CPU_ISA": "AVX2",
+    "MKL_CBWR": "COMPATIBLE",
+    "OPENBLAS_CORETYPE": "Haswell",
+    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+    "OPENCV_CPU_DISABLE": "AVX512-SKX",
+    "LP_NATIVE_VECTOR_WIDTH": "256",
+}
+
+#: The switch that leaves every library to its own choice of kernels.
+NATIVE_SWITCH = "METADAGGER_KERNELS"
+
+#: Bumped by every change to metadagger's code that changes a number a stage makes; it is part
+#: of every stage's stamp (:func:`kernel_stamp`), so such a change marks finished work stale.
+NUMERICS = 1
+
+#: Libraries that read their pin when they load, by module name and variable.
+_READ_AT_LOAD = {"numpy": "NPY_DISABLE_CPU_FEATURES", "cv2": "OPENCV_CPU_DISABLE"}
+
+#: The libraries this process loaded before it pinned their kernels (see :func:`pin_cpu_kernels`).
+_loaded_unpinned: set[str] = set()
+
+
+def _is_x86() -> bool:
+    return platform.machine().lower() in ("x86_64", "amd64")
+
+
+def _native() -> bool:
+    return os.environ.get(NATIVE_SWITCH, "").strip().lower() == "native"
 
 
 def pin_cpu_kernels() -> None:
-    """Select the AVX2 kernels on x86-64 unless the environment already chooses (a no-op elsewhere).
+    """Pin the CPU kernels of every library in :data:`KERNEL_ENV` (x86-64; a no-op elsewhere, or
+    with ``METADAGGER_KERNELS=native``). A variable already set keeps its value. Idempotent.
 
-    Both libraries read the variables when they first run a kernel, so this must run before the
-    process's first tensor operation (importing torch is fine; running a kernel is not): the
-    command line, the pipeline's entry points and the executors' workers call it, and a Python
-    program that computes with tensors before calling those must call it first. Idempotent.
+    Call it before numpy, OpenCV or torch load; a library loaded unpinned keeps its machine's
+    kernels for the life of the process, and :func:`kernel_stamp` says so.
     """
-    if platform.machine().lower() in ("x86_64", "amd64"):
-        for name, value in KERNEL_ENV.items():
-            os.environ.setdefault(name, value)
+    if not _is_x86() or _native():
+        return
+    for module, name in _READ_AT_LOAD.items():
+        if module in sys.modules and name not in os.environ:
+            _loaded_unpinned.add(module)
+    for name, value in KERNEL_ENV.items():
+        os.environ.setdefault(name, value)
+
+
+def kernel_stamp() -> dict[str, Any]:
+    """The numerics a stage's artifacts are made with, for its stamp: :data:`NUMERICS` and the
+    kernel settings in effect (``native`` where nothing is pinned; the libraries that loaded
+    before their pin, if any)."""
+    if not _is_x86() or _native():
+        return {"numerics": NUMERICS, "kernels": "native"}
+    kernels: dict[str, Any] = {name: os.environ.get(name) for name in KERNEL_ENV}
+    if _loaded_unpinned:
+        kernels["loaded_unpinned"] = sorted(_loaded_unpinned)
+    return {"numerics": NUMERICS, "kernels": kernels}
+
+
+def pinned_environment() -> dict[str, str]:
+    """The pins as environment variables for a process started elsewhere (a Ray worker): the
+    values in effect here, or the switch that pins nothing."""
+    if _native():
+        return {NATIVE_SWITCH: "native"}
+    return {name: os.environ[name] for name in KERNEL_ENV if name in os.environ}
+
+
+#: The instruction sets that decide which kernels a library may pick, as /proc/cpuinfo names them.
+_ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl", "avx512_vnni", "avx512_bf16", "amx_tile")
+
+
+def machine_description() -> dict[str, Any]:
+    """The CPU a result was made on: model, instruction sets (those that decide kernels), cores,
+    and the kernel settings in effect (:func:`kernel_stamp`)."""
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name":
+                    model = value.strip()
+                elif key.strip() == "flags":
+                    flags = set(value.split())
+                    break
+    except OSError:
+        pass
+    return {"cpu": model, "instruction_sets": [f for f in _ISA_FLAGS if f in flags], "cores": os.cpu_count(),
+            "machine": platform.machine(), "python": platform.python_version(), **kernel_stamp()}

@@ -1,0 +1,57 @@
+"""``metadagger results ...``: the results registry (:mod:`metadagger.results`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from metadagger.cli.options import OUT, user_errors
+
+results_app = typer.Typer(no_args_is_help=True, help="The results registry (results/) and the docs' generated blocks.")
+
+REGISTRY_OPTION = typer.Option(Path("results"), "--results", help="The registry folder.")
+ROOT_OPTION = typer.Option(Path("."), "--root", help="The repository root (README.md, docs/).")
+
+
+@results_app.command("add")
+@user_errors
+def results_add_cmd(
+    out: Path = OUT,
+    name: str = typer.Option(..., "--name", help="The canonical run it is (see docs/results.md)."),
+    beside: str = typer.Option(..., "--beside", help="What else ran on the machine while the run was made."),
+    registry: Path = REGISTRY_OPTION,
+) -> None:
+    """Reproduce run folder --out with this code (it resumes: a current run has nothing left to
+    do), then keep its small artifacts and a manifest as registry run --name."""
+    from metadagger.results.registry import add_run
+
+    target = add_run(out, name, beside=beside, registry=registry)
+    typer.echo(f"wrote {target}")
+
+
+@results_app.command("build")
+@user_errors
+def results_build_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION) -> None:
+    """Write every generated block of README.md and docs/ from the registry."""
+    from metadagger.results.blocks import build
+
+    changed = build(root, registry=root / registry if not registry.is_absolute() else registry)
+    for block in changed:
+        typer.echo(f"rewrote {block}")
+    typer.echo(f"{len(changed)} block(s) rewritten")
+
+
+@results_app.command("check")
+@user_errors
+def results_check_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION) -> None:
+    """Exit 1, naming each block, when README.md or docs/ differ from what `results build` writes."""
+    from metadagger.results.blocks import build
+
+    changed = build(root, registry=root / registry if not registry.is_absolute() else registry, check=True)
+    for block in changed:
+        typer.echo(f"stale: {block}", err=True)
+    if changed:
+        typer.echo("run `metadagger results build` and commit the result", err=True)
+        raise typer.Exit(1)
+    typer.echo("every generated block is current")

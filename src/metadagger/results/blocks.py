@@ -1,0 +1,80 @@
+"""Generated blocks: the results tables and figures of README.md and docs/, written from the registry.
+
+A block is marked in a Markdown file by two comments; everything between them is generated::
+
+    <!-- results: benchmark carracing-quick -->
+    ...
+    <!-- /results -->
+
+The words after ``results:`` name a block kind of :data:`metadagger.results.tables.BLOCKS` and its
+arguments. :func:`build` rewrites every block of the files from the registry; with ``check``, it
+writes nothing and returns the blocks that differ from what it would write.
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+from typing import Sequence
+
+from metadagger.errors import UserError
+from metadagger.results.registry import REGISTRY, load_registry
+from metadagger.results.tables import BLOCKS, BlockContext
+from metadagger.utils.io import write_text
+
+#: A block: its opening comment (kind and arguments), its generated body, its closing comment.
+BLOCK = re.compile(r"^(?P<open><!-- results: (?P<spec>[^\n]*?) -->\n)(?P<body>.*?)(?P<close><!-- /results -->)", re.S | re.M)
+
+#: A fenced code block, whose text is never a block (a page may show the syntax).
+FENCE = re.compile(r"^```.*?^```", re.S | re.M)
+
+
+def doc_files(root: str | Path = ".") -> list[Path]:
+    """The files that may hold blocks: README.md and every Markdown page of docs/."""
+    root = Path(root)
+    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+
+
+def render_file(path: Path, context: BlockContext) -> tuple[str, list[str]]:
+    """``path``'s text with every block regenerated, and the blocks whose body changed (as
+    ``file:line kind args``)."""
+    text = path.read_text()
+    changed: list[str] = []
+    fences = [m.span() for m in FENCE.finditer(text)]
+
+    def regenerate(match: re.Match) -> str:
+        if any(start <= match.start() < end for start, end in fences):
+            return match.group(0)
+        spec = match.group("spec").strip()
+        words = shlex.split(spec)
+        line = text.count("\n", 0, match.start()) + 1
+        if not words or words[0] not in BLOCKS:
+            raise UserError(f"{path}:{line}: block kind {words[0] if words else ''!r} is unknown; "
+                            f"expected one of {', '.join(sorted(BLOCKS))}")
+        try:
+            body = BLOCKS[words[0]](context.at(path), *words[1:]).rstrip("\n") + "\n"
+        except (TypeError, ValueError) as exc:
+            raise UserError(f"{path}:{line}: block {spec!r} cannot be written ({exc}); fix its arguments") from None
+        if body != match.group("body"):
+            changed.append(f"{path}:{line} {spec}")
+        return match.group("open") + body + match.group("close")
+
+    return BLOCK.sub(regenerate, text), changed
+
+
+def build(root: str | Path = ".", *, registry: str | Path | None = None, check: bool = False,
+          files: Sequence[Path] | None = None) -> list[str]:
+    """Regenerate every block of README.md and docs/ under ``root`` from the registry (default
+    ``root/results``); with ``check``, write nothing. Returns the blocks that differed."""
+    root = Path(root)
+    context = BlockContext(runs=load_registry(registry if registry is not None else root / REGISTRY), root=root)
+    changed: list[str] = []
+    for path in files if files is not None else doc_files(root):
+        if not path.is_file():
+            continue
+        text, differing = render_file(path, context)
+        changed += differing
+        if differing and not check:
+            write_text(path, text)
+    return changed

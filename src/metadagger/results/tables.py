@@ -1,0 +1,173 @@
+"""The kinds of generated block (:mod:`metadagger.results.blocks`), each a function of the registry.
+
+=========================  ============================================================
+block                      writes
+=========================  ============================================================
+``glance``                 the paper's figures beside the paper-preset runs': the best
+                           mapper, both controls, DAgger and the best gate, each with its
+                           interval and queries per seed
+``runs``                   every canonical run: command, wall time, CPU, what it shows
+``report RUN HEADING``     the section of RUN's ``report.md`` under HEADING (its figures
+                           linked where they lie in the registry)
+``figure RUNS PATH ALT``   an image of the first of RUNS (comma-separated) that has it
+``manifest RUN``           what made RUN: commit, CPU and kernels, wall time, what ran beside
+=========================  ============================================================
+
+A block about a run the registry does not hold yet says so, with the command that makes it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+from pathlib import Path
+from typing import Any, Callable
+
+from metadagger.evaluation.report_run import duration
+from metadagger.evaluation.tables import markdown_table, method_label, pct
+from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
+
+#: The controls, by benchmark method: zero-query heads every mapper must beat.
+CONTROLS = ("mdm-pistar-head", "mdm-mean-da")
+
+#: The paper's own figures for the at-a-glance table (Tables 1 and 7 of the paper), by task; the
+#: paper reports neither queries nor task families.
+PAPER_FIGURES = {
+    "carracing": "SAM 86.7% raw (89.3% adjusted), 20 unseen seeds; DM, TAM 53.3%",
+    "fetch": "DAgger-MDI 53% one-shot, 74% two-shot (DAgger-BC 17%, 34%; DAgger 27%, 44%)",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class BlockContext:
+    """What a block is rendered with: the registry's runs, the repository root, and the file the
+    block stands in (links are written relative to it)."""
+
+    runs: dict[str, RegistryRun]
+    root: Path
+    file: Path | None = None
+
+    def at(self, file: Path) -> "BlockContext":
+        """This context for a block in ``file``."""
+        return dataclasses.replace(self, file=file)
+
+    def link(self, target: Path) -> str:
+        """``target`` relative to the block's file, with forward slashes."""
+        base = (self.file or self.root / "README.md").resolve().parent
+        return Path(os.path.relpath(target.resolve(), base)).as_posix()
+
+
+def _missing(name: str) -> str:
+    run = canonical_run(name)
+    return (f"*Not in the registry yet: `{run.command}`, then `metadagger results add --out runs/{run.name} "
+            f"--name {run.name} --beside \"...\"`.*")
+
+
+def _cell(entry: dict[str, Any] | None) -> str:
+    """success (interval) @ queries per seed."""
+    if entry is None:
+        return "-"
+    return (f"{pct(entry['success_rate'])} ({entry['successes']}/{entry['seeds']}; {pct(entry['success_ci_low'])}-"
+            f"{pct(entry['success_ci_high'])}) at {entry['mean_queries']:,.0f}")
+
+
+def _best(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The highest success, then the fewest queries; None for none."""
+    return min(entries, key=lambda e: (-e["success_rate"], e["mean_queries"])) if entries else None
+
+
+def _labelled(entry: dict[str, Any] | None) -> str:
+    if entry is None:
+        return "-"
+    setting = f" {entry['setting']}" if entry["setting"] else ""
+    return f"{method_label(entry['method'])}{setting}: {_cell(entry)}"
+
+
+def glance(context: BlockContext) -> str:
+    """The at-a-glance table of the paper-preset runs, then of the quick ones."""
+    header = ("run", "the paper", "best mapper", "control: pi*-head", "control: mean-DA", "DAgger (last round)", "best gate")
+    rows = []
+    for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
+        found = context.runs.get(run.name)
+        if found is None or not found.path("benchmark/summary.json").is_file():
+            rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", "not run yet", "", "", "", ""))
+            continue
+        entries = [e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0]
+        by_method = {e["method"]: e for e in entries}
+        mappers = [e for e in entries if e["method"].startswith(("mdm-", "mdi")) and e["method"] not in CONTROLS]
+        dagger = [e for e in entries if e["method"] == "dagger"]
+        gates = [e for e in entries if e["method"].startswith("dagger-")]
+        rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
+                     _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])),
+                     _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
+    note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
+            "demonstration's included; the controls use none). The best mapper and the best gate are chosen on these "
+            "same seeds, which favours them; paired comparisons are in each run's report.")
+    return "\n".join([note, "", *markdown_table(header, rows)])
+
+
+def runs_table(context: BlockContext) -> str:
+    """Every canonical run: its command, wall time, CPU and what it shows."""
+    rows = []
+    for run in CANONICAL_RUNS:
+        found = context.runs.get(run.name)
+        wall = duration(found.manifest["wall_seconds"]) if found else "not run yet"
+        cpu = found.manifest["machine"]["cpu"] if found else "-"
+        rows.append((f"`{run.name}`", f"`{run.command}`", wall, cpu, run.shows))
+    return "\n".join(markdown_table(("run", "command", "wall time", "CPU", "shows"), rows))
+
+
+def report_section(context: BlockContext, name: str, heading: str) -> str:
+    """The section of run ``name``'s report under the heading that starts with ``heading`` (its
+    body, to the next heading of the same or a higher level), figure links made to point into
+    the registry."""
+    found = context.runs.get(name)
+    if found is None:
+        return _missing(name)
+    lines = found.path("report/report.md").read_text().splitlines()
+    start = next((i for i, line in enumerate(lines) if line.lstrip("#").strip().startswith(heading) and line.startswith("#")), None)
+    if start is None:
+        raise ValueError(f"registry run {name}'s report has no heading {heading!r}")
+    level = len(lines[start]) - len(lines[start].lstrip("#"))
+    end = next((i for i in range(start + 1, len(lines))
+                if lines[i].startswith("#") and len(lines[i]) - len(lines[i].lstrip("#")) <= level), len(lines))
+    figures = found.path("report")
+    body = [re.sub(r"\]\((figures/[^)]+)\)", lambda m: f"]({context.link(figures / m.group(1))})", line)
+            for line in lines[start + 1:end]]
+    return "\n".join(body).strip("\n")
+
+
+def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
+    """An image of the first of the registry runs ``names`` (comma-separated) that has it, with
+    the run it shows."""
+    for name in names.split(","):
+        found = context.runs.get(name)
+        if found is not None and found.path(path).is_file():
+            return f"![{alt}]({context.link(found.path(path))})\n\n*Run `{name}`.*"
+    return _missing(names.split(",")[0])
+
+
+def manifest_line(context: BlockContext, name: str) -> str:
+    """What made registry run ``name``."""
+    found = context.runs.get(name)
+    if found is None:
+        return _missing(name)
+    m = found.manifest
+    commits = sorted({c for stage in m["stages"].values() for c in stage.get("commits", [])})
+    kernels = m["machine"]["kernels"]
+    pins = "native kernels" if kernels == "native" else "pinned kernels"
+    return (f"`{m['command']}`: {duration(m['wall_seconds'])} on {m['machine']['cpu']} "
+            f"({', '.join(m['machine']['instruction_sets'])}; {pins}), {m['machine']['cores']} cores; beside it: "
+            f"{m['beside']}. Stages made by {', '.join(c[:10] for c in commits) or 'unrecorded commits'}; "
+            f"checked current at {m['commit'][:10]}.")
+
+
+#: Block kinds by name.
+BLOCKS: dict[str, Callable[..., str]] = {
+    "glance": glance,
+    "runs": runs_table,
+    "report": report_section,
+    "figure": figure,
+    "manifest": manifest_line,
+}

@@ -1,0 +1,112 @@
+"""The results registry: a run is added only after reproduce finds it current, with a manifest of
+what made it; a changed file is refused; generated blocks are written from it, and check names a
+block that differs; the repository's own README and docs are current."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from metadagger.cli.main import app
+from metadagger.errors import UserError
+from metadagger.results import registry as registry_module
+from metadagger.results.blocks import build
+from metadagger.results.registry import CanonicalRun, add_run, load_registry
+from metadagger.utils.kernels import KERNEL_ENV
+
+REPO = Path(__file__).resolve().parents[2]
+CI_RUN = CanonicalRun("carracing-ci", "carracing", "ci", shows="a test run")
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def registry(tmp_path_factory, carracing_ci_run) -> Path:
+    """A registry holding one carracing ci run, added the way the canonical runs are."""
+    import shutil
+
+    tmp = tmp_path_factory.mktemp("registry")
+    run = tmp / "runs" / CI_RUN.name
+    shutil.copytree(carracing_ci_run, run)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(registry_module, "CANONICAL_RUNS", (CI_RUN, *registry_module.CANONICAL_RUNS))
+        add_run(run, CI_RUN.name, beside="the test suite", registry=tmp / "results", progress=False)
+    return tmp / "results"
+
+
+@pytest.fixture()
+def canonical(monkeypatch):
+    monkeypatch.setattr(registry_module, "CANONICAL_RUNS", (CI_RUN, *registry_module.CANONICAL_RUNS))
+
+
+def test_an_added_run_keeps_small_artifacts_and_a_manifest_of_what_made_it(registry, canonical):
+    root = registry / CI_RUN.name
+    manifest = json.loads((root / "manifest.json").read_text())
+    assert manifest["command"] == "metadagger reproduce --task carracing --preset ci --out runs/carracing-ci"
+    assert manifest["beside"] == "the test suite"
+    assert set(manifest["stages"]) == {"groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark"}
+    assert all(stage["commits"] and stage["cpus"] for stage in manifest["stages"].values())
+    assert manifest["machine"]["kernels"] == (KERNEL_ENV if platform.machine().lower() in ("x86_64", "amd64") else "native")
+    assert manifest["wall_seconds"] > 0
+    assert {"config.yaml", "eval/mdm.csv", "benchmark/summary.json", "report/report.md"} <= set(manifest["files"])
+    assert not list(root.rglob("*.safetensors")) and not (root / "pairs" / "pairs.jsonl").exists()
+    assert set(load_registry(registry, [CI_RUN.name])) == {CI_RUN.name}
+
+
+def test_a_changed_registry_file_is_refused(registry, canonical, tmp_path):
+    import shutil
+
+    copy = tmp_path / "results"
+    shutil.copytree(registry, copy)
+    (copy / CI_RUN.name / "eval" / "mdm.csv").write_text("method,seed\n")
+    with pytest.raises(UserError, match="mdm.csv is changed since the run was added"):
+        load_registry(copy, [CI_RUN.name])
+
+
+def test_a_run_of_another_preset_or_name_is_refused(registry, canonical, tmp_path):
+    with pytest.raises(UserError, match="not a canonical run"):
+        add_run(tmp_path, "carracing-nightly", beside="nothing", registry=tmp_path / "results")
+    with pytest.raises(UserError, match="--beside is empty"):
+        add_run(tmp_path, CI_RUN.name, beside=" ", registry=tmp_path / "results")
+
+
+def test_blocks_are_written_from_the_registry_and_check_names_a_stale_one(registry, canonical, tmp_path):
+    (tmp_path / "docs").mkdir()
+    page = tmp_path / "docs" / "page.md"
+    page.write_text("# Page\n\n<!-- results: report carracing-ci \"Success against expert queries\" -->\n<!-- /results -->\n\n"
+                    "<!-- results: manifest carracing-ci -->\nold text\n<!-- /results -->\n"
+                    "<!-- results: runs -->\n<!-- /results -->\n<!-- results: glance -->\n<!-- /results -->\n"
+                    "<!-- results: figure carracing-ci report/figures/mdm_vs_bc.png \"MDM against BC\" -->\n<!-- /results -->\n"
+                    "```\n<!-- results: runs -->\nan example of the syntax, left alone\n<!-- /results -->\n```\n")
+    written = build(tmp_path, registry=registry)
+    assert len(written) == 5
+    text = page.read_text()
+    assert "| MDM mean-DA (control) |" in text
+    figures = Path(os.path.relpath(registry / CI_RUN.name / "report" / "figures", page.parent)).as_posix()
+    assert f"]({figures}/queries.png)" in text and f"]({figures}/mdm_vs_bc.png)" in text
+    assert "beside it: the test suite" in text and "old text" not in text
+    assert "| `carracing-paper` | SAM 86.7% raw" in text and "not run yet" in text
+    assert "an example of the syntax, left alone" in text
+    assert build(tmp_path, registry=registry, check=True) == []
+
+    page.write_text(text.replace("| MDM mean-DA (control) |", "| MDM mean-DA |"))
+    stale = build(tmp_path, registry=registry, check=True)
+    assert len(stale) == 1 and stale[0].endswith(":3 report carracing-ci \"Success against expert queries\"")
+
+    result = runner.invoke(app, ["results", "check", "--root", str(tmp_path), "--results", str(registry)])
+    assert result.exit_code == 1 and "stale: " in result.output
+
+
+def test_an_unknown_block_kind_is_one_line(registry, tmp_path):
+    (tmp_path / "README.md").write_text("<!-- results: tabel -->\n<!-- /results -->\n")
+    result = runner.invoke(app, ["results", "build", "--root", str(tmp_path), "--results", str(registry)])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines()[-1].startswith("error: ") and "block kind 'tabel' is unknown" in result.output
+
+
+def test_the_repositorys_readme_and_docs_are_what_build_writes():
+    assert build(REPO, check=True) == [], "run `metadagger results build` and commit the result"
