@@ -222,3 +222,18 @@ def test_groundtruth_scalars_carry_the_epoch_selection(tmp_path):
     scalars = groundtruth_scalars(layout)
     assert [s for s in scalars if s[0].startswith("select/")] == [("select/successes", 3, 4), ("select/successes", 2, 8),
                                                                   ("select/chosen_epoch", 4, 0)]
+
+
+def test_rows_from_a_share_of_the_demonstration_are_points_of_their_own(tmp_path):
+    from metadagger.evaluation.tensorboard import table_scalars
+
+    table = tmp_path / "queries.csv"
+    table.write_text("method,setting,demo_fraction,seed,success,expert_queries\n"
+                     "bc,,1.0,400,1,100\nbc,,0.5,400,0,50\nbc,,1.0,401,1,110\nbc,,0.5,401,0,55\n")
+    scalars: dict[str, list[tuple[int, float]]] = {}
+    for tag, value, step in table_scalars(table):
+        scalars.setdefault(tag, []).append((step, value))
+    assert scalars["bc/expert_queries"] == [(400, 100.0), (401, 110.0)]
+    assert scalars["bc@demo0.5/expert_queries"] == [(400, 50.0), (401, 55.0)]
+    assert scalars["bc/mean/success"] == [(0, 1.0)] and scalars["bc@demo0.5/mean/success"] == [(0, 0.0)]
+    assert not any("demo_fraction" in tag for tag in scalars)

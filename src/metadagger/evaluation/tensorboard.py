@@ -39,7 +39,7 @@ empty CSV cell, None) is left out when written; booleans are written as 0 and 1.
 INSTALL = 'pip install -c constraints.txt -e ".[tensorboard]"'
 """How to install the optional dependency."""
 
-_ROW_KEYS = ("method", "setting", "seed")
+_ROW_KEYS = ("method", "setting", "seed", "demo_fraction")
 """Columns of an evaluation table that name a row rather than measure it."""
 
 
@@ -109,18 +109,26 @@ def mapper_scalars(layout: RunLayout, kind: str) -> list[Scalar]:
 def table_scalars(path: Path) -> list[Scalar]:
     """An evaluation table (``eval/*.csv``, ``benchmark/queries.csv``): every measured column of a
     row as ``<method>/<column>`` at step = seed (``<method>@<setting>/...`` where the table has
-    settings), and its mean over the seeds where present as ``<method>/mean/<column>`` at step 0
-    (``mean/success``: the success rate)."""
+    settings; ``...@demo<share>`` for rows from a share of the demonstration), and its mean over
+    the seeds where present as ``<method>/mean/<column>`` at step 0 (``mean/success``: the success
+    rate)."""
     out = []
     values: dict[str, list[float]] = {}
     for row in read_csv(path):
         group = row["method"] if row.get("setting", "") == "" else f"{row['method']}@{row['setting']}"
+        group += _share_suffix(row.get("demo_fraction"))
         for key, value in row.items():
             number = _number(value)
             if key not in _ROW_KEYS and number is not None:
                 out.append((f"{group}/{key}", number, row["seed"]))
                 values.setdefault(f"{group}/mean/{key}", []).append(number)
     return out + [(tag, sum(v) / len(v), 0) for tag, v in values.items()]
+
+
+def _share_suffix(share: Any) -> str:
+    """``@demo<share>`` for a row or entry from a share of the demonstration; "" for all of it."""
+    number = _number(share)
+    return "" if number is None or number == 1.0 else f"@demo{number:g}"
 
 
 def benchmark_scalars(layout: RunLayout) -> list[Scalar]:
@@ -131,7 +139,8 @@ def benchmark_scalars(layout: RunLayout) -> list[Scalar]:
     summary = read_json(layout.benchmark_summary, "the benchmark summary")
     out = table_scalars(layout.benchmark_table)
     entries = sorted(summary["entries"], key=lambda e: (e["method"], e["mean_queries"]))
-    out += [(f"{e['method']}/success_vs_queries", e["success_rate"], round(e["mean_queries"])) for e in entries]
+    out += [(f"{e['method']}{_share_suffix(e.get('demo_fraction'))}/success_vs_queries", e["success_rate"],
+             round(e["mean_queries"])) for e in entries]
     return out + [(f"meta_training_queries/{what}", n, 0) for what, n in summary["meta_training_queries"].items()]
 
 
