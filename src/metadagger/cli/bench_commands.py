@@ -12,6 +12,15 @@ from metadagger.cli.options import OUT, TASK, user_errors
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
 
 
+def _show_and_write(result: dict, out: Path) -> None:
+    """Write a benchmark's JSON to ``out`` and echo it (without the machine description)."""
+    from metadagger.cli.bench import write_bench
+
+    write_bench(result, out)
+    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+    typer.echo(f"wrote {out}")
+
+
 @bench_app.command("env")
 @user_errors
 def bench_env_cmd(
@@ -40,14 +49,12 @@ def bench_bc_cmd(
     out: Path = typer.Option(Path("runs/bench/bc.json"), "--out", help="JSON file to write."),
 ) -> None:
     """Full BC fit vs head-only refit on cached trunk features, and inference latency."""
-    from metadagger.cli.bench import bench_bc, write_bench
+    from metadagger.cli.bench import bench_bc
     from metadagger.utils.io import check_output_file
 
     check_output_file(out, "--out")
     result = bench_bc(images=images, epochs=epochs)
-    write_bench(result, out)
-    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
-    typer.echo(f"wrote {out}")
+    _show_and_write(result, out)
 
 
 @bench_app.command("pairs")
@@ -61,14 +68,12 @@ def bench_pairs_cmd(
 ) -> None:
     """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
     pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
-    from metadagger.cli.bench import bench_pairs, write_bench
+    from metadagger.cli.bench import bench_pairs
     from metadagger.utils.io import check_output_file
 
     check_output_file(json_out, "--json")
     result = bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes)
-    write_bench(result, json_out)
-    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
-    typer.echo(f"wrote {json_out}")
+    _show_and_write(result, json_out)
 
 
 @bench_app.command("kernels")
@@ -81,11 +86,9 @@ def bench_kernels_cmd(
 ) -> None:
     """What the CPU kernel pins cost: whole runs of --preset on the pinned kernels and on this
     machine's own, side by side, and whether the two give the same numbers."""
-    from metadagger.cli.bench import bench_kernels, write_bench
+    from metadagger.cli.bench import bench_kernels
     from metadagger.utils.io import check_output_file
 
     check_output_file(out, "--out")
     result = bench_kernels(task, preset=preset, repeats=repeats)
-    write_bench(result, out)
-    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
-    typer.echo(f"wrote {out}")
+    _show_and_write(result, out)

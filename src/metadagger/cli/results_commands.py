@@ -36,7 +36,7 @@ def results_build_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION
     """Write every generated block of README.md and docs/ from the registry."""
     from metadagger.results.blocks import build
 
-    changed = build(root, registry=root / registry if not registry.is_absolute() else registry)
+    changed = build(root, registry=root / registry)
     for block in changed:
         typer.echo(f"rewrote {block}")
     typer.echo(f"{len(changed)} block(s) rewritten")
@@ -48,7 +48,7 @@ def results_check_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION
     """Exit 1, naming each block, when README.md or docs/ differ from what `results build` writes."""
     from metadagger.results.blocks import build
 
-    changed = build(root, registry=root / registry if not registry.is_absolute() else registry, check=True)
+    changed = build(root, registry=root / registry, check=True)
     for block in changed:
         typer.echo(f"stale: {block}", err=True)
     if changed:

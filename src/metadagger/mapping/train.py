@@ -34,8 +34,8 @@ from metadagger.runfolder.layout import CURVES_FILE, MAPPER_FILE
 from metadagger.runfolder.stamps import data_fingerprint, describe_changes, stamp_of
 from metadagger.utils.executors import default_workers, make_executor
 from metadagger.utils.io import write_text
-from metadagger.utils.progress import note, progress_bar
 from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.progress import note, progress_bar
 
 __all__ = ["CURVE_COLUMNS", "MapperConfig", "MapperJob", "evaluate_mapping", "fit_mapper", "fit_mapper_job", "paper_config", "train_mapper",
            "train_mappers"]

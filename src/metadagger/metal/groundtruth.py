@@ -26,8 +26,8 @@ from metadagger.runfolder.stamps import describe_changes, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import read_json, write_json
-from metadagger.utils.yaml_config import LATER_OPTION
 from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.yaml_config import LATER_OPTION
 
 
 @dataclass(frozen=True)

@@ -107,9 +107,10 @@ def _copy_kept(run: Path, target: Path) -> dict[str, str]:
     for pattern in KEPT_FILES:
         for source in sorted(run.glob(pattern)):
             relative = source.relative_to(run).as_posix()
+            data = source.read_bytes()
             (target / relative).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(source, target / relative)
-            files[relative] = hashlib.sha256(source.read_bytes()).hexdigest()
+            (target / relative).write_bytes(data)
+            files[relative] = hashlib.sha256(data).hexdigest()
     return files
 
 

@@ -36,6 +36,7 @@ generation) is listed in docs/architecture.md, "Determinism".
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import sys
@@ -114,9 +115,9 @@ def pinned_environment() -> dict[str, str]:
 _ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl", "avx512_vnni", "avx512_bf16", "amx_tile")
 
 
-def machine_description() -> dict[str, Any]:
-    """The CPU a result was made on: model, instruction sets (those that decide kernels), cores,
-    and the kernel settings in effect (:func:`kernel_stamp`)."""
+@functools.lru_cache(maxsize=1)
+def _cpu() -> tuple[str, tuple[str, ...]]:
+    """This machine's CPU model and the instruction sets of :data:`_ISA_FLAGS` it has (read once)."""
     model, flags = platform.processor() or platform.machine(), set()
     try:
         with open("/proc/cpuinfo") as f:
@@ -129,5 +130,12 @@ def machine_description() -> dict[str, Any]:
                     break
     except OSError:
         pass
-    return {"cpu": model, "instruction_sets": [f for f in _ISA_FLAGS if f in flags], "cores": os.cpu_count(),
+    return model, tuple(f for f in _ISA_FLAGS if f in flags)
+
+
+def machine_description() -> dict[str, Any]:
+    """The CPU a result was made on: model, instruction sets (those that decide kernels), cores,
+    and the kernel settings in effect (:func:`kernel_stamp`)."""
+    model, instruction_sets = _cpu()
+    return {"cpu": model, "instruction_sets": list(instruction_sets), "cores": os.cpu_count(),
             "machine": platform.machine(), "python": platform.python_version(), **kernel_stamp()}
