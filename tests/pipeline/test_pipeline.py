@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -22,10 +23,9 @@ from metadagger.runfolder.lock import LOCK_FILE
 runner = CliRunner()
 
 
-def test_reproduce_ci_preset_writes_every_artifact_and_resumes(tmp_path):
+def test_a_ci_run_has_every_artifact_and_the_command_line_resumes_it(carracing_ci_run, tmp_path):
     run = tmp_path / "run"
-    result = runner.invoke(app, ["reproduce", "--task", "carracing", "--preset", "ci", "--out", str(run), "--workers", "2"])
-    assert result.exit_code == 0, result.output
+    shutil.copytree(carracing_ci_run, run)
     assert (run / "config.yaml").is_file()
     assert (run / "groundtruth" / "policy.safetensors").is_file()
     summary = json.loads((run / "pairs" / "summary.json").read_text())
@@ -92,10 +92,19 @@ def _stamps(run: Path) -> dict[Path, int]:
     return {p: p.stat().st_mtime_ns for pattern in ("*.safetensors", "*.jsonl") for p in run.rglob(pattern)}
 
 
-def test_reproduce_fetch_ci_runs_mdi_and_resumes(tmp_path):
+@pytest.fixture(scope="module")
+def fetch_ci_run(tmp_path_factory) -> Path:
+    """A finished Fetch ci run on 2 workers, made once for this module; copy it before changing it."""
     pytest.importorskip("gymnasium_robotics")
+    run = tmp_path_factory.mktemp("fetch-ci") / "run"
+    reproduce("fetch", "ci", run, options=StageOptions(workers=2, progress=False))
+    return run
+
+
+def test_reproduce_fetch_ci_runs_mdi_and_resumes(fetch_ci_run, tmp_path):
     run = tmp_path / "run"
-    report = reproduce("fetch", "ci", run, options=StageOptions(workers=2, progress=False)).read_text()
+    shutil.copytree(fetch_ci_run, run)
+    report = (run / "report" / "report.md").read_text()
     # only the kinds the run uses: evaluate.methods [dm, ridge, mean-da, pistar-head] and mdi.mapper dm
     assert sorted(p.name for p in (run / "mappers").iterdir()) == ["dm", "mean-da", "pistar-head", "ridge"]
     rows = read_csv(run / "eval" / "mdi.csv")
@@ -134,9 +143,8 @@ def _artifacts(run: Path) -> dict[str, bytes | list[bytes]]:
     }
 
 
-def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(tmp_path):
-    pytest.importorskip("gymnasium_robotics")
-    first = _artifacts(reproduce("fetch", "ci", tmp_path / "a", options=StageOptions(workers=2, progress=False)).parent.parent)
+def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(fetch_ci_run, tmp_path):
+    first = _artifacts(fetch_ci_run)
     second = _artifacts(reproduce("fetch", "ci", tmp_path / "b", options=StageOptions(workers=1, progress=False)).parent.parent)
     assert any(name.startswith("pairs/") and name.endswith(".safetensors") for name in first)
     assert first.keys() == second.keys()

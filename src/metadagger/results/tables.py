@@ -115,7 +115,9 @@ def runs_table(context: BlockContext) -> str:
         wall = duration(found.manifest["wall_seconds"]) if found else "not run yet"
         cpu = found.manifest["machine"]["cpu"] if found else "-"
         rows.append((f"`{run.name}`", f"`{run.command}`", wall, cpu, run.shows))
-    return "\n".join(markdown_table(("run", "command", "wall time", "CPU", "shows"), rows))
+    note = ("Wall time as measured, on the CPU named, with the other work the run's manifest names running beside it "
+            "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less.")
+    return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "shows"), rows)])
 
 
 def report_section(context: BlockContext, name: str, heading: str) -> str:
