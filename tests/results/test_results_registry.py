@@ -16,7 +16,8 @@ from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.results import registry as registry_module
 from metadagger.results.blocks import build
-from metadagger.results.registry import CanonicalRun, add_run, load_registry
+from metadagger.results.registry import CanonicalRun, RegistryRun, add_run, load_registry
+from metadagger.results.tables import BlockContext, glance
 from metadagger.utils.kernels import KERNEL_ENV
 
 REPO = Path(__file__).resolve().parents[2]
@@ -99,6 +100,26 @@ def test_blocks_are_written_from_the_registry_and_check_names_a_stale_one(regist
 
     result = runner.invoke(app, ["results", "check", "--root", str(tmp_path), "--results", str(registry)])
     assert result.exit_code == 1 and "stale: " in result.output
+
+
+def _entry(method: str, setting: str, successes: int, queries: float) -> dict:
+    return {"method": method, "setting": setting, "demo_fraction": 1.0, "successes": successes, "seeds": 10,
+            "success_rate": successes / 10, "success_ci_low": 0.0, "success_ci_high": 1.0, "mean_queries": queries}
+
+
+def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the_gates(tmp_path):
+    run = tmp_path / "fetch-quick"
+    (run / "benchmark").mkdir(parents=True)
+    entries = [_entry("mdm-dm", "", 0, 50), _entry("mdm-pistar-head", "", 5, 0), _entry("mdm-mean-da", "", 1, 0),
+               _entry("dagger", "3", 4, 182), _entry("dagger-thrifty", "0.025", 6, 55),
+               _entry("dagger-mdi", "two-shot", 8, 60), _entry("dagger-xavier", "two-shot", 9, 61),
+               _entry("dagger-bc-init", "two-shot", 9, 70)]
+    (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
+    row = next(line for line in glance(BlockContext({"fetch-quick": RegistryRun(run, {})}, tmp_path)).splitlines()
+               if line.startswith("| `fetch-quick`"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[2] == "DAgger-MDI two-shot: 80.0% (8/10; 0.0%-100.0%) at 60"
+    assert cells[6] == "DAgger, ThriftyDAgger gate 0.025: 60.0% (6/10; 0.0%-100.0%) at 55"
 
 
 def test_an_unknown_block_kind_is_one_line(registry, tmp_path):

@@ -4,7 +4,7 @@
 block                      writes
 =========================  ============================================================
 ``glance``                 the paper's figures beside the paper-preset runs': the best
-                           mapper, both controls, DAgger and the best gate, each with its
+                           MetaL DAgger method, both controls, DAgger and the best gate, each with its
                            interval and queries per seed
 ``runs``                   every canonical run: command, wall time, CPU, what it shows
 ``report RUN HEADING``     the section of RUN's ``report.md`` under HEADING (its figures
@@ -24,6 +24,7 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
+from metadagger.evaluation.methods import GATED, MDI_METHODS, MDM_PREFIX
 from metadagger.evaluation.report_run import duration
 from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
@@ -86,7 +87,7 @@ def _labelled(entry: dict[str, Any] | None) -> str:
 
 def glance(context: BlockContext) -> str:
     """The at-a-glance table of the paper-preset runs, then of the quick ones."""
-    header = ("run", "the paper", "best mapper", "control: pi*-head", "control: mean-DA", "DAgger (last round)", "best gate")
+    header = ("run", "the paper", "best MetaL DAgger", "control: pi*-head", "control: mean-DA", "DAgger (last round)", "best gate")
     rows = []
     for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
         found = context.runs.get(run.name)
@@ -95,15 +96,17 @@ def glance(context: BlockContext) -> str:
             continue
         entries = [e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0]
         by_method = {e["method"]: e for e in entries}
-        mappers = [e for e in entries if e["method"].startswith(("mdm-", "mdi")) and e["method"] not in CONTROLS]
+        mappers = [e for e in entries if (e["method"].startswith(MDM_PREFIX) and e["method"] not in CONTROLS)
+                   or e["method"] == MDI_METHODS["dagger-mdi"]]
         dagger = [e for e in entries if e["method"] == "dagger"]
-        gates = [e for e in entries if e["method"].startswith("dagger-")]
+        gates = [e for e in entries if e["method"] in GATED]
         rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
                      _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])),
                      _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
     note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
-            "demonstration's included; the controls use none). The best mapper and the best gate are chosen on these "
-            "same seeds, which favours them; paired comparisons are in each run's report.")
+            "demonstration's included; the controls use none). Best MetaL DAgger: the best MDM mapper or DAgger-MDI. It "
+            "and the best gate are chosen on these same seeds, which favours them; paired comparisons are in each run's "
+            "report.")
     return "\n".join([note, "", *markdown_table(header, rows)])
 
 
