@@ -197,6 +197,7 @@ _CHUNK = 50
 
 
 def _machine() -> dict[str, Any]:
+    """The machine a benchmark ran on: platform, library versions, load, and the CPU and kernels in effect."""
     return {
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
@@ -206,6 +207,7 @@ def _machine() -> dict[str, Any]:
         "opencv": cv2.__version__,
         "gymnasium": gym.__version__,
         "load_avg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+        "cpu": machine_description(),
     }
 
 
@@ -358,5 +360,5 @@ def bench_kernels(task: str = "carracing", *, preset: str = "ci", repeats: int =
         "pinned_over_native": median["pinned"] / median["native"],
         "mdm_csv_sha256": {k: sorted(v) for k, v in digests.items()},
         "same_numbers": digests["pinned"] == digests["native"],
-        "machine": {**_machine(), "cpu": machine_description()},
+        "machine": _machine(),
     }

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any, Callable
 
 import typer
 
@@ -12,12 +13,17 @@ from metadagger.cli.options import OUT, TASK, user_errors
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
 
 
-def _show_and_write(result: dict, out: Path) -> None:
-    """Write a benchmark's JSON to ``out`` and echo it (without the machine description)."""
+def _measure_and_write(out: Path, flag: str, measure: Callable[[], dict],
+                       shown: Callable[[str, Any], bool] = lambda key, value: key != "machine") -> None:
+    """Check ``out`` (given as ``flag``) before any work, run ``measure``, write its JSON to ``out``
+    and echo the items ``shown`` keeps (by default all but the machine description)."""
     from metadagger.cli.bench import write_bench
+    from metadagger.utils.io import check_output_file
 
+    check_output_file(out, flag)
+    result = measure()
     write_bench(result, out)
-    typer.echo(json.dumps({k: v for k, v in result.items() if k != "machine"}, indent=2))
+    typer.echo(json.dumps({k: v for k, v in result.items() if shown(k, v)}, indent=2))
     typer.echo(f"wrote {out}")
 
 
@@ -30,15 +36,11 @@ def bench_env_cmd(
     out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
 ) -> None:
     """Steps per second of our env against upstream's, on the same seeds and actions."""
-    from metadagger.cli.bench import bench_env, write_bench
+    from metadagger.cli.bench import bench_env
     from metadagger.utils.yaml_config import parse_seeds
-    from metadagger.utils.io import check_output_file
 
-    check_output_file(out, "--out")
-    result = bench_env(task, seeds=parse_seeds(seeds), steps=steps)
-    write_bench(result, out)
-    typer.echo({k: v for k, v in result.items() if not isinstance(v, (dict, list))})
-    typer.echo(f"wrote {out}")
+    _measure_and_write(out, "--out", lambda: bench_env(task, seeds=parse_seeds(seeds), steps=steps),
+                       shown=lambda key, value: not isinstance(value, (dict, list)))
 
 
 @bench_app.command("bc")
@@ -50,11 +52,8 @@ def bench_bc_cmd(
 ) -> None:
     """Full BC fit vs head-only refit on cached trunk features, and inference latency."""
     from metadagger.cli.bench import bench_bc
-    from metadagger.utils.io import check_output_file
 
-    check_output_file(out, "--out")
-    result = bench_bc(images=images, epochs=epochs)
-    _show_and_write(result, out)
+    _measure_and_write(out, "--out", lambda: bench_bc(images=images, epochs=epochs))
 
 
 @bench_app.command("pairs")
@@ -69,11 +68,8 @@ def bench_pairs_cmd(
     """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
     pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
     from metadagger.cli.bench import bench_pairs
-    from metadagger.utils.io import check_output_file
 
-    check_output_file(json_out, "--json")
-    result = bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes)
-    _show_and_write(result, json_out)
+    _measure_and_write(json_out, "--json", lambda: bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes))
 
 
 @bench_app.command("kernels")
@@ -87,8 +83,5 @@ def bench_kernels_cmd(
     """What the CPU kernel pins cost: whole runs of --preset on the pinned kernels and on this
     machine's own, side by side, and whether the two give the same numbers."""
     from metadagger.cli.bench import bench_kernels
-    from metadagger.utils.io import check_output_file
 
-    check_output_file(out, "--out")
-    result = bench_kernels(task, preset=preset, repeats=repeats)
-    _show_and_write(result, out)
+    _measure_and_write(out, "--out", lambda: bench_kernels(task, preset=preset, repeats=repeats))

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import shutil
 from pathlib import Path
 from typing import Any, Sequence
@@ -148,7 +147,7 @@ class RegistryRun:
 
     def json(self, relative: str) -> Any:
         """A kept JSON file of the run, read."""
-        return json.loads(self.path(relative).read_text())
+        return read_json(self.path(relative), f"{relative} of registry run {self.name}")
 
 
 def load_registry(registry: str | Path = REGISTRY, names: Sequence[str] | None = None) -> dict[str, RegistryRun]:
