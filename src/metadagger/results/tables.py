@@ -104,7 +104,9 @@ def glance(context: BlockContext) -> str:
                      _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])),
                      _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
     note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
-            "demonstration's included; the controls use none). Best MetaL DAgger: the best MDM mapper or DAgger-MDI. It "
+            "demonstration's included; the controls use none), one benchmark rollout per seed under the pairs' early stop "
+            "(`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, so an MDM row can stand "
+            "below the run's Table 1, rolled out without it). Best MetaL DAgger: the best MDM mapper or DAgger-MDI. It "
             "and the best gate are chosen on these same seeds, which favours them; paired comparisons are in each run's "
             "report.")
     return "\n".join([note, "", *markdown_table(header, rows)])
