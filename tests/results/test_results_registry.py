@@ -17,7 +17,7 @@ from metadagger.errors import UserError
 from metadagger.results import registry as registry_module
 from metadagger.results.blocks import build
 from metadagger.results.registry import CanonicalRun, RegistryRun, add_run, load_registry
-from metadagger.results.tables import BlockContext, glance
+from metadagger.results.tables import BlockContext, glance, manifest_line
 from metadagger.utils.kernels import KERNEL_ENV
 
 REPO = Path(__file__).resolve().parents[2]
@@ -120,6 +120,14 @@ def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[2] == "DAgger-MDI two-shot: 80.0% (8/10; 0.0%-100.0%) at 60"
     assert cells[6] == "DAgger, ThriftyDAgger gate 0.025: 60.0% (6/10; 0.0%-100.0%) at 55"
+
+
+def test_the_manifest_line_shows_a_call_from_an_uncommitted_tree(tmp_path):
+    stage = {"commits": ["a" * 40, "a" * 40 + "+dirty"], "cpus": ["CPU"]}
+    manifest = {"command": "metadagger reproduce", "wall_seconds": 60.0, "beside": "nothing", "commit": "a" * 40 + "+dirty",
+                "stages": {"pairs": stage}, "machine": {"cpu": "CPU", "instruction_sets": ["avx2"], "kernels": "native", "cores": 2}}
+    line = manifest_line(BlockContext({"fetch-quick": RegistryRun(tmp_path, manifest)}, tmp_path), "fetch-quick")
+    assert line.endswith(f"Stages made by {'a' * 10}, {'a' * 10}+dirty; checked current at {'a' * 10}+dirty.")
 
 
 def test_an_unknown_block_kind_is_one_line(registry, tmp_path):

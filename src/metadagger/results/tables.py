@@ -155,6 +155,12 @@ def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
     return _missing(names.split(",")[0])
 
 
+def _short(commit: str) -> str:
+    """A commit's first 10 hex digits, keeping the ``+dirty`` mark of an uncommitted tree."""
+    sha, dirty, _ = commit.partition("+dirty")
+    return sha[:10] + dirty
+
+
 def manifest_line(context: BlockContext, name: str) -> str:
     """What made registry run ``name``."""
     found = context.runs.get(name)
@@ -166,8 +172,8 @@ def manifest_line(context: BlockContext, name: str) -> str:
     pins = "native kernels" if kernels == "native" else "pinned kernels"
     return (f"`{m['command']}`: {duration(m['wall_seconds'])} on {m['machine']['cpu']} "
             f"({', '.join(m['machine']['instruction_sets'])}; {pins}), {m['machine']['cores']} cores; beside it: "
-            f"{m['beside']}. Stages made by {', '.join(c[:10] for c in commits) or 'unrecorded commits'}; "
-            f"checked current at {m['commit'][:10]}.")
+            f"{m['beside']}. Stages made by {', '.join(_short(c) for c in commits) or 'unrecorded commits'}; "
+            f"checked current at {_short(m['commit'])}.")
 
 
 #: Block kinds by name.
