@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 import typer
 
@@ -85,3 +85,22 @@ def bench_kernels_cmd(
     from metadagger.cli.bench import bench_kernels
 
     _measure_and_write(out, "--out", lambda: bench_kernels(task, preset=preset, repeats=repeats))
+
+
+@bench_app.command("ops")
+@user_errors
+def bench_ops_cmd(
+    out: Path = typer.Option(Path("runs/bench/ops.json"), "--out", help="JSON file to write."),
+    compare: Optional[Path] = typer.Option(None, "--compare", help="Another machine's fingerprint (its --out) to compare with."),
+) -> None:
+    """A fingerprint of every kind of computation a run does (sha256 of each output on fixed
+    inputs); with --compare, the computations whose bits differ on the other machine, first one first."""
+    from metadagger.cli.fingerprint import compare_fingerprints, fingerprint_kernels, read_fingerprint
+
+    other = read_fingerprint(compare) if compare is not None else None
+
+    def measure() -> dict:
+        mine = fingerprint_kernels()
+        return {**mine, "compared": compare_fingerprints(mine, other)} if other is not None else mine
+
+    _measure_and_write(out, "--out", measure, shown=lambda key, value: key in ("compared", "machine"))
