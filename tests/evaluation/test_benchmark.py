@@ -18,6 +18,7 @@ from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import collect
+from metadagger.metal.method import SeedLearner, bc_head, demonstration, seeded
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 
@@ -45,7 +46,7 @@ def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
     gated = ["dagger-random@0", "dagger-random@0.5", "dagger-ensemble@0.5", "dagger-safe@0.5", "dagger-novelty@0.5",
              "dagger-thrifty@0.25", "dagger-conformal@0.5"]
     # the shorter demonstration for BC and the gates; pi*'s head never reads it, DAgger keeps the whole one
-    assert [key.id for key in keys] == ["bc@", "bc@@demo0.5", "mdm-pistar-head@", "dagger@1", "dagger@2",
+    assert [key.id for key in keys] == ["bc@", "bc@@demo0.5", "mdm-pistar-head@", "dagger@1", "dagger@2", "bc-refit@2",
                                         *(k for g in gated for k in (g, g + "@demo0.5"))]
     assert ([(r['method'], r['setting'], r["demo_fraction"]) for r in rows]
             == [(key.method, key.setting, key.demo_fraction) for key in keys] * len(SEEDS))
@@ -62,6 +63,9 @@ def test_queries_are_counted_exactly(toy_run, rows):
         for key in (("bc", "", seed), ("dagger-random", "0", seed)):
             assert table[key]["expert_queries"] == demos[seed]
             assert halves[key]["expert_queries"] == math.ceil(demos[seed] / 2)  # its first half only
+        # BC refitted as DAgger: the whole demonstration, no label more
+        assert table["bc-refit", "2", seed]["expert_queries"] == demos[seed]
+        assert ("bc-refit", "2", seed) not in halves
         assert table["mdm-pistar-head", "", seed]["expert_queries"] == 0  # a control asks the expert nothing
         # DAgger labels every state of the rollouts before each refit: BC's, then round 1's policy's
         steps_before = [table["bc", "", seed]["steps"], table["dagger", "1", seed]["steps"]]
@@ -72,6 +76,26 @@ def test_queries_are_counted_exactly(toy_run, rows):
             gated = table[method, setting, seed]["expert_queries"]
             assert demos[seed] <= gated <= table["dagger", "2", seed]["expert_queries"] + 30  # a gate labels a subset
             assert math.ceil(demos[seed] / 2) <= halves[method, setting, seed]["expert_queries"]
+
+
+def test_bc_refit_is_w_bc_refitted_as_dagger_refits_it_on_the_demonstration_alone(toy_run, rows):
+    table = {(r["method"], r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
+    for seed in SEEDS:
+        with SeedLearner(CorridorTask(), str(toy_run.groundtruth), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
+            data = demonstration(learner).to_dataset()
+            head = bc_head(learner, data, seeded(BC, seed))
+            assert learner.roll(head).reward == table["bc", seed]["reward"]
+            for _ in range(ROUNDS):
+                head = bc_head(learner, data, seeded(BC, seed))
+            refit = learner.roll(head)
+        assert (refit.reward, refit.steps, bool(refit.success)) == (
+            table["bc-refit", seed]["reward"], table["bc-refit", seed]["steps"], table["bc-refit", seed]["success"])
+
+
+def test_bc_refit_is_a_reference_of_the_paired_comparisons(toy_run, rows):
+    summary = json.loads(toy_run.benchmark_summary.read_text())
+    assert {"method": "bc-refit", "setting": "2", "demo_fraction": 1.0} in summary["references"]
+    assert any(c["against"] == "bc-refit" and c["method"] == "dagger" for c in summary["comparisons"])
 
 
 @pytest.mark.parametrize("gate, value", [("novelty", 0.5), ("thrifty", 0.25), ("conformal", 0.5)])

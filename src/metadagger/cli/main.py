@@ -271,7 +271,7 @@ def evaluate(
 def benchmark(
     out: Path = OUT,
     seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's benchmark.seeds)."),
-    methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated: bc, mdm, dagger, dagger-random, "
+    methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated: bc, mdm, dagger, bc-refit, dagger-random, "
                                           "dagger-ensemble, dagger-safe, dagger-novelty, dagger-thrifty, dagger-conformal, mdi "
                                           "(default: benchmark.methods)."),
     overrides: list[str] = SET,

@@ -35,8 +35,8 @@ from typing import Any, Iterator, Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
-from metadagger.evaluation.methods import (GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RoundKey, ShotKey,
-                                           reads_demonstration, with_demo_fractions)
+from metadagger.evaluation.methods import (GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RefitKey, RoundKey,
+                                           ShotKey, reads_demonstration, with_demo_fractions)
 from metadagger.evaluation.paired import paired_comparison
 from metadagger.evaluation.rows import write_csv
 from metadagger.evaluation.tables import method_label
@@ -67,9 +67,10 @@ class BenchmarkConfig:
 
     seeds: tuple[int, ...] = tuple(range(5000, 5020))
     """Unseen seeds (never used for pi* or the pairs)."""
-    methods: tuple[str, ...] = ("bc", "mdm", "dagger", *GATED)
-    """``bc``, ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, the gated methods, and
-    ``mdi`` (the MDI protocol's methods; runs with an ``mdi`` section)."""
+    methods: tuple[str, ...] = ("bc", "mdm", "dagger", "bc-refit", *GATED)
+    """``bc``, ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, ``bc-refit`` (w_BC refitted
+    as DAgger refits it, on the demonstration alone: a control), the gated methods, and ``mdi``
+    (the MDI protocol's methods; runs with an ``mdi`` section)."""
     grids: dict = field(default_factory=lambda: {"dagger-random": [0.05, 0.2, 0.5], "dagger-ensemble": [0.5, 0.8, 0.95],
                                                 "dagger-safe": [0.5, 0.8, 0.95], "dagger-novelty": [0.5, 0.8, 0.95],
                                                 "dagger-thrifty": [0.025, 0.1, 0.25], "dagger-conformal": [0.05, 0.2, 0.5]})
@@ -192,6 +193,13 @@ def _demonstration_rows(job: BenchmarkJob, learner: SeedLearner, demo: Trajector
     for key in (k for k in keys if isinstance(k, GateKey)):
         *_, last = dagger(make_gate(key.gate, key.value, **job.config.gate_options(key.method)))
         rows[key] = _row(key, seed, last.rollout, last.queries)
+    for key in (k for k in keys if isinstance(k, RefitKey)):
+        # DAgger's refits (continuing from w_BC, DAgger's fit) on the demonstration alone
+        learner.load(w_bc)
+        head = w_bc
+        for index in range(1, key.rounds + 1):
+            head = bc_head(learner, data, seeded(job.dagger_bc, seed), what=f"BC's refit {index}")
+        rows[key] = _row(key, seed, learner.roll(head, early_stop=job.early_stop), len(data))
     return rows
 
 
@@ -318,10 +326,10 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
 
 
 def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """What every method is compared with: each MDM control, and the best gate (the gated DAgger
-    setting with the highest success, the fewest queries on a tie), as
-    ``method``/``setting``/``demo_fraction``."""
-    controls = {MDM_PREFIX + name for name in control_names()}
+    """What every method is compared with: each MDM control, BC refitted as DAgger (``bc-refit``),
+    and the best gate (the gated DAgger setting with the highest success, the fewest queries on a
+    tie), as ``method``/``setting``/``demo_fraction``."""
+    controls = {MDM_PREFIX + name for name in control_names()} | {"bc-refit"}
     refs = [e for e in entries if e["method"] in controls]
     gates = [e for e in entries if e["method"] in GATED]
     if gates:

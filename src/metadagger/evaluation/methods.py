@@ -58,6 +58,13 @@ class RoundKey(MethodKey):
 
 
 @dataclass(frozen=True)
+class RefitKey(MethodKey):
+    """w_BC refitted ``rounds`` times on the demonstration alone: DAgger's training, no new label."""
+
+    rounds: int
+
+
+@dataclass(frozen=True)
 class GateKey(MethodKey):
     """Gated DAgger after every round, its gate at one value of its sweep."""
 
@@ -88,6 +95,12 @@ def dagger_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float
     return [RoundKey("dagger", str(r), round=r) for r in range(1, rounds + 1)]
 
 
+def bc_refit_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    """The control for how much of DAgger's gain is training, not labels: w_BC refitted as often
+    and as long as DAgger refits it, on the demonstration alone."""
+    return [RefitKey("bc-refit", str(rounds), rounds=rounds)]
+
+
 def gate_keys(gate: str) -> Callable[[int, tuple[str, ...], dict[str, list[float]], bool], list[MethodKey]]:
     """DAgger gated by ``gate``, after the last round, at each value of its grid."""
 
@@ -112,6 +125,7 @@ METHODS: dict[str, Callable[[int, tuple[str, ...], dict[str, list[float]], bool]
     "bc": bc_keys,
     "mdm": mdm_keys,
     "dagger": dagger_keys,
+    "bc-refit": bc_refit_keys,
     **{f"dagger-{gate}": gate_keys(gate) for gate in GATES},
     "mdi": mdi_keys,
 }

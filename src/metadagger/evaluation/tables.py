@@ -12,7 +12,8 @@ from metadagger.mapping.registry import get_kind, kind_names
 from metadagger.utils.plotting import draw_figure
 
 #: Labels of the methods that are not mapper kinds.
-PROTOCOL_LABELS = {"bc": "BC", "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger",
+PROTOCOL_LABELS = {"bc": "BC", "bc-refit": "BC refitted as DAgger, no new label (control)",
+                   "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger",
                    "dagger-bc-init": "DAgger-BC (MDI protocol)", "dagger-xavier": "DAgger from Xavier (MDI protocol)",
                    "dagger-random": "DAgger, random gate", "dagger-ensemble": "DAgger, ensemble gate",
                    "dagger-safe": "DAgger, SafeDAgger gate", "dagger-novelty": "DAgger, novelty gate",
