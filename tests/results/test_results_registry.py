@@ -119,7 +119,19 @@ def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the
                if line.startswith("| `fetch-quick`"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[2] == "DAgger-MDI two-shot: 80.0% (8/10; 0.0%-100.0%) at 60"
-    assert cells[6] == "DAgger, ThriftyDAgger gate 0.025: 60.0% (6/10; 0.0%-100.0%) at 55"
+    assert cells[5] == "-"  # no bc-refit row
+    assert cells[7] == "DAgger, ThriftyDAgger gate 0.025: 60.0% (6/10; 0.0%-100.0%) at 55"
+
+
+def test_glance_shows_bc_refitted_beside_the_controls(tmp_path):
+    run = tmp_path / "carracing-quick"
+    (run / "benchmark").mkdir(parents=True)
+    entries = [_entry("mdm-dm", "", 0, 745), _entry("bc-refit", "3", 9, 745), _entry("dagger", "3", 9, 3340)]
+    (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
+    row = next(line for line in glance(BlockContext({"carracing-quick": RegistryRun(run, {})}, tmp_path)).splitlines()
+               if line.startswith("| `carracing-quick`"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[5] == "90.0% (9/10; 0.0%-100.0%) at 745" and cells[6].startswith("90.0% (9/10") and cells[7] == "-"
 
 
 def test_the_manifest_line_shows_a_call_from_an_uncommitted_tree(tmp_path):

@@ -4,8 +4,8 @@
 block                      writes
 =========================  ============================================================
 ``glance``                 the paper's figures beside the paper-preset runs': the best
-                           MetaL DAgger method, both controls, DAgger and the best gate, each with its
-                           interval and queries per seed
+                           MetaL DAgger method, the two MDM controls, BC refitted, DAgger
+                           and the best gate, each with its interval and queries per seed
 ``runs``                   every canonical run: command, wall time, CPU, what it shows
 ``report RUN HEADING``     the section of RUN's ``report.md`` under HEADING (its figures
                            linked where they lie in the registry)
@@ -87,12 +87,13 @@ def _labelled(entry: dict[str, Any] | None) -> str:
 
 def glance(context: BlockContext) -> str:
     """The at-a-glance table of the paper-preset runs, then of the quick ones."""
-    header = ("run", "the paper", "best MetaL DAgger", "control: pi*-head", "control: mean-DA", "DAgger (last round)", "best gate")
+    header = ("run", "the paper", "best MetaL DAgger", "control: pi*-head", "control: mean-DA", "control: BC refitted",
+              "DAgger (last round)", "best gate")
     rows = []
     for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
         found = context.runs.get(run.name)
         if found is None or not found.path("benchmark/summary.json").is_file():
-            rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", "not run yet", "", "", "", ""))
+            rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", "not run yet", "", "", "", "", ""))
             continue
         entries = [e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0]
         by_method = {e["method"]: e for e in entries}
@@ -101,12 +102,14 @@ def glance(context: BlockContext) -> str:
         dagger = [e for e in entries if e["method"] == "dagger"]
         gates = [e for e in entries if e["method"] in GATED]
         rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
-                     _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])),
+                     _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])), _cell(by_method.get("bc-refit")),
                      _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
     note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
             "demonstration's included; the controls use none), one benchmark rollout per seed under the pairs' early stop "
             "(`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, so an MDM row can stand "
-            "below the run's Table 1, rolled out without it). Best MetaL DAgger: the best MDM mapper or DAgger-MDI. It "
+            "below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as DAgger refits it, on the "
+            "demonstration alone (`bc-refit`; '-' for a run that has no such row). Best MetaL DAgger: the best MDM mapper "
+            "or DAgger-MDI. It "
             "and the best gate are chosen on these same seeds, which favours them; paired comparisons are in each run's "
             "report.")
     return "\n".join([note, "", *markdown_table(header, rows)])
