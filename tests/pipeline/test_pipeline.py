@@ -15,6 +15,8 @@ from metadagger.evaluation.mdi import METHODS as MDI_METHODS
 from metadagger.evaluation.report_mdi import FIGURE as MDI_FIGURE
 from metadagger.evaluation.rows import read_csv
 from metadagger.mapping.registry import kind_names
+from metadagger.pipeline import stages
+from metadagger.pipeline.run_config import load_run
 from metadagger.pipeline.stages import init_run, reproduce, stage_mdi
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
@@ -55,6 +57,24 @@ def test_a_ci_run_has_every_artifact_and_the_command_line_resumes_it(carracing_c
     (run / "report" / "report.md").unlink()
     assert runner.invoke(app, ["report", "--out", str(run)]).exit_code == 0
     assert (run / "report" / "report.md").read_text() == report
+
+
+def test_a_stopped_stage_call_still_counts_in_the_stage_times(tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    init_run(run, "carracing", "ci")
+
+    def stage_groundtruth(layout, config, options):  # stopped by SIGTERM or Ctrl-C mid-way
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(stages, "stage_groundtruth", stages.records_config(stage_groundtruth))
+    with pytest.raises(KeyboardInterrupt):
+        reproduce("carracing", "ci", run, options=StageOptions(progress=False))
+    entry = json.loads((run / "stage_times.json").read_text())["groundtruth"]
+    assert entry["stopped"] is True and entry["total_seconds"] == entry["seconds"] >= 0
+    monkeypatch.undo()
+    stages.stage_groundtruth(RunLayout(run), load_run(run), StageOptions(progress=False))
+    again = json.loads((run / "stage_times.json").read_text())["groundtruth"]
+    assert "stopped" not in again and again["total_seconds"] == pytest.approx(entry["total_seconds"] + again["seconds"], abs=2e-3)
 
 
 def test_demo_ci_preset(tmp_path):

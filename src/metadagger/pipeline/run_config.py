@@ -272,19 +272,26 @@ def save_run(run: str | Path, config: RunConfig) -> None:
 
 
 def _timed(stage: Callable[..., R], layout: RunLayout, config: RunConfig, *args: Any, **kwargs: Any) -> R:
-    """``stage(...)``, its wall time added to ``RUN/stage_times.json`` when it finishes (a run
-    folder made in code, without a ``config.yaml``, records none)."""
-    start = time.perf_counter()
-    result = stage(layout, config, *args, **kwargs)
+    """``stage(...)``, its wall time added to ``RUN/stage_times.json`` when it finishes or is
+    stopped (SIGTERM, Ctrl-C: the time a resumed run spent still counts); a run folder made in
+    code, without a ``config.yaml``, records none."""
+    name, start = stage.__name__.removeprefix("stage_"), time.perf_counter()
+    try:
+        result = stage(layout, config, *args, **kwargs)
+    except KeyboardInterrupt:
+        if layout.config.is_file():
+            record_stage_time(layout, name, time.perf_counter() - start, stopped=True)
+        raise
     if layout.config.is_file():
-        record_stage_time(layout, stage.__name__.removeprefix("stage_"), time.perf_counter() - start)
+        record_stage_time(layout, name, time.perf_counter() - start)
     return result
 
 
-def record_stage_time(layout: RunLayout, stage: str, seconds: float) -> None:
-    """Add one finished call of ``stage`` to the run's stage times: ``seconds`` (this call's),
-    ``total_seconds`` (all calls'), ``finished`` (UTC, ISO 8601), and the source commits and CPUs
-    of all its calls (``commits``, ``cpus``: each once, in order of first use)."""
+def record_stage_time(layout: RunLayout, stage: str, seconds: float, *, stopped: bool = False) -> None:
+    """Add one call of ``stage`` to the run's stage times: ``seconds`` (this call's),
+    ``total_seconds`` (all calls'), ``finished`` (when it ended, UTC, ISO 8601), ``stopped``
+    (only while the last call was stopped before it finished), and the source commits and CPUs of
+    all its calls (``commits``, ``cpus``: each once, in order of first use)."""
     times = read_json(layout.stage_times, "the stage times") if layout.stage_times.is_file() else {}
     before = times.get(stage, {})
     total = float(before.get("total_seconds", 0.0)) + seconds
@@ -292,7 +299,7 @@ def record_stage_time(layout: RunLayout, stage: str, seconds: float) -> None:
     times[stage] = {"seconds": round(seconds, 3), "total_seconds": round(total, 3),
                     "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                     "commits": _once(before.get("commits", []), source_revision() or "unknown"),
-                    "cpus": _once(before.get("cpus", []), cpu)}
+                    "cpus": _once(before.get("cpus", []), cpu), **({"stopped": True} if stopped else {})}
     write_json(layout.stage_times, times)
 
 
