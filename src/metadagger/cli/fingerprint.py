@@ -149,9 +149,9 @@ def fingerprint_kernels() -> dict[str, Any]:
 
 def read_fingerprint(path: Path) -> dict[str, Any]:
     """A fingerprint file written by ``metadagger bench ops``; a UserError if it is not one."""
+    fix = "write one on the other machine with `metadagger bench ops --out FILE` and pass that file"
     if not Path(path).is_file():
-        raise UserError(f"no kernel fingerprint at {path}: write one on the other machine with `metadagger bench ops --out FILE` and pass that file")
-    fix = f"write one on the other machine with `metadagger bench ops --out FILE` and pass that file"
+        raise UserError(f"no kernel fingerprint at {path}: {fix}")
     try:
         data = read_json(path, what="a kernel fingerprint")
     except UserError:

@@ -35,7 +35,7 @@ from typing import Any, Iterator, Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
-from metadagger.evaluation.methods import (GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RefitKey, RoundKey,
+from metadagger.evaluation.methods import (BC_REFIT, GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RefitKey, RoundKey,
                                            ShotKey, reads_demonstration, with_demo_fractions)
 from metadagger.evaluation.paired import paired_comparison
 from metadagger.evaluation.rows import write_csv
@@ -67,7 +67,7 @@ class BenchmarkConfig:
 
     seeds: tuple[int, ...] = tuple(range(5000, 5020))
     """Unseen seeds (never used for pi* or the pairs)."""
-    methods: tuple[str, ...] = ("bc", "mdm", "dagger", "bc-refit", *GATED)
+    methods: tuple[str, ...] = ("bc", "mdm", "dagger", BC_REFIT, *GATED)
     """``bc``, ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, ``bc-refit`` (w_BC refitted
     as DAgger refits it, on the demonstration alone: a control), the gated methods, and ``mdi``
     (the MDI protocol's methods; runs with an ``mdi`` section)."""
@@ -196,10 +196,9 @@ def _demonstration_rows(job: BenchmarkJob, learner: SeedLearner, demo: Trajector
     for key in (k for k in keys if isinstance(k, RefitKey)):
         # DAgger's refits (continuing from w_BC, DAgger's fit) on the demonstration alone
         learner.load(w_bc)
-        head = w_bc
         for index in range(1, key.rounds + 1):
-            head = bc_head(learner, data, seeded(job.dagger_bc, seed), what=f"BC's refit {index}")
-        rows[key] = _row(key, seed, learner.roll(head, early_stop=job.early_stop), len(data))
+            bc_head(learner, data, seeded(job.dagger_bc, seed), what=f"BC's refit {index}")
+        rows[key] = _row(key, seed, learner.roll(early_stop=job.early_stop), len(data))
     return rows
 
 
@@ -329,7 +328,7 @@ def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """What every method is compared with: each MDM control, BC refitted as DAgger (``bc-refit``),
     and the best gate (the gated DAgger setting with the highest success, the fewest queries on a
     tie), as ``method``/``setting``/``demo_fraction``."""
-    controls = {MDM_PREFIX + name for name in control_names()} | {"bc-refit"}
+    controls = {MDM_PREFIX + name for name in control_names()} | {BC_REFIT}
     refs = [e for e in entries if e["method"] in controls]
     gates = [e for e in entries if e["method"] in GATED]
     if gates:

@@ -20,6 +20,8 @@ from metadagger.mapping.registry import control_names
 
 #: Prefix of the MDM methods: ``mdm-<mapper kind>``.
 MDM_PREFIX = "mdm-"
+#: The control that refits w_BC as DAgger does, with no new label.
+BC_REFIT = "bc-refit"
 #: The MDI protocol's methods (:mod:`metadagger.evaluation.mdi`) and their names in the benchmark,
 #: where ``dagger`` (DAgger from a Xavier head) must not be confused with the pairs' DAgger.
 MDI_METHODS = {"dagger-mdi": "dagger-mdi", "dagger-bc": "dagger-bc-init", "dagger": "dagger-xavier"}
@@ -98,7 +100,7 @@ def dagger_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float
 def bc_refit_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     """The control for how much of DAgger's gain is training, not labels: w_BC refitted as often
     and as long as DAgger refits it, on the demonstration alone."""
-    return [RefitKey("bc-refit", str(rounds), rounds=rounds)]
+    return [RefitKey(BC_REFIT, str(rounds), rounds=rounds)]
 
 
 def gate_keys(gate: str) -> Callable[[int, tuple[str, ...], dict[str, list[float]], bool], list[MethodKey]]:
@@ -125,7 +127,7 @@ METHODS: dict[str, Callable[[int, tuple[str, ...], dict[str, list[float]], bool]
     "bc": bc_keys,
     "mdm": mdm_keys,
     "dagger": dagger_keys,
-    "bc-refit": bc_refit_keys,
+    BC_REFIT: bc_refit_keys,
     **{f"dagger-{gate}": gate_keys(gate) for gate in GATES},
     "mdi": mdi_keys,
 }

@@ -275,15 +275,18 @@ def _timed(stage: Callable[..., R], layout: RunLayout, config: RunConfig, *args:
     """``stage(...)``, its wall time added to ``RUN/stage_times.json`` when it finishes or is
     stopped (SIGTERM, Ctrl-C: the time a resumed run spent still counts); a run folder made in
     code, without a ``config.yaml``, records none."""
-    name, start = stage.__name__.removeprefix("stage_"), time.perf_counter()
+    start = time.perf_counter()
+
+    def record(stopped: bool) -> None:
+        if layout.config.is_file():
+            record_stage_time(layout, stage.__name__.removeprefix("stage_"), time.perf_counter() - start, stopped=stopped)
+
     try:
         result = stage(layout, config, *args, **kwargs)
     except KeyboardInterrupt:
-        if layout.config.is_file():
-            record_stage_time(layout, name, time.perf_counter() - start, stopped=True)
+        record(stopped=True)
         raise
-    if layout.config.is_file():
-        record_stage_time(layout, name, time.perf_counter() - start)
+    record(stopped=False)
     return result
 
 

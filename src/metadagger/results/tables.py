@@ -24,7 +24,7 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
-from metadagger.evaluation.methods import GATED, MDI_METHODS, MDM_PREFIX
+from metadagger.evaluation.methods import BC_REFIT, GATED, MDI_METHODS, MDM_PREFIX
 from metadagger.evaluation.report_run import duration
 from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
@@ -102,7 +102,7 @@ def glance(context: BlockContext) -> str:
         dagger = [e for e in entries if e["method"] == "dagger"]
         gates = [e for e in entries if e["method"] in GATED]
         rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
-                     _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])), _cell(by_method.get("bc-refit")),
+                     _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])), _cell(by_method.get(BC_REFIT)),
                      _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
     note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
             "demonstration's included; the controls use none), one benchmark rollout per seed under the pairs' early stop "
