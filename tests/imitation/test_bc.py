@@ -19,6 +19,7 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.policies import make_policy
 from metadagger.runfolder.stamps import stamp_of
+from metadagger.utils.optim import adam
 
 FAST = BCConfig(lr=3e-3, epochs=20, batch_size=16)
 
@@ -195,7 +196,7 @@ def _reference_fit(policy, demo: Dataset, config: BCConfig) -> None:
     one shard steps on the batch's mean loss, K shards differentiate each shard's summed loss in
     turn, add the gradients in shard order and divide by the batch's count."""
     params = list(policy.net.parameters())
-    optimizer = torch.optim.Adam(params, lr=config.lr)
+    optimizer = adam(params, lr=config.lr)
     loss_fn = torch.nn.functional.cross_entropy if policy.discrete else torch.nn.functional.mse_loss
     obs, labels = torch.from_numpy(demo.obs), torch.from_numpy(demo.labels)
     generator = torch.Generator().manual_seed(config.seed)

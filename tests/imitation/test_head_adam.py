@@ -10,11 +10,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from metadagger.imitation.head_adam import LinearHeadAdam
+from metadagger.utils.optim import adam
 
 
 def _reference(head: nn.Linear, x: torch.Tensor, y: torch.Tensor, batches: list[torch.Tensor], lr: float,
                weight_decay: float, discrete: bool) -> list[float]:
-    optimizer = torch.optim.Adam(head.parameters(), lr=lr, weight_decay=weight_decay)
+    optimizer = adam(head.parameters(), lr=lr, weight_decay=weight_decay)
     losses = []
     for batch in batches:
         out = head(x[batch])

@@ -68,6 +68,7 @@ def _policy_step(ops: dict[str, Callable[[], Any]]) -> None:
     import torch.nn.functional as F
 
     from metadagger.policies import PolicyNet
+    from metadagger.utils.optim import adam
 
     frames = torch.from_numpy((_integers(_BATCH * _SIZE * _SIZE * 3, 5) & 255).astype(np.uint8).reshape(_BATCH, _SIZE, _SIZE, 3))
     labels = torch.from_numpy((_integers(_BATCH, 6) % _CLASSES).astype(np.int64))
@@ -91,7 +92,7 @@ def _policy_step(ops: dict[str, Callable[[], Any]]) -> None:
         return weight.grad
 
     def step() -> dict[str, Any]:
-        optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
+        optimizer = adam(net.parameters(), lr=1e-3)
         logits = net(frames)
         loss = F.cross_entropy(logits, labels)
         loss.backward()

@@ -27,6 +27,7 @@ from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
+from metadagger.utils.optim import adam
 from metadagger.utils.progress import progress_bar
 from metadagger.utils.yaml_config import LATER_OPTION
 
@@ -294,7 +295,7 @@ def fit_bc(
     losses: list[float] = []
     n = len(data)
     with ExitStack() as stack:
-        optimizer = None if head_adam is not None else torch.optim.Adam(params, lr=config.lr, weight_decay=config.weight_decay)
+        optimizer = None if head_adam is not None else adam(params, lr=config.lr, weight_decay=config.weight_decay)
         if head_adam is not None:
             # a whole epoch of head-only steps in one call
             def epoch_losses(order: torch.Tensor) -> list[float]:

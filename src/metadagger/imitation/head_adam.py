@@ -4,7 +4,7 @@ A head-only fit (the pairs', the evaluations', every DAgger round on pi*'s trunk
 of steps on batches of ten 64-wide feature rows, where autograd's graph building,
 ``torch.optim.Adam``'s bookkeeping and Python's dispatch of each small operation cost several
 times the arithmetic. :class:`LinearHeadAdam` calls the same ATen kernels in the same order as
-``loss.backward()`` followed by ``torch.optim.Adam.step()`` (single-tensor, no amsgrad), so the
+``loss.backward()`` followed by the fused ``torch.optim.Adam.step()`` of :func:`metadagger.utils.optim.adam`, so the
 weights it produces are equal to the bit (tests/imitation/test_head_adam.py checks it). A whole
 epoch of steps runs in one TorchScript function: the interpreter dispatches each kernel without
 Python, which halves the time per step again and changes no number (docs/performance.md).
@@ -22,10 +22,10 @@ from torch import nn
 
 def _adam_steps(params: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
                 inputs: torch.Tensor, targets: torch.Tensor, order: torch.Tensor, batch_size: int, out_dim: int,
-                lr: float, weight_decay: float, discrete: bool, steps_before: int) -> torch.Tensor:
+                lr: float, weight_decay: float, discrete: bool, step_t: torch.Tensor) -> torch.Tensor:
     """Adam steps on consecutive batches of ``order`` (rows of ``inputs`` and ``targets``), updating
-    ``params`` (the head's weight, then its bias, flat) and the moments in place; returns each
-    batch's loss before its step. Compiled by TorchScript (:func:`_compiled_adam_steps`)."""
+    ``params`` (the head's weight, then its bias, flat), the moments and the step count ``step_t`` in
+    place; returns each batch's loss before its step. Compiled by TorchScript (:func:`_compiled_adam_steps`)."""
     # torch.optim.Adam's defaults, which fit_bc uses, and ATen's reduction code for "mean"
     # (locals: TorchScript reads no module globals)
     beta1, beta2, eps, mean = 0.9, 0.999, 1e-8, 1
@@ -52,13 +52,14 @@ def _adam_steps(params: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor,
             grad_outputs = torch.ops.aten.mse_loss_backward(one, outputs, labels, mean)
         torch.mm(grad_outputs.t(), features, out=grad_weight)
         torch.sum(grad_outputs, [0], out=grad_bias)
-        step_grad = grad if weight_decay == 0.0 else grad.add(params, alpha=weight_decay)
-        step = steps_before + i + 1
-        exp_avg.lerp_(step_grad, 1 - beta1)
-        exp_avg_sq.mul_(beta2).addcmul_(step_grad, step_grad, value=1 - beta2)
-        step_size = lr / (1 - beta1**step)
-        denom = (exp_avg_sq.sqrt() / ((1 - beta2**step) ** 0.5)).add_(eps)
-        params.addcdiv_(exp_avg, denom, value=-step_size)
+        step_t.add_(1)
+        # the functional form: TorchScript drops the in-place one, whose only effect is on its lists' tensors
+        new_params, _, new_exp_avg, new_exp_avg_sq, _ = torch.ops.aten._fused_adam(
+            [params], [grad], [exp_avg], [exp_avg_sq], [], [step_t], lr=lr, beta1=beta1, beta2=beta2,
+            weight_decay=weight_decay, eps=eps, amsgrad=False, maximize=False)
+        params.copy_(new_params[0])
+        exp_avg.copy_(new_exp_avg[0])
+        exp_avg_sq.copy_(new_exp_avg_sq[0])
         losses[i] = loss
     return losses
 
@@ -91,7 +92,7 @@ class LinearHeadAdam:
         self._grad = torch.empty_like(self._params)
         self._exp_avg = torch.zeros_like(self._params)
         self._exp_avg_sq = torch.zeros_like(self._params)
-        self._steps = 0
+        self._step = torch.zeros(())  # Adam's step count, a float tensor as the fused kernel reads it
 
     @staticmethod
     def supports(head: nn.Module) -> bool:
@@ -105,8 +106,7 @@ class LinearHeadAdam:
         may be smaller); returns each batch's loss before its step."""
         losses = _compiled_adam_steps()(self._params, self._grad, self._exp_avg, self._exp_avg_sq, features, targets,
                                         order, batch_size, self.head.out_features, self.lr, self.weight_decay,
-                                        self.discrete, self._steps)
-        self._steps += len(losses)
+                                        self.discrete, self._step)
         return losses
 
     @torch.no_grad()

@@ -35,6 +35,7 @@ from metadagger.runfolder.stamps import data_fingerprint, describe_changes, stam
 from metadagger.utils.executors import default_workers, make_executor
 from metadagger.utils.io import write_text
 from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.optim import adam
 from metadagger.utils.progress import note, progress_bar
 
 __all__ = ["CURVE_COLUMNS", "MapperConfig", "MapperJob", "evaluate_mapping", "fit_mapper", "fit_mapper_job", "paper_config", "train_mapper",
@@ -381,8 +382,7 @@ def _fit(
 ) -> list[dict[str, Any]]:
     """Adam on the MSE of ``net(x)`` against ``y``; one curve row per epoch. A loss or weight that
     becomes non-finite stops it with a :class:`DivergedError` naming ``owner``, ``name`` and the epoch."""
-    # fused: one kernel for all parameters; the per-tensor loop made the Adam step ~3x the step cost.
-    optimizer = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay, fused=True)
+    optimizer = adam(net.parameters(), lr=lr, weight_decay=weight_decay)
     rows = []
     bar = progress_bar(range(1, epochs + 1), desc=f"mapping/{name}", enabled=progress, leave=False)
     for epoch in bar:

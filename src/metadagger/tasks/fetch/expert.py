@@ -20,6 +20,7 @@ from torch import nn
 from metadagger.errors import CheckpointError
 from metadagger.tasks.fetch.env import UPSTREAM_ID, FetchState, lower_goal_to_object, read_fetch_state
 from metadagger.utils.io import load_tensors, read_metadata, save_tensors
+from metadagger.utils.optim import adam
 
 #: Half the cube's side (metres): the grip site sits at the cube's centre when it is held.
 CUBE_HALF = 0.025
@@ -236,7 +237,7 @@ def distill_fetch_expert(config: DistillConfig) -> DistilledFetchExpert:
         torch.manual_seed(config.seed)
         expert = DistilledFetchExpert(hidden=config.hidden)
     x, y = torch.from_numpy(features), torch.from_numpy(labels)
-    optimiser = torch.optim.Adam(expert.net.parameters(), lr=config.lr)
+    optimiser = adam(expert.net.parameters(), lr=config.lr)
     for _ in range(config.epochs):
         for batch in torch.randperm(len(x), generator=generator).split(config.batch_size):
             loss = nn.functional.mse_loss(expert.net(x[batch]), y[batch])
