@@ -17,12 +17,14 @@ from metadagger.errors import UserError
 from metadagger.results import registry as registry_module
 from metadagger.results.blocks import build
 from metadagger.results.registry import CanonicalRun, RegistryRun, add_run, load_registry
-from metadagger.results.tables import BlockContext, glance, manifest_line
-from metadagger.utils.kernels import KERNEL_ENV
+from metadagger.results.tables import BlockContext, glance, manifest_line, runs_table
+from metadagger.utils.kernels import KERNEL_ENV, NUMERICS
 
 REPO = Path(__file__).resolve().parents[2]
 CI_RUN = CanonicalRun("carracing-ci", "carracing", "ci", shows="a test run")
 runner = CliRunner()
+#: The manifest of a registry run made with this code's numerics, as far as the tables read it.
+CURRENT = {"machine": {"cpu": "CPU", "numerics": NUMERICS}}
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +117,7 @@ def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the
                _entry("dagger-mdi", "two-shot", 8, 60), _entry("dagger-xavier", "two-shot", 9, 61),
                _entry("dagger-bc-init", "two-shot", 9, 70)]
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
-    row = next(line for line in glance(BlockContext({"fetch-quick": RegistryRun(run, {})}, tmp_path)).splitlines()
+    row = next(line for line in glance(BlockContext({"fetch-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
                if line.startswith("| `fetch-quick`"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[2] == "DAgger-MDI two-shot: 80.0% (8/10; 0.0%-100.0%) at 60"
@@ -128,7 +130,7 @@ def test_glance_shows_bc_refitted_beside_the_controls(tmp_path):
     (run / "benchmark").mkdir(parents=True)
     entries = [_entry("mdm-dm", "", 0, 745), _entry("bc-refit", "3", 9, 745), _entry("dagger", "3", 9, 3340)]
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
-    row = next(line for line in glance(BlockContext({"carracing-quick": RegistryRun(run, {})}, tmp_path)).splitlines()
+    row = next(line for line in glance(BlockContext({"carracing-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
                if line.startswith("| `carracing-quick`"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[5] == "90.0% (9/10; 0.0%-100.0%) at 745" and cells[6].startswith("90.0% (9/10") and cells[7] == "-"
@@ -137,9 +139,22 @@ def test_glance_shows_bc_refitted_beside_the_controls(tmp_path):
 def test_the_manifest_line_shows_a_call_from_an_uncommitted_tree(tmp_path):
     stage = {"commits": ["a" * 40, "a" * 40 + "+dirty"], "cpus": ["CPU"]}
     manifest = {"command": "metadagger reproduce", "wall_seconds": 60.0, "beside": "nothing", "commit": "a" * 40 + "+dirty",
-                "stages": {"pairs": stage}, "machine": {"cpu": "CPU", "instruction_sets": ["avx2"], "kernels": "native", "cores": 2}}
+                "stages": {"pairs": stage}, "machine": {"cpu": "CPU", "instruction_sets": ["avx2"], "kernels": "native", "cores": 2, "numerics": NUMERICS}}
     line = manifest_line(BlockContext({"fetch-quick": RegistryRun(tmp_path, manifest)}, tmp_path), "fetch-quick")
-    assert line.endswith(f"Stages made by {'a' * 10}, {'a' * 10}+dirty; checked current at {'a' * 10}+dirty.")
+    assert line.endswith(f"Stages made by {'a' * 10}, {'a' * 10}+dirty; checked current at {'a' * 10}+dirty; numerics current.")
+
+
+def test_a_run_made_with_older_numerics_is_marked_stale_where_its_numbers_show(tmp_path):
+    run = tmp_path / "carracing-quick"
+    (run / "benchmark").mkdir(parents=True)
+    (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": [_entry("dagger", "3", 9, 3340)]}))
+    older = {"wall_seconds": 60.0, "machine": {"cpu": "CPU", "numerics": NUMERICS - 1}}
+    context = BlockContext({"carracing-quick": RegistryRun(run, older)}, tmp_path)
+    assert any(line.startswith("| `carracing-quick` (older numerics) |") for line in glance(context).splitlines())
+    row = next(line for line in runs_table(context).splitlines() if line.startswith("| `carracing-quick`"))
+    assert f"| stale ({NUMERICS - 1}; now {NUMERICS}) |" in row
+    current = BlockContext({"carracing-quick": RegistryRun(run, CURRENT | {"wall_seconds": 60.0})}, tmp_path)
+    assert "| current |" in next(line for line in runs_table(current).splitlines() if line.startswith("| `carracing-quick`"))
 
 
 def test_an_unknown_block_kind_is_one_line(registry, tmp_path):

@@ -28,6 +28,7 @@ from metadagger.evaluation.methods import BC_REFIT, GATED, MDI_METHODS, MDM_PREF
 from metadagger.evaluation.report_run import duration
 from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
+from metadagger.utils.kernels import NUMERICS
 
 #: The controls, by benchmark method: zero-query heads every mapper must beat.
 CONTROLS = ("mdm-pistar-head", "mdm-mean-da")
@@ -101,7 +102,8 @@ def glance(context: BlockContext) -> str:
                    or e["method"] == MDI_METHODS["dagger-mdi"]]
         dagger = [e for e in entries if e["method"] == "dagger"]
         gates = [e for e in entries if e["method"] in GATED]
-        rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
+        stale = "" if _numerics(found.manifest) == "current" else " (older numerics)"
+        rows.append((f"`{run.name}`{stale}", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
                      _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])), _cell(by_method.get(BC_REFIT)),
                      _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
     note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
@@ -109,7 +111,7 @@ def glance(context: BlockContext) -> str:
             "(`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, so an MDM row can stand "
             "below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as DAgger refits it, on the "
             "demonstration alone (`bc-refit`; '-' for a run that has no such row). Best MetaL DAgger: the best MDM mapper "
-            "or DAgger-MDI. It "
+            "or DAgger-MDI. A run marked 'older numerics' was made before this code's `NUMERICS` (docs/results.md). It "
             "and the best gate are chosen on these same seeds, which favours them; paired comparisons are in each run's "
             "report.")
     return "\n".join([note, "", *markdown_table(header, rows)])
@@ -122,10 +124,18 @@ def runs_table(context: BlockContext) -> str:
         found = context.runs.get(run.name)
         wall = duration(found.manifest["wall_seconds"]) if found else "not run yet"
         cpu = found.manifest["machine"]["cpu"] if found else "-"
-        rows.append((f"`{run.name}`", f"`{run.command}`", wall, cpu, run.shows))
+        rows.append((f"`{run.name}`", f"`{run.command}`", wall, cpu, _numerics(found.manifest) if found else "-", run.shows))
     note = ("Wall time as measured, on the CPU named, with the other work the run's manifest names running beside it "
-            "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less.")
-    return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "shows"), rows)])
+            "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less. Numerics: "
+            "whether the run was made with this code's numerics (`NUMERICS`); a stale run's numbers are those of older "
+            "code, and `metadagger results add` on its folder brings it up to date.")
+    return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "numerics", "shows"), rows)])
+
+
+def _numerics(manifest: dict[str, Any]) -> str:
+    """"current", or which ``NUMERICS`` a stale registry run was made with."""
+    made_with = manifest["machine"].get("numerics")
+    return "current" if made_with == NUMERICS else f"stale ({made_with}; now {NUMERICS})"
 
 
 def report_section(context: BlockContext, name: str, heading: str) -> str:
@@ -176,7 +186,7 @@ def manifest_line(context: BlockContext, name: str) -> str:
     return (f"`{m['command']}`: {duration(m['wall_seconds'])} on {m['machine']['cpu']} "
             f"({', '.join(m['machine']['instruction_sets'])}; {pins}), {m['machine']['cores']} cores; beside it: "
             f"{m['beside']}. Stages made by {', '.join(_short(c) for c in commits) or 'unrecorded commits'}; "
-            f"checked current at {_short(m['commit'])}.")
+            f"checked current at {_short(m['commit'])}; numerics {_numerics(m)}.")
 
 
 #: Block kinds by name.
