@@ -90,11 +90,11 @@ def test_a_bad_compare_file_is_one_error_line_before_any_work(tmp_path, content)
 
 @pytest.mark.parametrize("recorded", MACHINES, ids=[p.stem for p in MACHINES])
 def test_the_registry_machines_fingerprints_are_current(here, recorded):
-    """A registry machine's fingerprint names the computations this code makes; on a machine of
-    that kind (same CPU, instruction sets and pins) every one of them gives the same bits."""
+    """A registry machine's fingerprint names the computations this code makes; on any machine
+    with the same pins and numerics, whatever its CPU, every one of them gives the same bits
+    (docs/architecture.md, "What is shown")."""
     theirs = read_fingerprint(recorded)
     assert _names(theirs) == _names(here), f"regenerate with `metadagger bench ops --out {recorded.relative_to(REPO)}`"
-    same_kind = all(theirs["machine"][key] == here["machine"][key] for key in ("cpu", "instruction_sets", "kernels", "numerics"))
-    if not same_kind:
-        pytest.skip(f"{recorded.name} was made on another machine kind ({theirs['machine']['cpu']})")
+    if any(theirs["machine"][key] != here["machine"][key] for key in ("kernels", "numerics")):
+        pytest.skip(f"{recorded.name} was made with other kernel pins or numerics")
     assert compare_fingerprints(here, theirs)["differ"] == []
