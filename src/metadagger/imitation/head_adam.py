@@ -4,8 +4,8 @@ A head-only fit (the pairs', the evaluations', every DAgger round on pi*'s trunk
 of steps on batches of ten 64-wide feature rows, where autograd's graph building,
 ``torch.optim.Adam``'s bookkeeping and Python's dispatch of each small operation cost several
 times the arithmetic. :class:`LinearHeadAdam` calls the same ATen kernels in the same order as
-``loss.backward()`` followed by the fused ``torch.optim.Adam.step()`` of :func:`metadagger.utils.optim.adam`, so the
-weights it produces are equal to the bit (tests/imitation/test_head_adam.py checks it). A whole
+``loss.backward()`` followed by the fused Adam step of :func:`metadagger.utils.optim.adam`, so
+the weights it produces are equal to the bit (tests/imitation/test_head_adam.py checks it). A whole
 epoch of steps runs in one TorchScript function: the interpreter dispatches each kernel without
 Python, which halves the time per step again and changes no number (docs/performance.md).
 """

@@ -102,7 +102,7 @@ def glance(context: BlockContext) -> str:
                    or e["method"] == MDI_METHODS["dagger-mdi"]]
         dagger = [e for e in entries if e["method"] == "dagger"]
         gates = [e for e in entries if e["method"] in GATED]
-        stale = "" if _numerics(found.manifest) == "current" else " (older numerics)"
+        stale = "" if _made_with_current_numerics(found.manifest) else " (older numerics)"
         rows.append((f"`{run.name}`{stale}", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
                      _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])), _cell(by_method.get(BC_REFIT)),
                      _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
@@ -132,10 +132,16 @@ def runs_table(context: BlockContext) -> str:
     return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "numerics", "shows"), rows)])
 
 
+def _made_with_current_numerics(manifest: dict[str, Any]) -> bool:
+    """Whether a registry run was made with this code's ``NUMERICS``."""
+    return manifest["machine"].get("numerics") == NUMERICS
+
+
 def _numerics(manifest: dict[str, Any]) -> str:
     """"current", or which ``NUMERICS`` a stale registry run was made with."""
-    made_with = manifest["machine"].get("numerics")
-    return "current" if made_with == NUMERICS else f"stale ({made_with}; now {NUMERICS})"
+    if _made_with_current_numerics(manifest):
+        return "current"
+    return f"stale ({manifest['machine'].get('numerics')}; now {NUMERICS})"
 
 
 def report_section(context: BlockContext, name: str, heading: str) -> str:
