@@ -107,7 +107,8 @@ def glance(context: BlockContext) -> str:
                      _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])), _cell(by_method.get(BC_REFIT)),
                      _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
     note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
-            "demonstration's included; the controls use none), one benchmark rollout per seed under the pairs' early stop "
+            "demonstration's included; the controls use none), every method on the whole demonstration (the shorter ones of "
+            "`benchmark.demo_fractions` are in each run's report), one benchmark rollout per seed under the pairs' early stop "
             "(`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, so an MDM row can stand "
             "below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as DAgger refits it, on the "
             "demonstration alone (`bc-refit`; '-' for a run that has no such row). Best MetaL DAgger: the best MDM mapper "
