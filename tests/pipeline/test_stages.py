@@ -141,6 +141,13 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
             assert difference["mean"] == pytest.approx(errors["function"]["mean"] - summary["methods"]["bc"]["function"]["mean"])
             assert difference["n"] == summary["val_pairs"]
             assert math.isnan(difference["low"]) if difference["n"] == 1 else difference["low"] <= difference["mean"] <= difference["high"]
+        for control in ("mean-da", "pistar-head"):  # paired against each control, never against itself
+            if name in ("bc", control):
+                assert f"function_minus_{control}" not in errors
+            else:
+                difference = errors[f"function_minus_{control}"]
+                assert difference["n"] == summary["val_pairs"]
+                assert difference["mean"] == pytest.approx(errors["function"]["mean"] - summary["methods"][control]["function"]["mean"])
     assert summary["noise_ceiling"]["heads_per_seed"] == 3 and summary["noise_ceiling"]["function"] is not None
     assert {r["kind"] for r in summary["scaling"]} == {"dm", "sam", "tam", "ridge"}
     for row in summary["scaling"]:  # the 100% point is the run's own mapper, not fitted again
@@ -154,7 +161,24 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
     _ok(["diagnose", "--out", run, "--workers", "1"])  # nothing left to re-run
     assert layout.diagnostics_log.read_bytes() == before
     _ok(["report", "--out", run])
-    assert "## Does a mapper learn anything?" in layout.report.read_text() and "minus w_BC's (95%)" in layout.report.read_text()
+    report = layout.report.read_text()
+    assert "## Does a mapper learn anything?" in report and "minus w_BC's (95%)" in report
+    assert "minus mean-DA's (95%)" in report and "minus pi*-head's (95%)" in report
+    nearer = [k for k in ("dm", "sam", "tam", "ridge") if all(summary["methods"][k][f"function_minus_{c}"]["high"] < 0
+                                                               for c in ("mean-da", "pistar-head"))]
+    assert ("No learned mapper is nearer to w_DA in actions than mean-DA and pi*-head" in report) == (not nearer)
+
+
+def test_reproduce_runs_the_diagnostics_only_when_asked(finished, tmp_path):
+    layout = _copy(finished, tmp_path / "run")
+    before = {path: path.read_bytes() for path in (layout.eval_table("mdm"), layout.mapper("sam"), layout.pairs_dir / "pairs.jsonl")}
+    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root])
+    assert not layout.diagnostics_summary.exists()
+    _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root, "--diagnose"])
+    summary = json.loads(layout.diagnostics_summary.read_text())
+    assert summary["val_pairs"] >= 1 and "function_minus_mean-da" in summary["methods"]["dm"]
+    assert "## Does a mapper learn anything?" in layout.report.read_text()
+    assert all(path.read_bytes() == data for path, data in before.items())  # nothing before the diagnostics ran again
 
 
 def test_diagnose_refuses_bad_settings_in_one_line(finished):

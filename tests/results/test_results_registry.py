@@ -17,7 +17,7 @@ from metadagger.errors import UserError
 from metadagger.results import registry as registry_module
 from metadagger.results.blocks import build
 from metadagger.results.registry import CanonicalRun, RegistryRun, add_run, load_registry
-from metadagger.results.tables import BlockContext, glance, manifest_line, runs_table
+from metadagger.results.tables import BlockContext, glance, manifest_line, report_section, runs_table
 from metadagger.utils.kernels import KERNEL_ENV, NUMERICS
 
 REPO = Path(__file__).resolve().parents[2]
@@ -58,6 +58,21 @@ def test_an_added_run_keeps_small_artifacts_and_a_manifest_of_what_made_it(regis
     assert {"config.yaml", "eval/mdm.csv", "benchmark/summary.json", "report/report.md"} <= set(manifest["files"])
     assert not list(root.rglob("*.safetensors")) and not (root / "pairs" / "pairs.jsonl").exists()
     assert set(load_registry(registry, [CI_RUN.name])) == {CI_RUN.name}
+
+
+def test_a_run_the_docs_read_diagnostics_of_is_added_with_them(carracing_ci_run, tmp_path, monkeypatch):
+    import shutil
+
+    diagnosed = CanonicalRun("carracing-ci-diagnosed", "carracing", "ci", shows="a test run", diagnose=True)
+    monkeypatch.setattr(registry_module, "CANONICAL_RUNS", (diagnosed,))
+    run = tmp_path / "runs" / diagnosed.name
+    shutil.copytree(carracing_ci_run, run)
+    root = add_run(run, diagnosed.name, beside="the test suite", registry=tmp_path / "results", progress=False)
+    manifest = json.loads((root / "manifest.json").read_text())
+    assert manifest["command"] == "metadagger reproduce --task carracing --preset ci --out runs/carracing-ci-diagnosed --diagnose"
+    assert "diagnose" in manifest["stages"] and "diagnostics/mapping.json" in manifest["files"]
+    context = BlockContext(load_registry(tmp_path / "results", [diagnosed.name]), tmp_path)
+    assert "minus mean-DA's (95%)" in report_section(context, diagnosed.name, "Does a mapper learn anything?")
 
 
 def test_a_changed_registry_file_is_refused(registry, canonical, tmp_path):

@@ -397,9 +397,11 @@ def reproduce(
     log: Optional[str] = typer.Option(None, "--log", help="tensorboard: also write every stage's curves and evaluations as "
                                       "TensorBoard scalars under OUT/tb (needs the tensorboard extra); none: off. Sets the "
                                       "run's log key (default: the run's, none for a new run)."),
+    diagnose: bool = typer.Option(False, "--diagnose", help="also run the mapping diagnostics on the validation pairs "
+                                  "after the benchmark (`metadagger diagnose`; a section of the report)."),
 ) -> None:
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> benchmark
-    (runs with a benchmark section) -> report,
+    (runs with a benchmark section) -> diagnose (with --diagnose) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
     from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, reproduce as run_all
@@ -408,7 +410,8 @@ def reproduce(
     if log is not None:
         check_log(log, "--log")
     overrides = [*overrides, f"log={log}"] if log is not None else overrides
-    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, options=stage_options(False, executor, workers, address))
+    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, diagnose=diagnose,
+                   options=stage_options(False, executor, workers, address))
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
     if load_run(out).log == "tensorboard":

@@ -144,9 +144,10 @@ def _function_errors(predicted: torch.Tensor, split: PairSplit, features: list[t
 
 
 def _errors(predicted: torch.Tensor, split: PairSplit, features: list[torch.Tensor], *, outputs: int,
-            discrete: bool, bc: torch.Tensor | None = None) -> dict[str, Any]:
-    """Weight- and function-space errors and memorisation of ``predicted``; with ``bc`` (w_BC's
-    function-space error per pair) also the paired difference to it with its 95% interval."""
+            discrete: bool, against: dict[str, torch.Tensor] | None = None) -> dict[str, Any]:
+    """Weight- and function-space errors and memorisation of ``predicted``; for each ``name ->
+    per-pair function-space error`` of ``against`` (w_BC's as ``bc``, a control's by its kind) also
+    the paired difference to it with its 95% interval, as ``function_minus_<name>``."""
     truth = split.w_da_val
     weights = weight_error(predicted, truth, outputs=outputs, discrete=discrete)
     raw = weight_error(predicted, truth, outputs=outputs, discrete=False)
@@ -158,8 +159,8 @@ def _errors(predicted: torch.Tensor, split: PairSplit, features: list[torch.Tens
         ratios = memorisation(predicted, truth, split.w_da_train)
     errors = {"weight": _mean_sd(weights), "weight_raw": _mean_sd(raw), "function": _mean_sd(functions),
               "memorisation_median": float(ratios.median()), "memorisation_below_half": float((ratios < 0.5).to(torch.float64).mean())}
-    if bc is not None:
-        errors["function_minus_bc"] = mean_interval((functions - bc).tolist())
+    for name, reference in (against or {}).items():
+        errors[f"function_minus_{name}"] = mean_interval((functions - reference).tolist())
     return errors
 
 
@@ -208,7 +209,7 @@ def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, Mapper
     rows = []
     for number, (kind, fraction, count) in enumerate(points):
         errors = _errors(torch.from_numpy(mappers[number].map_batch(split.w_bc_val, split.context_val)), subsets[count], features,
-                         outputs=outputs, discrete=discrete, bc=bc)
+                         outputs=outputs, discrete=discrete, against={"bc": bc})
         rows.append({"kind": kind, "fraction": fraction, "train_pairs": count, "function": errors["function"]["mean"],
                      "weight": errors["weight"]["mean"], "function_minus_bc": errors["function_minus_bc"]})
     return rows
@@ -237,10 +238,13 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
     features = [_features(layout, seed) for seed in split.val_seeds]
     ceiling = noise_ceiling(layout, split, config, outputs=outputs, discrete=discrete)
     bc = _function_errors(split.w_bc_val, split, features, outputs=outputs, discrete=discrete)
+    predicted = {kind: torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)) for kind, mapper in mappers.items()}
+    against = {"bc": bc} | {kind: _function_errors(heads, split, features, outputs=outputs, discrete=discrete)
+                            for kind, heads in predicted.items() if not get_kind(kind).learned}
     methods = {"bc": _errors(split.w_bc_val, split, features, outputs=outputs, discrete=discrete)}
-    for kind, mapper in mappers.items():
-        methods[kind] = _errors(torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)), split, features,
-                                outputs=outputs, discrete=discrete, bc=bc)
+    for kind, heads in predicted.items():
+        methods[kind] = _errors(heads, split, features, outputs=outputs, discrete=discrete,
+                                against={name: errors for name, errors in against.items() if name != kind})
     for errors in methods.values():
         for space in ("weight", "function"):
             floor = ceiling[space]["mean"] if ceiling[space] else math.nan

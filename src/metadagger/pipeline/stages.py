@@ -54,7 +54,7 @@ from metadagger.utils.io import read_json
 from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.plotting import draw_figure
 
-STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "report")
+STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnose", "report")
 
 
 def run_task(config: RunConfig, *, checked: bool = False) -> Task:
@@ -324,19 +324,20 @@ def _heading(number: int, stage: str, progress: bool) -> None:
 
 
 def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Path | None = None,
-              overrides: Sequence[str] = (), options: StageOptions = StageOptions()) -> Path:
+              overrides: Sequence[str] = (), diagnose: bool = False, options: StageOptions = StageOptions()) -> Path:
     """Every stage in order, each resuming where a previous run stopped and rebuilding what a
     changed input made stale (``options.rebuild`` is always on); returns the report path.
     ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one;
-    ``overrides``: ``section.key=value`` items. Pins the CPU kernels first
+    ``overrides``: ``section.key=value`` items; ``diagnose``: also the mapping diagnostics on the
+    validation pairs (:func:`stage_diagnose`), after the benchmark. Pins the CPU kernels first
     (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
     pin_cpu_kernels()
     config = init_run(run, task, preset, presets_file, overrides)
     with run_lock(run):  # the whole run: no other writer between two stages
-        return _reproduce(RunLayout(run), config, options)
+        return _reproduce(RunLayout(run), config, options, diagnose=diagnose)
 
 
-def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions) -> Path:
+def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions, *, diagnose: bool) -> Path:
     options = dataclasses.replace(options, rebuild=True)
     stages = [
         ("groundtruth: pi*", lambda: stage_groundtruth(layout, config, options)),
@@ -347,6 +348,8 @@ def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions) -> P
          lambda: stage_mdi(layout, config, options=options)),
         ("benchmark: success against expert queries" if config.benchmark else "benchmark: not in this preset",
          lambda: stage_benchmark(layout, config, options=options)),
+        ("diagnose: does a mapper learn anything?" if diagnose else "diagnose: not asked for (--diagnose)",
+         lambda: stage_diagnose(layout, config, options=options) if diagnose else None),
     ]
     for number, (heading, stage) in enumerate(stages, 1):
         _heading(number, heading, options.progress)
@@ -360,5 +363,5 @@ def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions) -> P
     return build_report(layout)
 
 
-__all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_benchmark", "stage_evaluate", "stage_groundtruth",
+__all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_benchmark", "stage_diagnose", "stage_evaluate", "stage_groundtruth",
            "stage_mappers", "stage_mdi", "stage_pairs", "stage_tune", "StageOptions"]

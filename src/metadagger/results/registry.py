@@ -1,7 +1,7 @@
 """``results/<run>/``: the small artifacts of each canonical run, and what made them.
 
-A registry run holds the run folder's ``config.yaml``, stage times, summaries, CSVs, ``report.md``
-and its figures (no pairs, no checkpoints), and a ``manifest.json``: the command, the commit that
+A registry run holds the run folder's ``config.yaml``, stage times, summaries (the mapping
+diagnostics' among them, where the canonical run asks for them), CSVs, ``report.md`` and its figures (no pairs, no checkpoints), and a ``manifest.json``: the command, the commit that
 added it (after a ``reproduce`` with that commit found nothing left to do), the commits and CPUs
 that made each stage, the kernel pins, the wall time, what else ran on the machine, and the SHA-256
 of every file. :func:`add_run` writes one; :func:`load_registry` reads them all back, checked.
@@ -28,25 +28,28 @@ REGISTRY = Path("results")
 
 #: The files of a run folder a registry run keeps (globs relative to the run folder).
 KEPT_FILES = ("config.yaml", "stage_times.json", "groundtruth/metrics.json", "pairs/summary.json",
-              "mappers/*/curves.csv", "eval/*.csv", "benchmark/queries.csv", "benchmark/summary.json",
+              "mappers/*/curves.csv", "eval/*.csv", "benchmark/queries.csv", "benchmark/summary.json", "diagnostics/mapping.json",
               "report/report.md", "report/figures/*.png", "videos/*.gif")
 
 
 @dataclasses.dataclass(frozen=True)
 class CanonicalRun:
-    """A run the registry holds: its name, the task, the preset and ``--set`` overrides."""
+    """A run the registry holds: its name, the task, the preset, ``--set`` overrides and whether
+    it also runs the mapping diagnostics (``--diagnose``: the docs read their section)."""
 
     name: str
     task: str
     preset: str
     overrides: tuple[str, ...] = ()
     shows: str = ""
+    diagnose: bool = False
 
     @property
     def command(self) -> str:
         """The command that makes it, from the repository root."""
         sets = "".join(f" --set {item}" for item in self.overrides)
-        return f"metadagger reproduce --task {self.task} --preset {self.preset} --out runs/{self.name}{sets}"
+        flags = " --diagnose" if self.diagnose else ""
+        return f"metadagger reproduce --task {self.task} --preset {self.preset} --out runs/{self.name}{sets}{flags}"
 
 
 #: The canonical runs, in the order the docs list them.
@@ -57,10 +60,10 @@ CANONICAL_RUNS = (
     CanonicalRun("fetch-family-quick", "fetch-family", "quick", shows="a Fetch task family, small"),
     CanonicalRun("carracing-paper", "carracing", "paper", shows="the paper's CarRacing setup"),
     CanonicalRun("fetch-paper", "fetch", "paper", shows="the paper's FetchPickAndPlace setup"),
-    CanonicalRun("carracing-family-paper", "carracing-family", "paper", shows="the CarRacing family at paper scale"),
+    CanonicalRun("carracing-family-paper", "carracing-family", "paper", shows="the CarRacing family at paper scale", diagnose=True),
     CanonicalRun("fetch-family-paper", "fetch-family", "paper", shows="the Fetch family at paper scale"),
     CanonicalRun("carracing-family-paper-shared-init", "carracing-family", "paper", ("pairs.bc.head_init=shared",),
-                 shows="the CarRacing family with one shared head initialisation"),
+                 shows="the CarRacing family with one shared head initialisation", diagnose=True),
 )
 
 
@@ -74,7 +77,8 @@ def canonical_run(name: str) -> CanonicalRun:
 
 def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = REGISTRY, progress: bool = True) -> Path:
     """Put run folder ``run`` into the registry as canonical run ``name``: first ``reproduce`` on
-    it with this code (it resumes; on a finished, current run it finds nothing to do), then its
+    it with this code (it resumes; on a finished, current run it finds nothing to do; with the
+    mapping diagnostics where the canonical run asks for them), then its
     kept files and a manifest into ``registry/name`` (replaced whole). ``beside``: what else ran
     on the machine while the run was made. Returns the registry run's folder.
 
@@ -89,7 +93,8 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
     if (config.task, config.preset) != (canonical.task, canonical.preset):
         raise UserError(f"{run} is a run of task {config.task!r}, preset {config.preset!r}; {name} is task "
                         f"{canonical.task!r}, preset {canonical.preset!r}: pass the run folder made by `{canonical.command}`")
-    reproduce(canonical.task, canonical.preset, run, overrides=canonical.overrides, options=StageOptions(progress=progress))
+    reproduce(canonical.task, canonical.preset, run, overrides=canonical.overrides, diagnose=canonical.diagnose,
+              options=StageOptions(progress=progress))
     target = Path(registry) / name
     staging = target.with_name(f".{name}.tmp")
     shutil.rmtree(staging, ignore_errors=True)
