@@ -60,10 +60,11 @@ CANONICAL_RUNS = (
     CanonicalRun("fetch-family-quick", "fetch-family", "quick", shows="a Fetch task family, small"),
     CanonicalRun("carracing-paper", "carracing", "paper", shows="the paper's CarRacing setup"),
     CanonicalRun("fetch-paper", "fetch", "paper", shows="the paper's FetchPickAndPlace setup"),
-    CanonicalRun("carracing-family-paper", "carracing-family", "paper", shows="the CarRacing family at paper scale", diagnose=True),
+    CanonicalRun("carracing-family-paper", "carracing-family", "paper", diagnose=True,
+                 shows="the CarRacing family at paper scale, every head from one shared initialisation"),
     CanonicalRun("fetch-family-paper", "fetch-family", "paper", shows="the Fetch family at paper scale"),
-    CanonicalRun("carracing-family-paper-shared-init", "carracing-family", "paper", ("pairs.bc.head_init=shared",),
-                 shows="the CarRacing family with one shared head initialisation", diagnose=True),
+    CanonicalRun("carracing-family-paper-per-seed-init", "carracing-family", "paper", ("pairs.bc.head_init=seed",),
+                 shows="the CarRacing family with the paper's per-seed head initialisation", diagnose=True),
 )
 
 
