@@ -92,6 +92,19 @@ def test_a_run_of_another_preset_or_name_is_refused(registry, canonical, tmp_pat
         add_run(tmp_path, CI_RUN.name, beside=" ", registry=tmp_path / "results")
 
 
+def test_a_run_whose_config_departs_from_its_canonical_command_is_refused(carracing_ci_run, canonical, tmp_path):
+    import shutil
+
+    from metadagger.pipeline.run_config import load_run, save_run
+
+    run = tmp_path / "runs" / CI_RUN.name
+    shutil.copytree(carracing_ci_run, run)
+    save_run(run, load_run(run, ["pairs.bc.head_init=shared"]))  # as if the preset had changed since
+    with pytest.raises(UserError, match=r'departs from what .* makes \(pairs.bc.head_init: "shared" -> "seed"\)'):
+        add_run(run, CI_RUN.name, beside="nothing", registry=tmp_path / "results", progress=False)
+    assert not (tmp_path / "results").exists()
+
+
 def test_blocks_are_written_from_the_registry_and_check_names_a_stale_one(registry, canonical, tmp_path):
     (tmp_path / "docs").mkdir()
     page = tmp_path / "docs" / "page.md"

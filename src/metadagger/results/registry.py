@@ -16,9 +16,10 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from metadagger.errors import UserError
-from metadagger.pipeline.run_config import load_run
+from metadagger.pipeline.run_config import RunConfig, load_run, resolve_config
 from metadagger.pipeline.stages import StageOptions, reproduce
 from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.stamps import describe_changes
 from metadagger.utils.io import read_json, write_json
 from metadagger.utils.kernels import machine_description
 from metadagger.version import source_revision
@@ -85,15 +86,21 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
 
     Raises:
         UserError: an unknown ``name``; ``run`` is not a run folder of that task, preset and
-            overrides; an empty ``beside``.
+            overrides, or its config departs from what the canonical command makes now (a
+            changed preset); an empty ``beside``.
     """
     canonical = canonical_run(name)
     if not beside.strip():
         raise UserError("--beside is empty; say what else ran on the machine while the run was made (\"nothing\" if nothing)")
-    config = load_run(run)
+    config = load_run(run, canonical.overrides)
     if (config.task, config.preset) != (canonical.task, canonical.preset):
         raise UserError(f"{run} is a run of task {config.task!r}, preset {config.preset!r}; {name} is task "
                         f"{canonical.task!r}, preset {canonical.preset!r}: pass the run folder made by `{canonical.command}`")
+    departures = _departures(config, resolve_config(canonical.task, canonical.preset, overrides=canonical.overrides))
+    if departures:
+        raise UserError(f"{run}'s config.yaml departs from what `{canonical.command}` makes ({'; '.join(departures[:4])}"
+                        f"{'; ...' if len(departures) > 4 else ''}): the preset changed since the run was made, or the run "
+                        "had other --set values; run that command again with the --set that brings each back")
     reproduce(canonical.task, canonical.preset, run, overrides=canonical.overrides, diagnose=canonical.diagnose,
               options=StageOptions(progress=progress))
     target = Path(registry) / name
@@ -104,6 +111,14 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
     shutil.rmtree(target, ignore_errors=True)
     staging.rename(target)
     return target
+
+
+def _departures(config: RunConfig, canonical: RunConfig) -> list[str]:
+    """``key: run's -> canonical`` for every setting where a run's config departs from its
+    canonical command's (the package version and the ``log`` key aside: neither changes a number)."""
+    ignored = {"metadagger_version", "log"}
+    run_values, canonical_values = ({k: v for k, v in dataclasses.asdict(c).items() if k not in ignored} for c in (config, canonical))
+    return describe_changes(run_values, canonical_values)
 
 
 def _copy_kept(run: Path, target: Path) -> dict[str, str]:
