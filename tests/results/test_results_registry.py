@@ -194,3 +194,14 @@ def test_an_unknown_block_kind_is_one_line(registry, tmp_path):
 
 def test_the_repositorys_readme_and_docs_are_what_build_writes():
     assert build(REPO, check=True) == [], "run `metadagger results build` and commit the result"
+
+
+def test_every_registry_run_is_what_its_canonical_command_makes_now():
+    from metadagger.pipeline.run_config import load_run, resolve_config
+
+    for run in registry_module.CANONICAL_RUNS:
+        folder = REPO / "results" / run.name
+        if folder.is_dir():  # a changed preset leaves a registry run behind until it is made again
+            config = load_run(folder, run.overrides)
+            expected = resolve_config(run.task, run.preset, overrides=run.overrides)
+            assert registry_module.config_departures(config, expected) == [], f"make {run.name} again: `{run.command}`"

@@ -96,7 +96,7 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
     if (config.task, config.preset) != (canonical.task, canonical.preset):
         raise UserError(f"{run} is a run of task {config.task!r}, preset {config.preset!r}; {name} is task "
                         f"{canonical.task!r}, preset {canonical.preset!r}: pass the run folder made by `{canonical.command}`")
-    departures = _departures(config, resolve_config(canonical.task, canonical.preset, overrides=canonical.overrides))
+    departures = config_departures(config, resolve_config(canonical.task, canonical.preset, overrides=canonical.overrides))
     if departures:
         raise UserError(f"{run}'s config.yaml departs from what `{canonical.command}` makes ({'; '.join(departures[:4])}"
                         f"{'; ...' if len(departures) > 4 else ''}): the preset changed since the run was made, or the run "
@@ -113,7 +113,7 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
     return target
 
 
-def _departures(config: RunConfig, canonical: RunConfig) -> list[str]:
+def config_departures(config: RunConfig, canonical: RunConfig) -> list[str]:
     """``key: run's -> canonical`` for every setting where a run's config departs from its
     canonical command's (the package version and the ``log`` key aside: neither changes a number)."""
     ignored = {"metadagger_version", "log"}
