@@ -143,15 +143,15 @@ def _function_errors(predicted: torch.Tensor, split: PairSplit, features: list[t
                          for p, t, f in zip(predicted, split.w_da_val, features)], dtype=torch.float64)
 
 
-def _errors(predicted: torch.Tensor, split: PairSplit, features: list[torch.Tensor], *, outputs: int,
-            discrete: bool, against: dict[str, torch.Tensor] | None = None) -> dict[str, Any]:
-    """Weight- and function-space errors and memorisation of ``predicted``; for each ``name ->
-    per-pair function-space error`` of ``against`` (w_BC's as ``bc``, a control's by its kind) also
-    the paired difference to it with its 95% interval, as ``function_minus_<name>``."""
+def _errors(predicted: torch.Tensor, functions: torch.Tensor, split: PairSplit, *, outputs: int, discrete: bool,
+            against: dict[str, torch.Tensor] | None = None) -> dict[str, Any]:
+    """Weight- and function-space errors and memorisation of ``predicted``, whose per-pair
+    function-space errors are ``functions``; for each ``name -> per-pair function-space error`` of
+    ``against`` (w_BC's as ``bc``, a control's by its kind) also the paired difference to it with
+    its 95% interval, as ``function_minus_<name>``."""
     truth = split.w_da_val
     weights = weight_error(predicted, truth, outputs=outputs, discrete=discrete)
     raw = weight_error(predicted, truth, outputs=outputs, discrete=False)
-    functions = _function_errors(predicted, split, features, outputs=outputs, discrete=discrete)
     if discrete:  # distances between heads that choose the same actions are 0
         ratios = memorisation(canonical_heads(predicted, outputs), canonical_heads(truth, outputs),
                               canonical_heads(split.w_da_train, outputs))
@@ -208,8 +208,9 @@ def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, Mapper
     mappers.update(zip(jobs, train_mappers(list(jobs.values()), rebuild=True, options=options)))
     rows = []
     for number, (kind, fraction, count) in enumerate(points):
-        errors = _errors(torch.from_numpy(mappers[number].map_batch(split.w_bc_val, split.context_val)), subsets[count], features,
-                         outputs=outputs, discrete=discrete, against={"bc": bc})
+        heads = torch.from_numpy(mappers[number].map_batch(split.w_bc_val, split.context_val))
+        functions = _function_errors(heads, split, features, outputs=outputs, discrete=discrete)
+        errors = _errors(heads, functions, subsets[count], outputs=outputs, discrete=discrete, against={"bc": bc})
         rows.append({"kind": kind, "fraction": fraction, "train_pairs": count, "function": errors["function"]["mean"],
                      "weight": errors["weight"]["mean"], "function_minus_bc": errors["function_minus_bc"]})
     return rows
@@ -237,14 +238,15 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
     collect_seed_data(task, layout, pairs, config, split, options)
     features = [_features(layout, seed) for seed in split.val_seeds]
     ceiling = noise_ceiling(layout, split, config, outputs=outputs, discrete=discrete)
-    bc = _function_errors(split.w_bc_val, split, features, outputs=outputs, discrete=discrete)
-    predicted = {kind: torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)) for kind, mapper in mappers.items()}
-    against = {"bc": bc} | {kind: _function_errors(heads, split, features, outputs=outputs, discrete=discrete)
-                            for kind, heads in predicted.items() if not get_kind(kind).learned}
-    methods = {"bc": _errors(split.w_bc_val, split, features, outputs=outputs, discrete=discrete)}
-    for kind, heads in predicted.items():
-        methods[kind] = _errors(heads, split, features, outputs=outputs, discrete=discrete,
-                                against={name: errors for name, errors in against.items() if name != kind})
+    predicted = {"bc": split.w_bc_val} | {kind: torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val))
+                                          for kind, mapper in mappers.items()}
+    functions = {name: _function_errors(heads, split, features, outputs=outputs, discrete=discrete)
+                 for name, heads in predicted.items()}
+    bc = functions["bc"]
+    references = ["bc", *(kind for kind in mappers if not get_kind(kind).learned)]  # w_BC and the controls
+    methods = {name: _errors(heads, functions[name], split, outputs=outputs, discrete=discrete,
+                             against={r: functions[r] for r in references if name != "bc" and r != name})
+               for name, heads in predicted.items()}
     for errors in methods.values():
         for space in ("weight", "function"):
             floor = ceiling[space]["mean"] if ceiling[space] else math.nan

@@ -1,10 +1,11 @@
 """``results/<run>/``: the small artifacts of each canonical run, and what made them.
 
 A registry run holds the run folder's ``config.yaml``, stage times, summaries (the mapping
-diagnostics' among them, where the canonical run asks for them), CSVs, ``report.md`` and its figures (no pairs, no checkpoints), and a ``manifest.json``: the command, the commit that
-added it (after a ``reproduce`` with that commit found nothing left to do), the commits and CPUs
-that made each stage, the kernel pins, the wall time, what else ran on the machine, and the SHA-256
-of every file. :func:`add_run` writes one; :func:`load_registry` reads them all back, checked.
+diagnostics' among them, where the canonical run asks for them), CSVs, ``report.md`` and its
+figures (no pairs, no checkpoints), and a ``manifest.json``: the command, the commit that added it
+(after a ``reproduce`` with that commit found nothing left to do), the commits and CPUs that made
+each stage, the kernel pins, the wall time, what else ran on the machine, and the SHA-256 of every
+file. :func:`add_run` writes one; :func:`load_registry` reads them all back, checked.
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ REGISTRY = Path("results")
 
 #: The files of a run folder a registry run keeps (globs relative to the run folder).
 KEPT_FILES = ("config.yaml", "stage_times.json", "groundtruth/metrics.json", "pairs/summary.json",
-              "mappers/*/curves.csv", "eval/*.csv", "benchmark/queries.csv", "benchmark/summary.json", "diagnostics/mapping.json",
-              "report/report.md", "report/figures/*.png", "videos/*.gif")
+              "mappers/*/curves.csv", "eval/*.csv", "benchmark/queries.csv", "benchmark/summary.json",
+              "diagnostics/mapping.json", "report/report.md", "report/figures/*.png", "videos/*.gif")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,9 +117,10 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
 def config_departures(config: RunConfig, canonical: RunConfig) -> list[str]:
     """``key: run's -> canonical`` for every setting where a run's config departs from its
     canonical command's (the package version and the ``log`` key aside: neither changes a number)."""
-    ignored = {"metadagger_version", "log"}
-    run_values, canonical_values = ({k: v for k, v in dataclasses.asdict(c).items() if k not in ignored} for c in (config, canonical))
-    return describe_changes(run_values, canonical_values)
+    def settings(c: RunConfig) -> dict[str, Any]:
+        return {k: v for k, v in dataclasses.asdict(c).items() if k not in ("metadagger_version", "log")}
+
+    return describe_changes(settings(config), settings(canonical))
 
 
 def _copy_kept(run: Path, target: Path) -> dict[str, str]:
