@@ -72,8 +72,14 @@ def main(run: str, seeds: str) -> dict[str, Any]:
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     n = len(timed_seeds)
     parts = {name: {"seconds_per_pair": seconds[name] / n, "calls_per_pair": calls[name] / n} for _, _, name in PARTS}
-    return {"run": run, "seeds": timed_seeds, "wall_seconds_per_pair": wall / n, "cpu_seconds_per_pair": cpu / n,
-            "parts": parts, "rest_seconds_per_pair": (wall - sum(seconds.values())) / n}
+    return {
+        "run": run,
+        "seeds": timed_seeds,
+        "wall_seconds_per_pair": wall / n,
+        "cpu_seconds_per_pair": cpu / n,
+        "parts": parts,
+        "rest_seconds_per_pair": (wall - sum(seconds.values())) / n,
+    }
 
 
 if __name__ == "__main__":

@@ -182,9 +182,14 @@ def test_tensors_that_do_not_fit_the_recorded_architecture_are_named_in_one_line
     message = str(info.value)
     assert "\n" not in message
     assert f"policy checkpoint {path} does not fit the architecture its metadata records (" in message
-    assert "missing tensor(s) trunk.0.bias; unexpected tensor(s) extra; head.weight has shape (3, 3), expected (5, 16)" in message
-    assert message.endswith("restore the file, or delete it and re-run the command that wrote it "
-                            "(for a run's pi*: metadagger groundtruth --out RUN)")
+    assert (
+        "missing tensor(s) trunk.0.bias; unexpected tensor(s) extra; head.weight has shape (3, 3), expected (5, 16)"
+        in message
+    )
+    assert message.endswith(
+        "restore the file, or delete it and re-run the command that wrote it "
+        "(for a run's pi*: metadagger groundtruth --out RUN)"
+    )
 
 
 def test_tensor_mismatch_lists_a_few_names_and_counts_the_rest():
@@ -235,8 +240,16 @@ def test_load_head_vector_copies_so_training_never_writes_into_the_callers_array
 
 
 def test_spatial_softmax_trunk_gives_keypoints_and_round_trips(tmp_path, rng):
-    net = PolicyNet(obs_shape=(16, 16, 3), n_outputs=3, discrete=False, conv_channels=(4, 6),
-                    kernel_sizes=(3, 3), strides=(2, 1), hidden=(8,), spatial_softmax=True)
+    net = PolicyNet(
+        obs_shape=(16, 16, 3),
+        n_outputs=3,
+        discrete=False,
+        conv_channels=(4, 6),
+        kernel_sizes=(3, 3),
+        strides=(2, 1),
+        hidden=(8,),
+        spatial_softmax=True,
+    )
     maps = torch.zeros(1, 6, 8, 8)
     maps[0, :, 0, 7] = 50.0  # every channel peaks in the top-right corner
     keypoints = net.trunk[-3](maps)  # the SpatialSoftmax layer
@@ -254,9 +267,12 @@ def test_a_policy_file_with_nan_float16_or_of_the_wrong_kind_is_one_line(tmp_pat
     path = policy.save(tmp_path / "policy.safetensors")
     tensors, metadata = load_tensors(path), read_metadata(path)
     with pytest.raises(UserError, match="holds NaN or infinite values"):
-        save_tensors(tmp_path / "nan.safetensors", {**tensors, "head.bias": torch.full_like(tensors["head.bias"], float("nan"))})
+        save_tensors(
+            tmp_path / "nan.safetensors", {**tensors, "head.bias": torch.full_like(tensors["head.bias"], float("nan"))}
+        )
     assert not (tmp_path / "nan.safetensors").exists()
     from safetensors.torch import save_file
+
     bad = {**tensors, "head.bias": torch.full_like(tensors["head.bias"], float("nan"))}
     save_file(bad, str(tmp_path / "nan.safetensors"), metadata={"metadagger": json.dumps(metadata)})
     with pytest.raises(CheckpointError, match=r"nan.safetensors holds NaN or infinite values in tensor 'head.bias'"):
@@ -265,10 +281,16 @@ def test_a_policy_file_with_nan_float16_or_of_the_wrong_kind_is_one_line(tmp_pat
     save_file(half, str(tmp_path / "half.safetensors"), metadata={"metadagger": json.dumps(metadata)})
     with pytest.raises(CheckpointError, match="as float16, expected float32"):
         load_policy(tmp_path / "half.safetensors")
-    with pytest.raises(CheckpointError, match=r"is a folder \(it holds half.safetensors, nan.safetensors, policy.safetensors\); pass the .safetensors file itself"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"is a folder \(it holds half.safetensors, nan.safetensors, policy.safetensors\); pass the .safetensors "
+        r"file itself",
+    ):
         load_policy(tmp_path)
     (tmp_path / "config.yaml").write_text("task: carracing\n")
-    with pytest.raises(CheckpointError, match="config.yaml is not a .safetensors file; pass a file that metadagger wrote"):
+    with pytest.raises(
+        CheckpointError, match="config.yaml is not a .safetensors file; pass a file that metadagger wrote"
+    ):
         load_policy(tmp_path / "config.yaml")
     with pytest.raises(CheckpointError, match="expected the path of a .safetensors file, got None"):
         load_policy(None)

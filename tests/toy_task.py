@@ -186,4 +186,6 @@ class CorridorFamily(FamilyTask):
     """The discrete corridor as a task family (docs/custom_task.md, "Your own task family")."""
 
     def __init__(self, *, max_episode_steps: int = 30):
-        super().__init__(RunCorridorTask(max_episode_steps=max_episode_steps), MirrorVariation(), name="corridor-family")
+        super().__init__(
+            RunCorridorTask(max_episode_steps=max_episode_steps), MirrorVariation(), name="corridor-family"
+        )

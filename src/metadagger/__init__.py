@@ -38,5 +38,14 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'metadagger' has no attribute {name!r}")
 
 
-__all__ = ["CheckpointError", "UserError", "__version__", "load_mapper", "load_policy", "make_task", "pin_cpu_kernels",
-           "register_envs", "register_task"]
+__all__ = [
+    "CheckpointError",
+    "UserError",
+    "__version__",
+    "load_mapper",
+    "load_policy",
+    "make_task",
+    "pin_cpu_kernels",
+    "register_envs",
+    "register_task",
+]

@@ -41,7 +41,9 @@ def _conv_out(size: int, kernel: int, stride: int) -> int:
 def _positive_ints(field: str, value: Any, *, min_len: int) -> tuple[int, ...]:
     values = tuple(value)
     if len(values) < min_len or not all(isinstance(v, int) and v > 0 for v in values):
-        raise UserError(f"{field} must be at least {min_len} positive integers, got {value!r}; pass e.g. {field}=(8, 16)")
+        raise UserError(
+            f"{field} must be at least {min_len} positive integers, got {value!r}; pass e.g. {field}=(8, 16)"
+        )
     return values
 
 
@@ -102,10 +104,14 @@ class PolicyNet(nn.Module):
         hidden = _positive_ints("hidden", hidden, min_len=0)
         strides = (2,) * len(conv_channels) if strides is None else _positive_ints("strides", strides, min_len=1)
         if len(strides) != len(conv_channels):
-            raise UserError(f"strides has {len(strides)} entries but conv_channels has {len(conv_channels)}; give one stride per convolution")
+            raise UserError(
+                f"strides has {len(strides)} entries but conv_channels has {len(conv_channels)}; give one stride per "
+                "convolution"
+            )
         if len(kernel_sizes) != len(conv_channels):
             raise UserError(
-                f"kernel_sizes has {len(kernel_sizes)} entries but conv_channels has {len(conv_channels)}; give one kernel per convolution"
+                f"kernel_sizes has {len(kernel_sizes)} entries but conv_channels has {len(conv_channels)}; give one "
+                "kernel per convolution"
             )
         if not isinstance(n_outputs, int) or n_outputs <= 0:
             raise UserError(f"n_outputs must be a positive integer, got {n_outputs!r}")
@@ -124,7 +130,10 @@ class PolicyNet(nn.Module):
         # either way), one allocation fewer per layer
         layers: list[nn.Module] = []
         for out_channels, kernel, stride in zip(conv_channels, kernel_sizes, strides):
-            layers += [nn.Conv2d(channels, out_channels, kernel, stride=stride, padding=kernel // 2), nn.ReLU(inplace=True)]
+            layers += [
+                nn.Conv2d(channels, out_channels, kernel, stride=stride, padding=kernel // 2),
+                nn.ReLU(inplace=True),
+            ]
             channels, height, width = out_channels, _conv_out(height, kernel, stride), _conv_out(width, kernel, stride)
         if spatial_softmax:
             layers.append(SpatialSoftmax())
@@ -224,8 +233,10 @@ class Policy:
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
         """The learner action for one raw observation (H, W, C) uint8: an int, or a float32 vector."""
         if isinstance(obs, np.ndarray) and obs.ndim == 4:
-            raise UserError(f"policy(obs) takes one observation (H, W, C), got a batch of shape {obs.shape}; "
-                            "use policy.act_batch(obs) for a batch")
+            raise UserError(
+                f"policy(obs) takes one observation (H, W, C), got a batch of shape {obs.shape}; "
+                "use policy.act_batch(obs) for a batch"
+            )
         with _one_torch_thread():
             action = self.act_batch(obs[None] if isinstance(obs, np.ndarray) else obs)[0]
         return int(action) if self.discrete else action
@@ -240,7 +251,12 @@ class Policy:
             vector = torch.from_numpy(vector)
         expected = self.head_size
         out_dim, in_dim = self.net.head.weight.shape
-        if not isinstance(vector, torch.Tensor) or vector.dtype != torch.float32 or vector.ndim != 1 or vector.numel() != expected:
+        if (
+            not isinstance(vector, torch.Tensor)
+            or vector.dtype != torch.float32
+            or vector.ndim != 1
+            or vector.numel() != expected
+        ):
             got = f"{getattr(vector, 'dtype', type(vector).__name__)} of shape {tuple(getattr(vector, 'shape', ()))}"
             raise UserError(
                 f"head vector must be 1-D float32 of length {expected} = {out_dim}*{in_dim} + {out_dim}, got {got}; "
@@ -298,19 +314,22 @@ def load_policy(path: str | Path) -> Policy:
     tensors = load_tensors(path, what="policy checkpoint")
     if metadata.get("format") != _FORMAT:
         raise CheckpointError(
-            f"{path} is not a metadagger policy (format {metadata.get('format')!r}, expected {_FORMAT!r}); pass a file written by Policy.save"
+            f"{path} is not a metadagger policy (format {metadata.get('format')!r}, expected {_FORMAT!r}); pass a "
+            "file written by Policy.save"
         )
     try:
         net = PolicyNet(**json.loads(metadata["arch"]))
     except (KeyError, TypeError, ValueError) as exc:
         message = str(exc).splitlines()[0]
         raise CheckpointError(
-            f"policy checkpoint {path} does not rebuild ({type(exc).__name__}: {message}); re-save it with this metadagger version"
+            f"policy checkpoint {path} does not rebuild ({type(exc).__name__}: {message}); re-save it with this "
+            "metadagger version"
         ) from None
     mismatch = tensor_mismatch(tensors, net.state_dict())
     if mismatch:
         raise CheckpointError(
-            f"policy checkpoint {path} does not fit the architecture its metadata records ({mismatch}); restore the file, or "
+            f"policy checkpoint {path} does not fit the architecture its metadata records ({mismatch}); restore the "
+            "file, or "
             "delete it and re-run the command that wrote it (for a run's pi*: metadagger groundtruth --out RUN)"
         )
     net.load_state_dict(tensors, strict=True)
@@ -322,10 +341,16 @@ def tensor_mismatch(found: Mapping[str, torch.Tensor], expected: Mapping[str, to
     ``state_dict()``) in names and shapes, as one line; "" when they fit."""
     missing = [name for name in expected if name not in found]
     unexpected = [name for name in found if name not in expected]
-    shapes = [f"{name} has shape {tuple(found[name].shape)}, expected {tuple(tensor.shape)}"
-              for name, tensor in expected.items() if name in found and found[name].shape != tensor.shape]
-    parts = [f"{what}{_first_few(names)}" for what, names in
-             (("missing tensor(s) ", missing), ("unexpected tensor(s) ", unexpected), ("", shapes)) if names]
+    shapes = [
+        f"{name} has shape {tuple(found[name].shape)}, expected {tuple(tensor.shape)}"
+        for name, tensor in expected.items()
+        if name in found and found[name].shape != tensor.shape
+    ]
+    parts = [
+        f"{what}{_first_few(names)}"
+        for what, names in (("missing tensor(s) ", missing), ("unexpected tensor(s) ", unexpected), ("", shapes))
+        if names
+    ]
     return "; ".join(parts)
 
 

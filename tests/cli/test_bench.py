@@ -83,9 +83,9 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
     from toy_task import TINY_PRESETS, RunCorridorTask
 
     from metadagger.cli.bench import bench_pairs
-    from metadagger.runfolder.layout import RunLayout
-    from metadagger.pipeline.stages import stage_groundtruth
     from metadagger.pipeline.run_config import init_run
+    from metadagger.pipeline.stages import stage_groundtruth
+    from metadagger.runfolder.layout import RunLayout
     from metadagger.tasks import _FACTORIES, register_task
 
     register_task("corridor-bench", RunCorridorTask)
@@ -93,7 +93,9 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         presets = tmp_path / "presets.yaml"
         presets.write_text(TINY_PRESETS)
         run = tmp_path / "run"
-        stage_groundtruth(RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False))
+        stage_groundtruth(
+            RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False)
+        )
 
         result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10, nodes=(4,))
         assert not (run / "pairs").exists()  # collected into temporary stores only
@@ -103,7 +105,9 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         assert result["kept_share"] == 1.0 and result["kept_share_from"] == "bench"
         assert result["minutes_for_target_kept"] > 0
         hours = result["extrapolated"]["hours_on_ray_nodes"]
-        assert hours["1"] == pytest.approx(result["minutes_for_target_kept"] / 60) and hours["4"] == pytest.approx(hours["1"] / 4)
+        assert hours["1"] == pytest.approx(result["minutes_for_target_kept"] / 60) and hours["4"] == pytest.approx(
+            hours["1"] / 4
+        )
         assert result["extrapolated"]["pair_seeds_for_target_kept"] == 10
         assert result["machine"]["cpu_count"] == os.cpu_count()
 

@@ -31,14 +31,22 @@ def _set(fingerprint: dict, name: str, sha256: str) -> None:
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "metadagger.cli", "bench", "ops", *args], capture_output=True, text=True,
-                          env={**os.environ, "MUJOCO_GL": "egl"})
+    return subprocess.run(
+        [sys.executable, "-m", "metadagger.cli", "bench", "ops", *args],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "MUJOCO_GL": "egl"},
+    )
 
 
 def test_a_fingerprint_covers_a_run_in_order_and_repeats_bit_for_bit(here):
     names = _names(here)
     assert names[0].startswith("numpy.") and names[-1].startswith("carracing frames")
-    assert names.index("torch.conv2d (oneDNN)") < names.index("policy step: logits") < names.index("policy step: weights after Adam")
+    assert (
+        names.index("torch.conv2d (oneDNN)")
+        < names.index("policy step: logits")
+        < names.index("policy step: weights after Adam")
+    )
     # every parameter's gradient is its own entry, so a difference names the layer
     assert sum(name.startswith("policy step: grad ") for name in names) == 14
     assert all(len(entry["sha256"]) == 64 for entry in here["ops"])

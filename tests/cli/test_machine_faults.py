@@ -33,8 +33,22 @@ def tmpfs(tmp_path):
 
 
 def _reproduce(run: Path, presets: Path):
-    return runner.invoke(app, ["reproduce", "--task", "corridor-run", "--presets", str(presets), "--preset", "tiny",
-                               "--out", str(run), "--workers", "1"])
+    return runner.invoke(
+        app,
+        [
+            "reproduce",
+            "--task",
+            "corridor-run",
+            "--presets",
+            str(presets),
+            "--preset",
+            "tiny",
+            "--out",
+            str(run),
+            "--workers",
+            "1",
+        ],
+    )
 
 
 def _one_error_line(output: str, *needles: str) -> None:
@@ -65,8 +79,11 @@ def test_a_full_disk_and_a_read_only_folder_are_one_line_and_keep_finished_work(
     assert not [p for p in run.rglob("*.tmp")]
 
     remount("ro")
-    for args in (["report", "--out", str(run)], ["evaluate", "--out", str(run), "--seeds", "400-401"],
-                 ["train-mapper", "--out", str(run), "--kind", "dm", "--rebuild"]):
+    for args in (
+        ["report", "--out", str(run)],
+        ["evaluate", "--out", str(run), "--seeds", "400-401"],
+        ["train-mapper", "--out", str(run), "--kind", "dm", "--rebuild"],
+    ):
         result = runner.invoke(app, args)
         assert result.exit_code == 2, (args, result.output)
         _one_error_line(result.output, str(run), "read-only")

@@ -42,12 +42,15 @@ def test_unknown_task_is_one_clear_line():
     assert len([line for line in out.splitlines() if line.strip()]) == 1
 
 
-@pytest.mark.parametrize("args, needles", [
-    (["pairs", "--out", "RUN", "--workers", "abc"], ["'--workers'", "integer", "`metadagger pairs --help`"]),
-    (["pairs"], ["Missing option '--out'", "`metadagger pairs --help`"]),
-    (["pairz"], ["No such command 'pairz'", "`metadagger --help`"]),
-    (["pairs", "--out", "RUN", "--bogus"], ["No such option: --bogus", "`metadagger pairs --help`"]),
-])
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["pairs", "--out", "RUN", "--workers", "abc"], ["'--workers'", "integer", "`metadagger pairs --help`"]),
+        (["pairs"], ["Missing option '--out'", "`metadagger pairs --help`"]),
+        (["pairz"], ["No such command 'pairz'", "`metadagger --help`"]),
+        (["pairs", "--out", "RUN", "--bogus"], ["No such option: --bogus", "`metadagger pairs --help`"]),
+    ],
+)
 def test_command_line_usage_errors_are_one_line(capsys, args, needles):
     with pytest.raises(SystemExit) as exit_:
         main(args)
@@ -90,7 +93,10 @@ def test_an_interrupt_exits_130_and_a_bug_is_its_own_traceback(monkeypatch, caps
 
 
 def test_a_bad_log_value_names_the_option(tmp_path):
-    _fails_cleanly(["reproduce", "--out", str(tmp_path / "run"), "--log", "bogus"], "--log must be one of none, tensorboard, got 'bogus'")
+    _fails_cleanly(
+        ["reproduce", "--out", str(tmp_path / "run"), "--log", "bogus"],
+        "--log must be one of none, tensorboard, got 'bogus'",
+    )
     assert not (tmp_path / "run").exists()
 
 
@@ -99,7 +105,12 @@ def test_bad_seed_list_names_the_value():
 
 
 def test_unknown_preset_names_the_allowed_ones(tmp_path):
-    _fails_cleanly(["groundtruth", "--preset", "huge", "--out", str(tmp_path / "r")], "unknown preset 'huge'", "quick", "--presets FILE")
+    _fails_cleanly(
+        ["groundtruth", "--preset", "huge", "--out", str(tmp_path / "r")],
+        "unknown preset 'huge'",
+        "quick",
+        "--presets FILE",
+    )
 
 
 def test_bad_config_value_in_a_run_config(tmp_path):
@@ -121,14 +132,23 @@ def test_missing_run_and_missing_groundtruth(tmp_path):
 def test_video_checks_its_methods_and_the_run_before_any_rollout(tmp_path):
     _fails_cleanly(["video", "--out", str(tmp_path / "none"), "--seed", "5000"], "no run at")
     (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
-    _fails_cleanly(["video", "--out", str(tmp_path), "--seed", "5000", "--methods", "bc,magic"],
-                   "--methods has magic", "expected some of expert, bc, dagger")
-    _fails_cleanly(["video", "--out", str(tmp_path), "--seed", "5000", "--fps", "0"], "--fps, --scale and --gif-stride must be >= 1")
+    _fails_cleanly(
+        ["video", "--out", str(tmp_path), "--seed", "5000", "--methods", "bc,magic"],
+        "--methods has magic",
+        "expected some of expert, bc, dagger",
+    )
+    _fails_cleanly(
+        ["video", "--out", str(tmp_path), "--seed", "5000", "--fps", "0"],
+        "--fps, --scale and --gif-stride must be >= 1",
+    )
     _fails_cleanly(["video", "--out", str(tmp_path), "--seed", "5000", "--methods", "bc"], "pi* not found")
 
 
-@pytest.mark.parametrize("command", [["pairs"], ["evaluate", "--protocol", "mdm"], ["bench", "pairs", "--seeds", "1"]],
-                         ids=["pairs", "evaluate", "bench-pairs"])
+@pytest.mark.parametrize(
+    "command",
+    [["pairs"], ["evaluate", "--protocol", "mdm"], ["bench", "pairs", "--seeds", "1"]],
+    ids=["pairs", "evaluate", "bench-pairs"],
+)
 def test_corrupt_checkpoint_is_a_clear_error(tmp_path, command):
     # a run folder whose pi* is garbage: the stage reports it before looking for work
     (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
@@ -140,7 +160,9 @@ def test_corrupt_checkpoint_is_a_clear_error(tmp_path, command):
 
 def test_wrong_head_vector_length_is_a_user_error():
     policy = make_policy(CorridorTask(), seed=0)
-    with pytest.raises(UserError, match=f"length {policy.head_size} = 3\\*32 \\+ 3, got .* shape \\({policy.head_size + 1},\\)"):
+    with pytest.raises(
+        UserError, match=f"length {policy.head_size} = 3\\*32 \\+ 3, got .* shape \\({policy.head_size + 1},\\)"
+    ):
         policy.load_head_vector(torch.zeros(policy.head_size + 1))
     with pytest.raises(UserError):
         policy.load_head_vector(np.zeros((2, policy.head_size), np.float32))
@@ -181,8 +203,11 @@ def test_an_unreachable_ray_address_is_one_line_at_once(tmp_path, closed_port, s
     pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
     address = f"{scheme}127.0.0.1:{closed_port}"
     start = time.monotonic()
-    _fails_cleanly(["pairs", "--out", str(tmp_path), "--executor", "ray", "--address", address],
-                   f"cannot reach a Ray cluster at '{address}'", "ray://HEAD:10001")
+    _fails_cleanly(
+        ["pairs", "--out", str(tmp_path), "--executor", "ray", "--address", address],
+        f"cannot reach a Ray cluster at '{address}'",
+        "ray://HEAD:10001",
+    )
     assert time.monotonic() - start < 15
 
 
@@ -204,8 +229,14 @@ def test_out_that_is_a_file_is_an_error(tmp_path):
     assert existing.read_text() == "keep me"
 
 
-@pytest.mark.parametrize("command", [["expert", "--seeds", "0"], ["bench", "env", "--steps", "1", "--seeds", "0"],
-                                     ["bench", "bc", "--images", "10", "--epochs", "1"]])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["expert", "--seeds", "0"],
+        ["bench", "env", "--steps", "1", "--seeds", "0"],
+        ["bench", "bc", "--images", "10", "--epochs", "1"],
+    ],
+)
 def test_an_output_file_that_is_a_folder_is_refused_before_any_work(tmp_path, command):
     started = time.perf_counter()
     _fails_cleanly([*command, "--out", str(tmp_path)], f"--out {tmp_path} is a folder")
@@ -230,11 +261,20 @@ def test_a_table_without_its_columns_is_named(tmp_path):
     table = RunLayout(tmp_path).eval_table("mdm")
     table.parent.mkdir(parents=True)
     table.write_text("garbage\n")
-    _fails_cleanly(["report", "--out", str(tmp_path)], f"the table is corrupt or unreadable: {table} (no column method, seed)")
+    _fails_cleanly(
+        ["report", "--out", str(tmp_path)], f"the table is corrupt or unreadable: {table} (no column method, seed)"
+    )
 
 
-@pytest.mark.parametrize("command", [["evaluate", "--seeds", ""], ["benchmark", "--seeds", ""], ["export", "--what", "demos",
-                                     "--format", "minari", "--name", "ns/x-v0", "--seeds", ""]], ids=["evaluate", "benchmark", "export"])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["evaluate", "--seeds", ""],
+        ["benchmark", "--seeds", ""],
+        ["export", "--what", "demos", "--format", "minari", "--name", "ns/x-v0", "--seeds", ""],
+    ],
+    ids=["evaluate", "benchmark", "export"],
+)
 def test_an_empty_seed_option_is_refused_not_read_as_the_default(tmp_path, command):
     init_run(tmp_path, "carracing", "ci")
     _fails_cleanly([command[0], "--out", str(tmp_path), *command[1:]], "bad seed list ''")
@@ -247,7 +287,10 @@ def test_an_empty_benchmark_method_list_is_refused(tmp_path):
 
 def test_demo_from_a_missing_dataset_writes_nothing(tmp_path):
     pytest.importorskip("minari")
-    _fails_cleanly(["demo", "--demos", "no-such/dataset-v0", "--out", str(tmp_path / "d")], "cannot load Minari dataset 'no-such/dataset-v0'")
+    _fails_cleanly(
+        ["demo", "--demos", "no-such/dataset-v0", "--out", str(tmp_path / "d")],
+        "cannot load Minari dataset 'no-such/dataset-v0'",
+    )
     assert not (tmp_path / "d").exists()
 
 
@@ -258,10 +301,12 @@ def test_evaluate_protocol_errors(tmp_path):
 
 
 def test_reproduce_with_unknown_task_names_the_known_ones(tmp_path):
-    _fails_cleanly(["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")], "unknown task 'cartpole'", "carracing, carracing-family, fetch, fetch-family")
+    _fails_cleanly(
+        ["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")],
+        "unknown task 'cartpole'",
+        "carracing, carracing-family, fetch, fetch-family",
+    )
     assert not (tmp_path / "r" / "config.yaml").exists()
-
-
 
 
 @pytest.fixture
@@ -276,10 +321,19 @@ def corridor_plugin(monkeypatch):
     return "corridor-plugin"
 
 
-@pytest.mark.parametrize("value, needles", [
-    ("toy_task:RunCorridorTsk", ["module toy_task has no 'RunCorridorTsk'", 'fix the entry point broken = "toy_task:RunCorridorTsk"']),
-    ("toy_tsk:RunCorridorTask", ["needs a missing module (toy_tsk)", 'the entry point broken = "toy_tsk:RunCorridorTask"']),
-])
+@pytest.mark.parametrize(
+    "value, needles",
+    [
+        (
+            "toy_task:RunCorridorTsk",
+            ["module toy_task has no 'RunCorridorTsk'", 'fix the entry point broken = "toy_task:RunCorridorTsk"'],
+        ),
+        (
+            "toy_tsk:RunCorridorTask",
+            ["needs a missing module (toy_tsk)", 'the entry point broken = "toy_tsk:RunCorridorTask"'],
+        ),
+    ],
+)
 def test_a_broken_entry_point_is_named_with_its_fix(monkeypatch, value, needles):
     from importlib.metadata import EntryPoint
 
@@ -300,8 +354,11 @@ def test_a_corrupt_mapper_is_named_before_any_work(tmp_path, corridor_plugin):
     mapper = RunLayout(run).mapper("dm")
     mapper.parent.mkdir(parents=True)
     mapper.write_bytes(b"not a safetensors file")
-    out = _fails_cleanly(["evaluate", "--out", str(run), "--protocol", "mdm", "--workers", "1"],
-                         "error: ", f"corrupt or not a safetensors file: {mapper}")
+    out = _fails_cleanly(
+        ["evaluate", "--out", str(run), "--protocol", "mdm", "--workers", "1"],
+        "error: ",
+        f"corrupt or not a safetensors file: {mapper}",
+    )
     assert "WorkerError" not in out
 
 
@@ -312,13 +369,31 @@ def test_a_task_from_an_installed_package_runs_with_a_presets_file(tmp_path, cor
     presets = tmp_path / "presets.yaml"
     presets.write_text(TINY_PRESETS)
     run = tmp_path / "run"
-    result = runner.invoke(app, ["groundtruth", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "tiny", "--out", str(run)])
+    result = runner.invoke(
+        app,
+        ["groundtruth", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "tiny", "--out", str(run)],
+    )
     assert result.exit_code == 0, result.output
     assert (run / "groundtruth" / "policy.safetensors").is_file()
     assert "max_episode_steps: 12" in (run / "config.yaml").read_text()
-    _fails_cleanly(["groundtruth", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "huge", "--out", str(tmp_path / "r2")],
-                   "has no preset 'huge'", "tiny")
-    _fails_cleanly(["groundtruth", "--task", "corridor-plugin", "--out", str(tmp_path / "r3")], "no packaged presets", "--presets")
+    _fails_cleanly(
+        [
+            "groundtruth",
+            "--task",
+            "corridor-plugin",
+            "--presets",
+            str(presets),
+            "--preset",
+            "huge",
+            "--out",
+            str(tmp_path / "r2"),
+        ],
+        "has no preset 'huge'",
+        "tiny",
+    )
+    _fails_cleanly(
+        ["groundtruth", "--task", "corridor-plugin", "--out", str(tmp_path / "r3")], "no packaged presets", "--presets"
+    )
 
 
 def test_a_task_whose_factory_rejects_the_run_arguments_is_a_user_error(tmp_path):
@@ -330,8 +405,20 @@ def test_a_task_whose_factory_rejects_the_run_arguments_is_a_user_error(tmp_path
     try:
         presets = tmp_path / "presets.yaml"
         presets.write_text(TINY_PRESETS)
-        _fails_cleanly(["groundtruth", "--task", "corridor-no-kwargs", "--presets", str(presets), "--preset", "tiny", "--out", str(tmp_path / "r")],
-                       "cannot be built with {'max_episode_steps': 12}")
+        _fails_cleanly(
+            [
+                "groundtruth",
+                "--task",
+                "corridor-no-kwargs",
+                "--presets",
+                str(presets),
+                "--preset",
+                "tiny",
+                "--out",
+                str(tmp_path / "r"),
+            ],
+            "cannot be built with {'max_episode_steps': 12}",
+        )
     finally:
         del _FACTORIES["corridor-no-kwargs"]
 
@@ -345,16 +432,33 @@ def test_sigterm_mid_stage_is_one_line_exit_143_and_leaves_no_temporary_files(tm
     import time
 
     run = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "metadagger.cli", "reproduce", "--task", "carracing", "--preset", "ci",
-                             "--out", str(run)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "metadagger.cli",
+            "reproduce",
+            "--task",
+            "carracing",
+            "--preset",
+            "ci",
+            "--out",
+            str(run),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     deadline = time.monotonic() + 60
     while not list((run / "pairs").glob("*.safetensors")) and time.monotonic() < deadline:
         time.sleep(0.05)  # the pairs stage, its workers running
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 143
-    assert ("error: stopped by SIGTERM: finished work is kept; run the same command again to resume where it stopped"
-            in err.splitlines())
+    assert (
+        "error: stopped by SIGTERM: finished work is kept; run the same command again to resume where it stopped"
+        in err.splitlines()
+    )
     assert "Traceback" not in err and "leaked" not in err and "Warning" not in err
     assert not [p for p in run.rglob("*") if ".tmp" in p.name]
 
@@ -366,12 +470,14 @@ def test_a_signal_while_the_command_line_loads_is_one_line(signame, exit_code, s
     import subprocess
     import sys
 
-    code = ("import os, signal, sys, time, types\n"
-            "loading = types.ModuleType('metadagger.cli.main')\n"
-            f"loading.__getattr__ = lambda name: (os.kill(os.getpid(), signal.{signame}), time.sleep(30))\n"
-            "sys.modules['metadagger.cli.main'] = loading\n"
-            "from metadagger.cli.entry import run\n"
-            "run()\n")
+    code = (
+        "import os, signal, sys, time, types\n"
+        "loading = types.ModuleType('metadagger.cli.main')\n"
+        f"loading.__getattr__ = lambda name: (os.kill(os.getpid(), signal.{signame}), time.sleep(30))\n"
+        "sys.modules['metadagger.cli.main'] = loading\n"
+        "from metadagger.cli.entry import run\n"
+        "run()\n"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == exit_code
     assert done.stderr == f"error: stopped by {said} while the command line loaded: no work had started\n"

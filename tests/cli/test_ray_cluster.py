@@ -43,9 +43,27 @@ def cluster(tmp_path_factory) -> Iterator[tuple[str, Path]]:
     address = f"127.0.0.1:{_free_port()}"
     common = ["--node-ip-address", "127.0.0.1", "--num-cpus", "1", "--disable-usage-stats"]
     try:
-        subprocess.run([RAY, "start", "--head", "--port", address.split(":")[1], "--include-dashboard", "false",
-                        "--temp-dir", str(home / "ray"), *common], env=env, check=True, capture_output=True, timeout=180)
-        subprocess.run([RAY, "start", "--address", address, *common], env=env, check=True, capture_output=True, timeout=180)
+        subprocess.run(
+            [
+                RAY,
+                "start",
+                "--head",
+                "--port",
+                address.split(":")[1],
+                "--include-dashboard",
+                "false",
+                "--temp-dir",
+                str(home / "ray"),
+                *common,
+            ],
+            env=env,
+            check=True,
+            capture_output=True,
+            timeout=180,
+        )
+        subprocess.run(
+            [RAY, "start", "--address", address, *common], env=env, check=True, capture_output=True, timeout=180
+        )
         yield address, home
     finally:
         subprocess.run([RAY, "stop", "--force"], env=env, capture_output=True, timeout=120)
@@ -56,7 +74,9 @@ def test_rows_made_on_a_two_node_cluster_equal_the_local_ones(cluster, tmp_path)
     address, home = cluster
     runner = CliRunner()
     local, remote = tmp_path / "local", tmp_path / "remote"
-    result = runner.invoke(app, ["reproduce", "--task", "carracing", "--preset", "ci", "--out", str(local), "--workers", "2"])
+    result = runner.invoke(
+        app, ["reproduce", "--task", "carracing", "--preset", "ci", "--out", str(local), "--workers", "2"]
+    )
     assert result.exit_code == 0, result.output
     shutil.copytree(local, remote)
     for made_by_workers in ("pairs", "eval", "benchmark", "report"):
@@ -64,9 +84,28 @@ def test_rows_made_on_a_two_node_cluster_equal_the_local_ones(cluster, tmp_path)
     # the driver in a process of its own: no Ray state of this process (an earlier test's local
     # ray.init) and none of this machine's (a fresh HOME)
     env = {**_without_ray_variables(os.environ), "HOME": str(home)}
-    result = subprocess.run([sys.executable, "-m", "metadagger.cli", "reproduce", "--task", "carracing", "--preset", "ci",
-                             "--out", str(remote), "--executor", "ray", "--address", address],
-                            env=env, capture_output=True, text=True, timeout=900)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "metadagger.cli",
+            "reproduce",
+            "--task",
+            "carracing",
+            "--preset",
+            "ci",
+            "--out",
+            str(remote),
+            "--executor",
+            "ray",
+            "--address",
+            address,
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     for name in COMPARED:
         assert (remote / name).read_bytes() == (local / name).read_bytes(), name

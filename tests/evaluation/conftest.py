@@ -11,7 +11,9 @@ from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
 from metadagger.policies import load_policy
 from metadagger.runfolder.layout import RunLayout
 
-GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+GT = GroundTruthConfig(
+    seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
+)
 
 
 @pytest.fixture(scope="module")

@@ -24,16 +24,35 @@ from metadagger.runfolder.layout import RunLayout
 
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
 SEEDS = (300, 301)
-CONFIG = BenchmarkConfig(seeds=SEEDS, grids={"dagger-random": [0.0, 0.5], "dagger-ensemble": [0.5], "dagger-safe": [0.5],
-                                             "dagger-novelty": [0.5], "dagger-thrifty": [0.25], "dagger-conformal": [0.5]},
-                         demo_fractions=(0.5, 1.0))
+CONFIG = BenchmarkConfig(
+    seeds=SEEDS,
+    grids={
+        "dagger-random": [0.0, 0.5],
+        "dagger-ensemble": [0.5],
+        "dagger-safe": [0.5],
+        "dagger-novelty": [0.5],
+        "dagger-thrifty": [0.25],
+        "dagger-conformal": [0.5],
+    },
+    demo_fractions=(0.5, 1.0),
+)
 ROUNDS = 2
 
 
 def _run(layout: RunLayout, config: BenchmarkConfig = CONFIG, **kwargs) -> list[dict]:
-    return run_benchmark(CorridorTask(), layout, config, rounds=ROUNDS, bc=BC, dagger_bc=BC, early_stop=None,
-                         kinds=("pistar-head",), mdi=None, meta_queries={"pistar": 900, "pairs": 100},
-                         options=StageOptions(workers=1, progress=False, **kwargs))
+    return run_benchmark(
+        CorridorTask(),
+        layout,
+        config,
+        rounds=ROUNDS,
+        bc=BC,
+        dagger_bc=BC,
+        early_stop=None,
+        kinds=("pistar-head",),
+        mdi=None,
+        meta_queries={"pistar": 900, "pairs": 100},
+        options=StageOptions(workers=1, progress=False, **kwargs),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -43,13 +62,28 @@ def rows(toy_run) -> list[dict]:
 
 def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
     keys = method_keys(CONFIG, rounds=ROUNDS, kinds=("pistar-head",), mdi=False)
-    gated = ["dagger-random@0", "dagger-random@0.5", "dagger-ensemble@0.5", "dagger-safe@0.5", "dagger-novelty@0.5",
-             "dagger-thrifty@0.25", "dagger-conformal@0.5"]
+    gated = [
+        "dagger-random@0",
+        "dagger-random@0.5",
+        "dagger-ensemble@0.5",
+        "dagger-safe@0.5",
+        "dagger-novelty@0.5",
+        "dagger-thrifty@0.25",
+        "dagger-conformal@0.5",
+    ]
     # the shorter demonstration for BC and the gates; pi*'s head never reads it, DAgger keeps the whole one
-    assert [key.id for key in keys] == ["bc@", "bc@@demo0.5", "mdm-pistar-head@", "dagger@1", "dagger@2", "bc-refit@2",
-                                        *(k for g in gated for k in (g, g + "@demo0.5"))]
-    assert ([(r['method'], r['setting'], r["demo_fraction"]) for r in rows]
-            == [(key.method, key.setting, key.demo_fraction) for key in keys] * len(SEEDS))
+    assert [key.id for key in keys] == [
+        "bc@",
+        "bc@@demo0.5",
+        "mdm-pistar-head@",
+        "dagger@1",
+        "dagger@2",
+        "bc-refit@2",
+        *(k for g in gated for k in (g, g + "@demo0.5")),
+    ]
+    assert [(r["method"], r["setting"], r["demo_fraction"]) for r in rows] == [
+        (key.method, key.setting, key.demo_fraction) for key in keys
+    ] * len(SEEDS)
     assert tuple(read_csv(toy_run.benchmark_table)[0]) == bench.FIELDS
 
 
@@ -71,8 +105,14 @@ def test_queries_are_counted_exactly(toy_run, rows):
         steps_before = [table["bc", "", seed]["steps"], table["dagger", "1", seed]["steps"]]
         assert table["dagger", "1", seed]["expert_queries"] == demos[seed] + steps_before[0]
         assert table["dagger", "2", seed]["expert_queries"] == demos[seed] + sum(steps_before)
-        for method, setting in (("dagger-random", "0.5"), ("dagger-ensemble", "0.5"), ("dagger-safe", "0.5"),
-                                ("dagger-novelty", "0.5"), ("dagger-thrifty", "0.25"), ("dagger-conformal", "0.5")):
+        for method, setting in (
+            ("dagger-random", "0.5"),
+            ("dagger-ensemble", "0.5"),
+            ("dagger-safe", "0.5"),
+            ("dagger-novelty", "0.5"),
+            ("dagger-thrifty", "0.25"),
+            ("dagger-conformal", "0.5"),
+        ):
             gated = table[method, setting, seed]["expert_queries"]
             assert demos[seed] <= gated <= table["dagger", "2", seed]["expert_queries"] + 30  # a gate labels a subset
             assert math.ceil(demos[seed] / 2) <= halves[method, setting, seed]["expert_queries"]
@@ -81,7 +121,9 @@ def test_queries_are_counted_exactly(toy_run, rows):
 def test_bc_refit_is_w_bc_refitted_as_dagger_refits_it_on_the_demonstration_alone(toy_run, rows):
     table = {(r["method"], r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
     for seed in SEEDS:
-        with SeedLearner(CorridorTask(), str(toy_run.groundtruth), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
+        with SeedLearner(
+            CorridorTask(), str(toy_run.groundtruth), seed, head_init_seed=BC.head_init_seed(seed)
+        ) as learner:
             data = demonstration(learner).to_dataset()
             head = bc_head(learner, data, seeded(BC, seed))
             assert learner.roll(head).reward == table["bc", seed]["reward"]
@@ -89,7 +131,10 @@ def test_bc_refit_is_w_bc_refitted_as_dagger_refits_it_on_the_demonstration_alon
                 head = bc_head(learner, data, seeded(BC, seed))
             refit = learner.roll(head)
         assert (refit.reward, refit.steps, bool(refit.success)) == (
-            table["bc-refit", seed]["reward"], table["bc-refit", seed]["steps"], table["bc-refit", seed]["success"])
+            table["bc-refit", seed]["reward"],
+            table["bc-refit", seed]["steps"],
+            table["bc-refit", seed]["success"],
+        )
 
 
 def test_bc_refit_is_a_reference_of_the_paired_comparisons(toy_run, rows):
@@ -114,18 +159,35 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
                 mask = gate.select(*args, memory=memory, **kwargs)
                 selected.append(int(mask.sum()))
                 return mask
+
         return Counting()
 
     monkeypatch.setattr(bench, "make_gate", counting)
     key = GateKey(f"dagger-{gate}", f"{value:g}", gate=gate, value=value)
-    job = bench.BenchmarkJob(task=CorridorTask(), groundtruth=str(toy_run.groundtruth), seed=SEEDS[0],
-                             methods=(key.id,), keys=(key,), mappers={}, config=CONFIG, rounds=ROUNDS, bc=BC,
-                             dagger_bc=BC, early_stop=None, mdi=None)
+    job = bench.BenchmarkJob(
+        task=CorridorTask(),
+        groundtruth=str(toy_run.groundtruth),
+        seed=SEEDS[0],
+        methods=(key.id,),
+        keys=(key,),
+        mappers={},
+        config=CONFIG,
+        rounds=ROUNDS,
+        bc=BC,
+        dagger_bc=BC,
+        early_stop=None,
+        mdi=None,
+    )
     [row] = bench.benchmark_seed(job)["entries"][key.id]  # in this process: the patch applies
     demo = collect(CorridorTask(), SEEDS[:1], policy=None)[0]
     assert len(selected) == ROUNDS and row["expert_queries"] == demo.steps + sum(selected)
-    bc_row = bench.benchmark_seed(dataclasses.replace(job, methods=("bc@",), keys=(bench.MethodKey("bc", ""),)))["entries"]["bc@"][0]
-    assert remembered == [[(demo.steps, demo.success)], [(demo.steps, demo.success), (bc_row["steps"], bc_row["success"])]]
+    bc_row = bench.benchmark_seed(dataclasses.replace(job, methods=("bc@",), keys=(bench.MethodKey("bc", ""),)))[
+        "entries"
+    ]["bc@"][0]
+    assert remembered == [
+        [(demo.steps, demo.success)],
+        [(demo.steps, demo.success), (bc_row["steps"], bc_row["success"])],
+    ]
 
 
 def test_resume_and_widening_add_only_the_missing_rows(toy_run, rows, tmp_path):
@@ -144,7 +206,10 @@ def test_summary_figure_and_report_section(toy_run, rows):
     summary = json.loads(toy_run.benchmark_summary.read_text())
     assert summary["meta_training_queries"] == {"pistar": 900, "pairs": 100}
     dagger2 = next(e for e in summary["entries"] if e["method"] == "dagger" and e["setting"] == "2")
-    assert dagger2["seeds"] == len(SEEDS) and 0 <= dagger2["success_ci_low"] <= dagger2["success_rate"] <= dagger2["success_ci_high"]
+    assert (
+        dagger2["seeds"] == len(SEEDS)
+        and 0 <= dagger2["success_ci_low"] <= dagger2["success_rate"] <= dagger2["success_ci_high"]
+    )
     assert toy_run.benchmark_figure.read_bytes()[:4] == b"\x89PNG"
     text = "\n".join(benchmark_section(toy_run))
     assert "## Success against expert queries" in text and "figures/queries.png" in text
@@ -173,8 +238,10 @@ def test_mdi_on_a_run_without_an_mdi_protocol_is_refused_before_any_work(tmp_pat
     layout = RunLayout(tmp_path / "run")
     with pytest.raises(UserError) as info:
         _run(layout, dataclasses.replace(CONFIG, methods=("bc", "mdi")))
-    assert str(info.value) == (f"benchmark method mdi needs an mdi section, but run {layout.root} has none; "
-                               "drop mdi from --methods (or benchmark.methods), or add an mdi section")
+    assert str(info.value) == (
+        f"benchmark method mdi needs an mdi section, but run {layout.root} has none; "
+        "drop mdi from --methods (or benchmark.methods), or add an mdi section"
+    )
     assert not layout.root.exists()
 
 
@@ -182,12 +249,33 @@ def test_matching_table_picks_the_cheapest_setting_that_reaches_dagger(tmp_path)
     from metadagger.utils.io import write_json
 
     layout = RunLayout(tmp_path)
-    entry = lambda m, s, rate, q: {"method": m, "setting": s, "seeds": 10, "successes": int(10 * rate), "success_rate": rate,  # noqa: E731
-                                   "success_ci_low": 0.0, "success_ci_high": 1.0, "mean_reward": 0.0, "mean_queries": q}
-    entries = [entry("bc", "", 0.1, 100), entry("dagger", "1", 0.6, 600), entry("dagger", "3", 1.0, 1400),
-               entry("dagger-random", "0.05", 0.5, 300), entry("dagger-random", "0.5", 0.9, 900),
-               entry("dagger-novelty", "0.95", 0.95, 250), entry("dagger-novelty", "0.5", 1.0, 700), entry("mdm-dm", "", 0.7, 100)]
-    write_json(layout.benchmark_summary, {"entries": entries, "meta_training_queries": {"pistar": 5000, "pairs": 20000}})
+
+    def entry(m, s, rate, q):
+        return {
+            "method": m,
+            "setting": s,
+            "seeds": 10,
+            "successes": int(10 * rate),
+            "success_rate": rate,
+            "success_ci_low": 0.0,
+            "success_ci_high": 1.0,
+            "mean_reward": 0.0,
+            "mean_queries": q,
+        }
+
+    entries = [
+        entry("bc", "", 0.1, 100),
+        entry("dagger", "1", 0.6, 600),
+        entry("dagger", "3", 1.0, 1400),
+        entry("dagger-random", "0.05", 0.5, 300),
+        entry("dagger-random", "0.5", 0.9, 900),
+        entry("dagger-novelty", "0.95", 0.95, 250),
+        entry("dagger-novelty", "0.5", 1.0, 700),
+        entry("mdm-dm", "", 0.7, 100),
+    ]
+    write_json(
+        layout.benchmark_summary, {"entries": entries, "meta_training_queries": {"pistar": 5000, "pairs": 20000}}
+    )
     lines = benchmark_section(layout)
     assert "| DAgger, random gate | 0.5 | 90.0% | 900.0 |" in lines  # 90% of 100%: 0.05 falls short
     assert "| DAgger, novelty gate | 0.95 | 95.0% | 250.0 |" in lines  # the cheaper of two that reach it
@@ -200,31 +288,52 @@ def _entry(method: str, setting: str, rate: float, queries: float, seeds: int = 
     from metadagger.imitation.metrics import wilson_interval
 
     low, high = wilson_interval(round(seeds * rate), seeds)
-    return {"method": method, "setting": setting, "seeds": seeds, "successes": round(seeds * rate), "success_rate": rate,
-            "success_ci_low": low, "success_ci_high": high, "mean_reward": 0.0, "mean_queries": queries}
+    return {
+        "method": method,
+        "setting": setting,
+        "seeds": seeds,
+        "successes": round(seeds * rate),
+        "success_rate": rate,
+        "success_ci_low": low,
+        "success_ci_high": high,
+        "mean_reward": 0.0,
+        "mean_queries": queries,
+    }
 
 
 def _section(tmp_path, entries: list[dict]) -> list[str]:
     from metadagger.utils.io import write_json
 
     layout = RunLayout(tmp_path)
-    write_json(layout.benchmark_summary, {"entries": entries, "meta_training_queries": {"pistar": 5000, "pairs": 20000}})
+    write_json(
+        layout.benchmark_summary, {"entries": entries, "meta_training_queries": {"pistar": 5000, "pairs": 20000}}
+    )
     return benchmark_section(layout)
 
 
 def test_only_a_method_that_succeeds_as_often_as_dagger_repays_meta_training(tmp_path):
-    lines = _section(tmp_path / "a", [
-        _entry("dagger", "1", 0.5, 600), _entry("dagger", "3", 0.8, 1400), _entry("mdm-dm", "", 0.8, 100),
-        _entry("mdm-ridge", "", 0.9, 150), _entry("mdm-sam", "", 0.7, 100), _entry("mdm-mean-da", "", 0.0, 100),
-        _entry("mdm-tam", "", 1.0, 1500)])
+    lines = _section(
+        tmp_path / "a",
+        [
+            _entry("dagger", "1", 0.5, 600),
+            _entry("dagger", "3", 0.8, 1400),
+            _entry("mdm-dm", "", 0.8, 100),
+            _entry("mdm-ridge", "", 0.9, 150),
+            _entry("mdm-sam", "", 0.7, 100),
+            _entry("mdm-mean-da", "", 0.0, 100),
+            _entry("mdm-tam", "", 1.0, 1500),
+        ],
+    )
     assert "| MDM DM | 80.0% | 1300.0 | 20 |" in lines  # as often as DAgger: 25000 / 1300 -> 20 seeds
     assert "| MDM Ridge | 90.0% | 1250.0 | 20 |" in lines
     assert "| MDM SAM | 70.0% | 1300.0 | never (success below DAgger's 80.0%) |" in lines
     assert "| MDM mean-DA (control) | 0.0% | 1300.0 | never (success 0%) |" in lines
     assert "| MDM TAM | 100.0% | -100.0 | never (no queries saved) |" in lines
     text = "\n".join(lines)
-    assert ("Against DAgger after 3 rounds (80.0% success, 1400.0 queries per seed). A method repays meta-training only if "
-            "it succeeds, at least as often as DAgger, with fewer queries") in text
+    assert (
+        "Against DAgger after 3 rounds (80.0% success, 1400.0 queries per seed). A method repays meta-training only if "
+        "it succeeds, at least as often as DAgger, with fewer queries"
+    ) in text
     # DAgger solving nothing: an MDM method solving nothing does not repay anything either
     lines = _section(tmp_path / "b", [_entry("dagger", "1", 0.0, 80), _entry("mdm-dm", "", 0.0, 40)])
     assert "| MDM DM | 0.0% | 40.0 | never (success 0%) |" in lines
@@ -242,12 +351,22 @@ def test_points_at_one_query_count_are_spread_and_ticked(monkeypatch):
     from metadagger.utils.plotting import plt
 
     mdm = ["mdm-dm", "mdm-sam", "mdm-tam", "mdm-ridge", "mdm-mean-da", "mdm-pistar-head"]
-    entries = [_entry("bc", "", 0.0, 40), *(_entry(m, "", 0.0, 40) for m in mdm), _entry("dagger", "1", 0.0, 80),
-               _entry("dagger-random", "0.5", 0.0, 56.5), _entry("dagger-ensemble", "0.5", 0.0, 60),
-               _entry("dagger-novelty", "0.5", 0.0, 60)]
+    entries = [
+        _entry("bc", "", 0.0, 40),
+        *(_entry(m, "", 0.0, 40) for m in mdm),
+        _entry("dagger", "1", 0.0, 80),
+        _entry("dagger-random", "0.5", 0.0, 56.5),
+        _entry("dagger-ensemble", "0.5", 0.0, 60),
+        _entry("dagger-novelty", "0.5", 0.0, 60),
+    ]
     fig = _figure(monkeypatch, {"entries": entries, "meta_training_queries": {}})
     ax = fig.axes[0]
-    assert list(ax.get_xticks()) == [40, 56.5, 60, 80] and [t.get_text() for t in ax.get_xticklabels()] == ["40", "56.5", "60", "80"]
+    assert list(ax.get_xticks()) == [40, 56.5, 60, 80] and [t.get_text() for t in ax.get_xticklabels()] == [
+        "40",
+        "56.5",
+        "60",
+        "80",
+    ]
     assert all(c.has_yerr for c in ax.containers) and len(ax.containers) == len(entries)
     xs = [x for c in ax.containers for x in c.lines[0].get_xdata()]
     assert len(set(xs)) == len(entries)  # no point hides another
@@ -259,7 +378,7 @@ def test_points_at_one_query_count_are_spread_and_ticked(monkeypatch):
 def test_query_ticks_and_dodge():
     assert bench.query_ticks([40.0, 41.0, 80.0]) == [40.0, 80.0]  # 41 would print over 40
     assert bench.query_ticks([10, 15, 23, 35, 52, 80, 120, 180, 270, 400]) == [10, 20, 50, 100, 200]
-    assert bench.dodge([40.0, 80.0, 40.0], 0.01) == [40.0 * 10 ** -0.005, 80.0, 40.0 * 10 ** 0.005]
+    assert bench.dodge([40.0, 80.0, 40.0], 0.01) == [40.0 * 10**-0.005, 80.0, 40.0 * 10**0.005]
 
 
 def test_every_wilson_interval_draws(tmp_path):
@@ -269,8 +388,19 @@ def test_every_wilson_interval_draws(tmp_path):
     for n in range(1, 201):
         for method, k in (("bc", 0), ("dagger", 1), ("dagger-random", n // 2), ("dagger-safe", n - 1), ("mdm-dm", n)):
             low, high = wilson_interval(k, n)
-            entries.append({"method": method, "setting": str(n), "seeds": n, "successes": k, "success_rate": k / n,
-                            "success_ci_low": low, "success_ci_high": high, "mean_reward": 0.0, "mean_queries": float(n)})
+            entries.append(
+                {
+                    "method": method,
+                    "setting": str(n),
+                    "seeds": n,
+                    "successes": k,
+                    "success_rate": k / n,
+                    "success_ci_low": low,
+                    "success_ci_high": high,
+                    "mean_reward": 0.0,
+                    "mean_queries": float(n),
+                }
+            )
     path = bench.plot_queries({"entries": entries, "meta_training_queries": {}}, tmp_path / "queries.png")
     assert path.read_bytes()[:4] == b"\x89PNG"
 
@@ -285,8 +415,9 @@ def test_a_failing_figure_keeps_the_rows_and_the_summary(toy_run, rows, tmp_path
     assert layout.benchmark_table.read_bytes() == toy_run.benchmark_table.read_bytes()
     assert layout.benchmark_summary.read_bytes() == toy_run.benchmark_summary.read_bytes()
     assert not layout.benchmark_figure.exists()
-    assert capsys.readouterr().err.splitlines()[-1] == (f"warning: figure {layout.benchmark_figure} was not drawn "
-                                                         "(ZeroDivisionError: division by zero)")
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        f"warning: figure {layout.benchmark_figure} was not drawn (ZeroDivisionError: division by zero)"
+    )
 
 
 def test_a_failing_figure_is_a_line_in_the_report_section(tmp_path, monkeypatch):
@@ -308,14 +439,19 @@ def test_controls_sit_at_a_zero_tick_and_shorter_demonstrations_are_named(toy_ru
     labels = [t.get_text() for t in ax.get_xticklabels()]
     assert labels[0] == "0" and ax.get_xticks()[0] < ax.get_xticks()[1]
     plt.close(fig)
-    assert "| BC | 50% of the demonstration |" in text and "| DAgger, random gate | 0.5, 50% of the demonstration |" in text
+    assert (
+        "| BC | 50% of the demonstration |" in text
+        and "| DAgger, random gate | 0.5, 50% of the demonstration |" in text
+    )
     half = next(e for e in summary["entries"] if e["method"] == "bc" and e["demo_fraction"] == 0.5)
     assert half["seeds"] == len(SEEDS)
 
 
 def test_demo_fractions_are_checked():
     for bad in ((0.5,), (0.0, 1.0), (0.5, 0.5, 1.0), (1.5, 1.0)):
-        with pytest.raises(UserError, match=r"benchmark.demo_fractions must be distinct shares in \(0, 1\] with 1 among them"):
+        with pytest.raises(
+            UserError, match=r"benchmark.demo_fractions must be distinct shares in \(0, 1\] with 1 among them"
+        ):
             dataclasses.replace(CONFIG, demo_fractions=bad)
 
 
@@ -329,7 +465,9 @@ def test_a_demonstration_share_is_its_first_steps():
         part = demonstration_share(demo, fraction)
         n = max(1, math.ceil(fraction * demo.steps))
         assert part.steps == part.expert_queries == len(part.obs) == len(part.expert_labels) == n
-        assert (part.obs == demo.obs[:n]).all() and (part.final_obs == demo.obs[n]).all() and part.success == demo.success
+        assert (
+            (part.obs == demo.obs[:n]).all() and (part.final_obs == demo.obs[n]).all() and part.success == demo.success
+        )
         assert part.reward == pytest.approx(float(demo.step_rewards[:n].sum()))
     with pytest.raises(ValueError, match="a demonstration share must be in"):
         demonstration_share(demo, 0.0)

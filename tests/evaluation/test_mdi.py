@@ -19,18 +19,22 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import collect, rollout
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.metal.method import seed_context
 from metadagger.pipeline.run_config import init_run, load_run
 from metadagger.policies import load_policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import load_tensors
 
-GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+GT = GroundTruthConfig(
+    seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
+)
 # 1-D displacements: the cosine distance per step is 0 (same sign), 1 (one is zero) or 2 (opposite)
 CONFIG = MDIConfig(
-    seeds=(300, 301, 302), early_stop=6.0, mapper="pistar-head",
+    seeds=(300, 301, 302),
+    early_stop=6.0,
+    mapper="pistar-head",
     bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
     dagger_bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
 )
@@ -63,8 +67,7 @@ def toy_run(tmp_path_factory) -> tuple[Path, Path]:
 @pytest.fixture(scope="module")
 def evaluated(toy_run) -> tuple[Path, list[dict]]:
     run, mapper = toy_run
-    rows = evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), CONFIG,
-                        StageOptions(workers=1, progress=False))
+    rows = evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), CONFIG, StageOptions(workers=1, progress=False))
     return run, rows
 
 
@@ -73,7 +76,9 @@ def test_rows_cover_every_method_and_seed_with_all_fields(evaluated):
     assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in METHODS]
     assert all(set(r) == set(MDI_FIELDS) for r in rows)
     csv_rows = read_csv(run / "eval" / "mdi.csv")
-    assert [(r["method"], r["seed"], r["one_shot_success"]) for r in csv_rows] == [(r["method"], r["seed"], r["one_shot_success"]) for r in rows]
+    assert [(r["method"], r["seed"], r["one_shot_success"]) for r in csv_rows] == [
+        (r["method"], r["seed"], r["one_shot_success"]) for r in rows
+    ]
 
 
 def test_two_shot_runs_only_after_a_failed_one_shot(evaluated):
@@ -141,7 +146,9 @@ def test_dagger_round_refits_from_the_configured_start(evaluated, dagger_init, t
     demo = collect(task, [seed], policy=None)[0].to_dataset()
     oneshot = load_tensors(head_dir(run, "dagger", "oneshot") / f"{seed}.safetensors")["head"]
     policy.load_head_vector(oneshot)
-    first = collect(task, [seed], policy=policy, early_stop_factory=lambda: CosineEarlyStop(threshold=CONFIG.early_stop))[0]
+    first = collect(
+        task, [seed], policy=policy, early_stop_factory=lambda: CosineEarlyStop(threshold=CONFIG.early_stop)
+    )[0]
     if dagger_init == "saved":  # Table 6 step 8 for DAgger: a Xavier head again
         policy = head_from_groundtruth(load_policy(groundtruth_path(run)), seed)
     fit_bc(policy, demo.concat(first.to_dataset()), dataclasses.replace(CONFIG.dagger_bc, seed=seed))
@@ -174,7 +181,12 @@ def test_report_section_renders_from_the_csv_alone(evaluated, tmp_path):
 
 def test_discrete_task_has_no_cosine_distances_and_no_figure(tmp_path):
     task = CorridorTask(discrete=True)
-    train_groundtruth(task, GroundTruthConfig(**{**GT.__dict__, "seeds": (0, 1), "dagger_rounds": 0}), RunLayout(tmp_path), progress=False)
+    train_groundtruth(
+        task,
+        GroundTruthConfig(**{**GT.__dict__, "seeds": (0, 1), "dagger_rounds": 0}),
+        RunLayout(tmp_path),
+        progress=False,
+    )
     mapper = RunLayout(tmp_path).mapper("pistar-head")
     Mapper.pistar_head(load_policy(groundtruth_path(tmp_path)).head_vector()).save(mapper)
     config = MDIConfig(**{**CONFIG.__dict__, "seeds": (300,), "early_stop": None})
@@ -189,8 +201,18 @@ def test_table7_counts_and_wilson_intervals(tmp_path):
     rows = []
     for seed, (one, two) in enumerate([(True, True), (False, True), (False, False), (False, False)]):
         for method in METHODS:
-            rows.append({"method": method, "seed": seed, "one_shot_success": one, "two_shot_success": two,
-                         "two_shot_run": not one, "expert_queries": 50 + (0 if one else 20), "cosine_total": None, "cosine_per_action": None})
+            rows.append(
+                {
+                    "method": method,
+                    "seed": seed,
+                    "one_shot_success": one,
+                    "two_shot_success": two,
+                    "two_shot_run": not one,
+                    "expert_queries": 50 + (0 if one else 20),
+                    "cosine_total": None,
+                    "cosine_per_action": None,
+                }
+            )
     write_csv(tmp_path / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
     lines = mdi_section(RunLayout(tmp_path))
     # 1/4 -> Wilson 4.6%-69.9%, 2/4 -> 15.0%-85.0%; queries (50 + 3 * 70) / 4 = 65
@@ -201,9 +223,19 @@ def test_table7_counts_and_wilson_intervals(tmp_path):
 
 def test_fig5_counts_the_seeds_where_dagger_mdi_is_closer(tmp_path):
     totals = {"dagger-mdi": [1.0, 5.0, 2.0], "dagger-bc": [3.0, 4.0, 6.0], "dagger": [0.5, 9.0, 2.0]}
-    rows = [{"method": m, "seed": seed, "one_shot_success": False, "two_shot_success": False, "expert_queries": 60,
-             "cosine_total": totals[m][seed], "cosine_per_action": totals[m][seed] / 10}
-            for seed in range(3) for m in METHODS]
+    rows = [
+        {
+            "method": m,
+            "seed": seed,
+            "one_shot_success": False,
+            "two_shot_success": False,
+            "expert_queries": 60,
+            "cosine_total": totals[m][seed],
+            "cosine_per_action": totals[m][seed] / 10,
+        }
+        for seed in range(3)
+        for m in METHODS
+    ]
     write_csv(tmp_path / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
     lines = mdi_section(RunLayout(tmp_path))
     assert "| DAgger-BC | 3 | 2/3 | 2/3 |" in lines
@@ -252,7 +284,9 @@ def test_rows_of_a_changed_mapper_are_refused_then_rebuilt(toy_run, evaluated, t
     layout = RunLayout(tmp_path)
     task = CorridorTask(discrete=False)
     evaluate_mdi(task, layout, CONFIG, StageOptions(workers=1, progress=False))
-    Mapper.pistar_head(torch.zeros_like(load_policy(layout.groundtruth).head_vector())).save(layout.mapper("pistar-head"))
+    Mapper.pistar_head(torch.zeros_like(load_policy(layout.groundtruth).head_vector())).save(
+        layout.mapper("pistar-head")
+    )
     with pytest.raises(UserError, match="'dagger-mdi'.*mapper: changed.*--rebuild"):
         evaluate_mdi(task, layout, CONFIG, StageOptions(workers=1, progress=False))
     before = {(r["method"], r["seed"]): r for r in read_csv(layout.eval_table("mdi"))}
@@ -309,14 +343,20 @@ def test_a_conditioned_initialiser_reads_the_seed_context(toy_run, tmp_path):
     pistar = load_policy(layout.groundtruth)
     mapper = random_conditioned_mapper(pistar, layout.mapper_dir("conditioned"))
     config = dataclasses.replace(CONFIG, controls=("conditioned",))
-    evaluate_mdi(CorridorTask(discrete=False), layout, config, StageOptions(workers=1, progress=False), context_early_stop=3.0)
+    evaluate_mdi(
+        CorridorTask(discrete=False), layout, config, StageOptions(workers=1, progress=False), context_early_stop=3.0
+    )
     seed = CONFIG.seeds[0]
     policy = head_from_groundtruth(pistar, CONFIG.bc.head_init_seed(seed))
     demo = collect(CorridorTask(discrete=False), [seed], policy=None)[0].to_dataset()
     cache, bc = FeatureCache(policy), dataclasses.replace(CONFIG.bc, seed=seed)
     fit_bc(policy, demo, bc, cache=cache)
-    unlabelled = rollout(CorridorTask(discrete=False).make_env(), seed=seed, policy=policy, early_stop=CosineEarlyStop(threshold=3.0))
-    policy.load_head_vector(torch.from_numpy(mapper(policy.head_vector().numpy(), seed_context(cache, demo.obs, unlabelled.obs))))
+    unlabelled = rollout(
+        CorridorTask(discrete=False).make_env(), seed=seed, policy=policy, early_stop=CosineEarlyStop(threshold=3.0)
+    )
+    policy.load_head_vector(
+        torch.from_numpy(mapper(policy.head_vector().numpy(), seed_context(cache, demo.obs, unlabelled.obs)))
+    )
     fit_bc(policy, demo, bc, cache=cache)
     saved = load_tensors(head_dir(tmp_path, "dagger-mdi-conditioned", "oneshot") / f"{seed}.safetensors")["head"]
     assert torch.equal(saved, policy.head_vector())

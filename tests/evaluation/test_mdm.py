@@ -17,14 +17,16 @@ from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.rollouts import collect, rollout
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.metal.method import seed_context
 from metadagger.policies import load_policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import load_tensors
 
-GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+GT = GroundTruthConfig(
+    seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
+)
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
 SEEDS = (300, 301, 302)
 
@@ -47,8 +49,13 @@ def _copy(layout: RunLayout, to: Path) -> RunLayout:
 
 
 def _evaluate(layout: RunLayout, seeds, methods, **kwargs) -> list[dict]:
-    return evaluate_run(CorridorTask(), layout, EvalConfig(seeds=tuple(seeds), methods=tuple(methods)), bc=BC,
-                        options=StageOptions(workers=1, progress=False, **kwargs))
+    return evaluate_run(
+        CorridorTask(),
+        layout,
+        EvalConfig(seeds=tuple(seeds), methods=tuple(methods)),
+        bc=BC,
+        options=StageOptions(workers=1, progress=False, **kwargs),
+    )
 
 
 def test_rows_heads_and_one_shot(toy_run, tmp_path):
@@ -66,7 +73,9 @@ def test_rows_heads_and_one_shot(toy_run, tmp_path):
             assert (layout.heads(method) / f"{seed}.safetensors").is_file()
     # the BC row's head is the seed's Xavier head fitted on its demonstration
     policy = head_from_groundtruth(load_policy(layout.groundtruth), SEEDS[0])
-    fit_bc(policy, collect(CorridorTask(), SEEDS[:1], policy=None)[0].to_dataset(), dataclasses.replace(BC, seed=SEEDS[0]))
+    fit_bc(
+        policy, collect(CorridorTask(), SEEDS[:1], policy=None)[0].to_dataset(), dataclasses.replace(BC, seed=SEEDS[0])
+    )
     assert torch.equal(load_tensors(layout.heads("bc") / f"{SEEDS[0]}.safetensors")["head"], policy.head_vector())
     mdm = read_csv(layout.eval_table("mdm"))
     assert [(r["method"], r["seed"]) for r in mdm] == [(m, s) for s in SEEDS for m in ("bc", "pistar-head", "mean-da")]
@@ -80,7 +89,8 @@ def test_widening_methods_and_seeds_adds_exactly_the_missing_rows(toy_run, tmp_p
     first = (layout.heads("pistar-head") / f"{SEEDS[0]}.safetensors").stat().st_mtime_ns
     rows = _evaluate(layout, SEEDS[:2], ("pistar-head", "mean-da"))
     assert sorted((r["method"], r["seed"]) for r in rows if not r["method"].startswith("oneshot-")) == sorted(
-        (m, s) for s in SEEDS[:2] for m in ("bc", "pistar-head", "mean-da"))
+        (m, s) for s in SEEDS[:2] for m in ("bc", "pistar-head", "mean-da")
+    )
     assert (layout.heads("pistar-head") / f"{SEEDS[0]}.safetensors").stat().st_mtime_ns == first  # not redone
     # the same rows as a run that evaluated everything at once
     full = _copy(toy_run, tmp_path / "full")
@@ -121,7 +131,9 @@ def test_a_conditioned_mapper_reads_the_seed_context_from_the_bc_rollout(toy_run
         w = policy.head_vector().numpy().copy()
         unlabelled = rollout(CorridorTask().make_env(), seed=seed, policy=policy)
         expected = mapper(w, seed_context(cache, demo.obs, unlabelled.obs))
-        assert torch.equal(load_tensors(layout.heads("conditioned") / f"{seed}.safetensors")["head"], torch.from_numpy(expected))
+        assert torch.equal(
+            load_tensors(layout.heads("conditioned") / f"{seed}.safetensors")["head"], torch.from_numpy(expected)
+        )
         assert table["conditioned", seed]["unlabelled_steps"] == unlabelled.steps == table["bc", seed]["steps"]
         assert table["conditioned", seed]["expert_queries"] == len(demo)
     assert "unlabelled_steps" in read_csv(layout.eval_table("mdm"))[0]

@@ -15,7 +15,9 @@ def test_counts_difference_exact_test_and_probability_of_improvement():
     assert c["p_value"] == pytest.approx(0.5)  # both discordant seeds for A: 2 * 0.5**2
     assert c["p_improvement"] == pytest.approx((3 + 0.5) / 5)  # A's reward higher on 3 seeds, a tie on one
     assert c["ci_low"] <= c["difference"] <= c["ci_high"]
-    assert c == paired_comparison([1, 1, 0, 1, 1], [0, 1, 0, 1, 0], [5.0, 2.0, 1.0, 3.0, 9.0], [1.0, 2.0, 0.0, 4.0, 1.0])
+    assert c == paired_comparison(
+        [1, 1, 0, 1, 1], [0, 1, 0, 1, 0], [5.0, 2.0, 1.0, 3.0, 9.0], [1.0, 2.0, 0.0, 4.0, 1.0]
+    )
 
 
 def test_the_interval_decides_the_verdict():
@@ -41,19 +43,38 @@ def test_one_seed_and_bad_shapes():
 
 
 def _rows(method: str, setting: str, successes: list[int], queries: int) -> list[dict]:
-    return [{"method": method, "setting": setting, "demo_fraction": 1.0, "seed": seed, "success": bool(ok), "reward": float(ok),
-             "steps": 10, "expert_queries": queries} for seed, ok in enumerate(successes)]
+    return [
+        {
+            "method": method,
+            "setting": setting,
+            "demo_fraction": 1.0,
+            "seed": seed,
+            "success": bool(ok),
+            "reward": float(ok),
+            "steps": 10,
+            "expert_queries": queries,
+        }
+        for seed, ok in enumerate(successes)
+    ]
 
 
 def test_the_summary_compares_every_method_with_each_control_and_the_best_gate():
-    rows = (_rows("bc", "", [0, 0, 1, 0], 10) + _rows("mdm-dm", "", [1, 1, 1, 0], 10) + _rows("mdm-mean-da", "", [1, 0, 1, 0], 10)
-            + _rows("mdm-pistar-head", "", [0, 1, 1, 0], 10) + _rows("dagger-random", "0.5", [1, 1, 1, 1], 40)
-            + _rows("dagger-random", "0.05", [1, 1, 1, 1], 15) + _rows("dagger-novelty", "0.5", [1, 1, 0, 1], 12))
+    rows = (
+        _rows("bc", "", [0, 0, 1, 0], 10)
+        + _rows("mdm-dm", "", [1, 1, 1, 0], 10)
+        + _rows("mdm-mean-da", "", [1, 0, 1, 0], 10)
+        + _rows("mdm-pistar-head", "", [0, 1, 1, 0], 10)
+        + _rows("dagger-random", "0.5", [1, 1, 1, 1], 40)
+        + _rows("dagger-random", "0.05", [1, 1, 1, 1], 15)
+        + _rows("dagger-novelty", "0.5", [1, 1, 0, 1], 12)
+    )
     summary = summarize_benchmark(rows, {"pistar": 1, "pairs": 2})
     # the best gate: the highest success, then the fewest queries
-    assert summary["references"] == [{"method": "mdm-mean-da", "setting": "", "demo_fraction": 1.0},
-                                     {"method": "mdm-pistar-head", "setting": "", "demo_fraction": 1.0},
-                                     {"method": "dagger-random", "setting": "0.05", "demo_fraction": 1.0}]
+    assert summary["references"] == [
+        {"method": "mdm-mean-da", "setting": "", "demo_fraction": 1.0},
+        {"method": "mdm-pistar-head", "setting": "", "demo_fraction": 1.0},
+        {"method": "dagger-random", "setting": "0.05", "demo_fraction": 1.0},
+    ]
     pairs = {(c["method"], c["setting"], c["against"], c["against_setting"]): c for c in summary["comparisons"]}
     assert len(pairs) == 3 * 7 - 3  # every entry against every reference but itself
     assert ("mdm-mean-da", "", "mdm-mean-da", "") not in pairs

@@ -23,7 +23,11 @@ def run(tmp_path) -> RunLayout:
     write_text(layout.config, "task: carracing\npreset: quick\n")
     rows = []
     for seed, (bc, dm, ctl) in enumerate([(False, True, True), (False, False, True), (True, True, True)]):
-        rows += [_row("bc", seed, bc, 100.0 + seed), _row("dm", seed, dm, 500.0 + 100 * seed), _row("pistar-head", seed, ctl, 900.0)]
+        rows += [
+            _row("bc", seed, bc, 100.0 + seed),
+            _row("dm", seed, dm, 500.0 + 100 * seed),
+            _row("pistar-head", seed, ctl, 900.0),
+        ]
     write_csv(layout.eval_table("mdm"), rows)
     write_csv(layout.eval_table("oneshot"), [_row("oneshot-dm", 1, True, 800.0)])
     write_csv(layout.mapper_curves("dm"), [_curve("dm", 1, 3.0), _curve("dm", 2, 2.0)], fields=CURVE_COLUMNS)
@@ -32,8 +36,14 @@ def run(tmp_path) -> RunLayout:
 
 
 def _curve(kind: str, epoch: int, val: float, losses: bool = True) -> dict:
-    return {"model": kind, "epoch": epoch, "train_loss": 0.5 if losses else "", "val_loss": 0.6 if losses else "",
-            "train_mse_weights": 0.4, "val_mse_weights": val}
+    return {
+        "model": kind,
+        "epoch": epoch,
+        "train_loss": 0.5 if losses else "",
+        "val_loss": 0.6 if losses else "",
+        "train_mse_weights": 0.4,
+        "val_mse_weights": val,
+    }
 
 
 def test_sections_tables_and_figures(run):
@@ -67,23 +77,47 @@ def test_an_empty_folder_is_no_run(tmp_path):
 def test_groundtruth_and_pairs_sections(tmp_path):
     layout = RunLayout(tmp_path)
     write_text(layout.config, "task: fetch\npreset: ci\n")
-    stats = {"episodes": 10, "successes": 8, "success_rate": 0.8, "success_ci_low": 0.49, "success_ci_high": 0.94,
-             "mean_reward": 1.0, "mean_steps": 30.0}
+    stats = {
+        "episodes": 10,
+        "successes": 8,
+        "success_rate": 0.8,
+        "success_ci_low": 0.49,
+        "success_ci_high": 0.94,
+        "mean_reward": 1.0,
+        "mean_steps": 30.0,
+    }
     write_json(layout.groundtruth_metrics, {"own_seeds": stats, "unseen_seeds": stats, "expert_queries": 1234})
     names = ("bc_ok/da_ok", "bc_ok/da_fail", "bc_fail/da_ok", "bc_fail/da_fail")
-    write_json(layout.pairs_summary, {"seeds": 4, "kept": 2, "outcomes": dict(zip(names, (1, 1, 2, 0))),
-                                      "shares": dict(zip(names, (0.25, 0.25, 0.5, 0.0)))})
+    write_json(
+        layout.pairs_summary,
+        {
+            "seeds": 4,
+            "kept": 2,
+            "outcomes": dict(zip(names, (1, 1, 2, 0))),
+            "shares": dict(zip(names, (0.25, 0.25, 0.5, 0.0))),
+        },
+    )
     text = build_report(layout).read_text()
-    assert "| unseen seeds | 8/10 | 80.0% | 49.0%-94.0% | 1.0 | 30 |" in text and "Expert queries spent on pi*: 1234." in text
+    assert (
+        "| unseen seeds | 8/10 | 80.0% | 49.0%-94.0% | 1.0 | 30 |" in text
+        and "Expert queries spent on pi*: 1234." in text
+    )
     assert "4 seeds, 2 pairs kept." in text and "| bc fail, da ok | 2 | 50.0% |" in text
 
 
 def test_a_kind_with_a_context_reports_its_unlabelled_rollout(run):
-    rows = [_row("bc", 0, False, 100.0), {**_row("conditioned", 0, True, 900.0), "unlabelled_steps": 300},
-            _row("bc", 1, False, 100.0), {**_row("conditioned", 1, False, 200.0), "unlabelled_steps": 500}]
+    rows = [
+        _row("bc", 0, False, 100.0),
+        {**_row("conditioned", 0, True, 900.0), "unlabelled_steps": 300},
+        _row("bc", 1, False, 100.0),
+        {**_row("conditioned", 1, False, 200.0), "unlabelled_steps": 500},
+    ]
     write_csv(run.eval_table("mdm"), rows, fields=tuple(rows[1]))
     text = build_report(run).read_text()
-    assert "Conditioned also read the seed's context: one rollout of the BC head, never labelled, 400 env steps per seed" in text
+    assert (
+        "Conditioned also read the seed's context: one rollout of the BC head, never labelled, 400 env steps per seed"
+        in text
+    )
     assert "BC also read" not in text
 
 
@@ -92,8 +126,10 @@ def test_a_closed_form_kind_and_a_control_have_no_curve(run):
     write_csv(run.mapper_curves("pistar-head"), [_curve("pistar-head", 0, 2.4, losses=False)], fields=CURVE_COLUMNS)
     text = build_report(run).read_text()
     assert "![DM learning curves](figures/curves_dm.png)" in text and (run.figures / "curves_dm.png").is_file()
-    assert ("Ridge is fitted in closed form; mean-DA (control), pi*-head (control) are constants: one point each, so no "
-            "learning curve (their errors are in the table above).") in text
+    assert (
+        "Ridge is fitted in closed form; mean-DA (control), pi*-head (control) are constants: one point each, so no "
+        "learning curve (their errors are in the table above)."
+    ) in text
     assert not any((run.figures / f"curves_{kind}.png").exists() for kind in ("ridge", "mean-da", "pistar-head"))
 
 
@@ -105,12 +141,16 @@ def test_a_single_point_is_a_note_not_a_dot(run, tmp_path, monkeypatch):
     drawn, notes = [], []
     plot, text = Axes.plot, Axes.text
     monkeypatch.setattr(Axes, "plot", lambda self, *a, **k: drawn.append(self.get_title()) or plot(self, *a, **k))
-    monkeypatch.setattr(Axes, "text", lambda self, x, y, s, **k: notes.append((self.get_title(), s)) or text(self, x, y, s, **k))
+    monkeypatch.setattr(
+        Axes, "text", lambda self, x, y, s, **k: notes.append((self.get_title(), s)) or text(self, x, y, s, **k)
+    )
     write_csv(tmp_path / "ridge.csv", [_curve("ridge", 0, 1.8)], fields=CURVE_COLUMNS)
     assert plot_curves(tmp_path / "ridge.csv", tmp_path / "ridge.png").read_bytes()[:4] == b"\x89PNG"
     assert drawn == []
-    assert notes == [("ridge: one point, no curve", "MSE (standardised): train 0.5, validation 0.6"),
-                     ("whole mapping f: one point, no curve", "MSE (weight units): train 0.4, validation 1.8")]
+    assert notes == [
+        ("ridge: one point, no curve", "MSE (standardised): train 0.5, validation 0.6"),
+        ("whole mapping f: one point, no curve", "MSE (weight units): train 0.4, validation 1.8"),
+    ]
     plot_curves(run.mapper_curves("dm"), tmp_path / "dm.png")  # two epochs: curves
     assert drawn == ["dm", "dm", "whole mapping f", "whole mapping f"]
 
@@ -119,42 +159,78 @@ def _split_run(tmp_path, kept: int) -> RunLayout:
     layout = RunLayout(tmp_path)
     write_text(layout.config, "task: carracing\npreset: quick\npairs:\n  val_fraction: 0.25\nsplit_seed: 7\n")
     names = ("bc_ok/da_ok", "bc_ok/da_fail", "bc_fail/da_ok", "bc_fail/da_fail")
-    write_json(layout.pairs_summary, {"seeds": 10, "kept": kept, "outcomes": dict(zip(names, (0, 0, kept, 10 - kept))),
-                                      "shares": dict(zip(names, (0.0, 0.0, kept / 10, 1 - kept / 10)))})
+    write_json(
+        layout.pairs_summary,
+        {
+            "seeds": 10,
+            "kept": kept,
+            "outcomes": dict(zip(names, (0, 0, kept, 10 - kept))),
+            "shares": dict(zip(names, (0.0, 0.0, kept / 10, 1 - kept / 10))),
+        },
+    )
     return layout
 
 
 def test_the_pairs_section_states_the_train_validation_split(tmp_path):
     text = build_report(_split_run(tmp_path / "a", kept=10)).read_text()
-    assert ("Train/validation split: the mappers train on 7 of the 10 kept pairs and validate on 3 "
-            "(pairs.val_fraction 0.25, split_seed 7: a seeded permutation of the kept seeds).") in text
+    assert (
+        "Train/validation split: the mappers train on 7 of the 10 kept pairs and validate on 3 "
+        "(pairs.val_fraction 0.25, split_seed 7: a seeded permutation of the kept seeds)."
+    ) in text
     text = build_report(_split_run(tmp_path / "b", kept=1)).read_text()
-    assert "Train/validation split: 1 kept pairs are too few for a training set (pairs.val_fraction 0.25, split_seed 7)." in text
+    assert (
+        "Train/validation split: 1 kept pairs are too few for a training set (pairs.val_fraction 0.25, split_seed 7)."
+        in text
+    )
 
 
 def test_stage_wall_times_are_a_table_in_the_run_section(run):
     assert "## Run" not in build_report(run).read_text()  # no file: nothing shown
-    write_json(run.stage_times, {"benchmark": {"seconds": 4000.0, "finished": "2025-01-01T11:08:00+00:00"},
-                                  "groundtruth": {"seconds": 12.34, "finished": "2025-01-01T10:00:00+00:00"},
-                                  "pairs": {"seconds": 75.2, "finished": "2025-01-01T10:01:15+00:00"}})
+    write_json(
+        run.stage_times,
+        {
+            "benchmark": {"seconds": 4000.0, "finished": "2025-01-01T11:08:00+00:00"},
+            "groundtruth": {"seconds": 12.34, "finished": "2025-01-01T10:00:00+00:00"},
+            "pairs": {"seconds": 75.2, "finished": "2025-01-01T10:01:15+00:00"},
+        },
+    )
     text = build_report(run).read_text()
     assert text.index("## Run") < text.index("## Mappers")
-    assert "\n".join(["| stage | wall time | finished |", "|---|---|---|",
-                      "| groundtruth | 12.3 s | 2025-01-01T10:00:00+00:00 |",
-                      "| pairs | 1 min 15 s | 2025-01-01T10:01:15+00:00 |",
-                      "| benchmark | 1 h 07 min | 2025-01-01T11:08:00+00:00 |",
-                      "| all stages | 1 h 08 min |  |"]) in text
+    assert (
+        "\n".join(
+            [
+                "| stage | wall time | finished |",
+                "|---|---|---|",
+                "| groundtruth | 12.3 s | 2025-01-01T10:00:00+00:00 |",
+                "| pairs | 1 min 15 s | 2025-01-01T10:01:15+00:00 |",
+                "| benchmark | 1 h 07 min | 2025-01-01T11:08:00+00:00 |",
+                "| all stages | 1 h 08 min |  |",
+            ]
+        )
+        in text
+    )
     # a stage called twice (resumed): its sum over all calls beside its last call
-    write_json(run.stage_times, {"pairs": {"seconds": 30.0, "total_seconds": 90.0, "finished": "2025-01-01T10:01:15+00:00"}})
+    write_json(
+        run.stage_times, {"pairs": {"seconds": 30.0, "total_seconds": 90.0, "finished": "2025-01-01T10:01:15+00:00"}}
+    )
     assert "| pairs | 30.0 s | 1 min 30 s | 2025-01-01T10:01:15+00:00 |" in build_report(run).read_text()
 
 
-@pytest.mark.parametrize("content, reason", [
-    ("{not json", "Expecting property name enclosed in double quotes: line 1 column 2 (char 1)"),
-    ("[1, 2]", "expected a JSON object of stages, got list"),
-    ('{"pairs": {"seconds": "fast", "finished": "today"}}', "stage 'pairs': seconds must be a number of seconds, got 'fast'"),
-    ('{"pairs": {"seconds": 3.0}}', "stage 'pairs': expected {\"seconds\": ..., \"finished\": \"...\"}, got {'seconds': 3.0}"),
-])
+@pytest.mark.parametrize(
+    "content, reason",
+    [
+        ("{not json", "Expecting property name enclosed in double quotes: line 1 column 2 (char 1)"),
+        ("[1, 2]", "expected a JSON object of stages, got list"),
+        (
+            '{"pairs": {"seconds": "fast", "finished": "today"}}',
+            "stage 'pairs': seconds must be a number of seconds, got 'fast'",
+        ),
+        (
+            '{"pairs": {"seconds": 3.0}}',
+            'stage \'pairs\': expected {"seconds": ..., "finished": "..."}, got {\'seconds\': 3.0}',
+        ),
+    ],
+)
 def test_a_malformed_stage_times_file_is_one_line(run, content, reason):
     write_text(run.stage_times, content)
     text = build_report(run).read_text()
@@ -173,11 +249,14 @@ def test_a_figure_that_fails_costs_only_itself(run, capsys, monkeypatch):
     monkeypatch.setattr(report_run, "plot_curves", broken)
     text = build_report(run).read_text()
     assert "| DM | 66.7% (2/3; 20.8%-93.9%) | 50.0% (1/2; 9.5%-90.5%) |" in text  # the tables are all there
-    assert "### Fig. 4: each method against BC (one point per seed; filled: the method succeeded)\n\n" \
-           "Figure `mdm_vs_bc.png` could not be drawn (RuntimeError: no ink).\n" in text
+    assert (
+        "### Fig. 4: each method against BC (one point per seed; filled: the method succeeded)\n\n"
+        "Figure `mdm_vs_bc.png` could not be drawn (RuntimeError: no ink).\n" in text
+    )
     assert "Figure `curves_dm.png` could not be drawn (RuntimeError: no ink)." in text
     assert "![MDM vs BC]" not in text and "![DM learning curves]" not in text
     assert capsys.readouterr().err.splitlines() == [
         f"warning: figure {run.figures / 'curves_dm.png'} was not drawn (RuntimeError: no ink)",
-        f"warning: figure {run.figures / FIGURE} was not drawn (RuntimeError: no ink)"]
+        f"warning: figure {run.figures / FIGURE} was not drawn (RuntimeError: no ink)",
+    ]
     assert plt.get_fignums() == []

@@ -25,15 +25,34 @@ runner = CliRunner()
 TASK = "corridor-tb"
 NAMESPACES = ("benchmark", "eval/mdi", "eval/mdm", "groundtruth", "mapper/dm", "mapper/sam", "pairs")
 # the tiny preset with a SAM (an autoencoder, then h), an mdi and a benchmark section, all cut short
-OVERRIDES = ("evaluate.methods=[dm, sam]", "mappers={dm: {epochs: 4}, sam: {epochs: 3, ae_epochs: 2}}",
-             "mdi={seeds: [500], dagger_bc: {lr: 0.01, batch_size: 10, epochs: 1, head_only: true}}",
-             "benchmark={seeds: [400], methods: [bc, mdm, dagger, dagger-random], grids: {dagger-random: [0.5]}}")
+OVERRIDES = (
+    "evaluate.methods=[dm, sam]",
+    "mappers={dm: {epochs: 4}, sam: {epochs: 3, ae_epochs: 2}}",
+    "mdi={seeds: [500], dagger_bc: {lr: 0.01, batch_size: 10, epochs: 1, head_only: true}}",
+    "benchmark={seeds: [400], methods: [bc, mdm, dagger, dagger-random], grids: {dagger-random: [0.5]}}",
+)
 
 
 def _reproduce(run: Path, presets: Path, *args: str) -> str:
     sets = [arg for item in OVERRIDES for arg in ("--set", item)]
-    result = runner.invoke(app, ["reproduce", "--task", TASK, "--presets", str(presets), "--preset", "tiny", "--out", str(run),
-                                 "--workers", "1", *sets, *args])
+    result = runner.invoke(
+        app,
+        [
+            "reproduce",
+            "--task",
+            TASK,
+            "--presets",
+            str(presets),
+            "--preset",
+            "tiny",
+            "--out",
+            str(run),
+            "--workers",
+            "1",
+            *sets,
+            *args,
+        ],
+    )
     assert result.exit_code == 0, result.output
     return result.output
 
@@ -115,9 +134,13 @@ def test_mapper_scalars_are_its_curves_autoencoders_included(run):
         for model in models:
             mine = [r for r in rows if r["model"] == model]
             for key in ("train_loss", "val_loss"):
-                assert scalars[f"mapper/{kind}/{model}/{key}"] == list(zip([r["epoch"] for r in mine], _f32(r[key] for r in mine)))
+                assert scalars[f"mapper/{kind}/{model}/{key}"] == list(
+                    zip([r["epoch"] for r in mine], _f32(r[key] for r in mine))
+                )
         last = [r for r in rows if r["val_mse_weights"] != ""]  # the whole mapping, after the last model's epochs
-        assert scalars[f"mapper/{kind}/val_mse_weights"] == list(zip([r["epoch"] for r in last], _f32(r["val_mse_weights"] for r in last)))
+        assert scalars[f"mapper/{kind}/val_mse_weights"] == list(
+            zip([r["epoch"] for r in last], _f32(r["val_mse_weights"] for r in last))
+        )
 
 
 def test_evaluation_scalars_equal_the_tables(run):
@@ -153,7 +176,9 @@ def test_success_against_queries_runs_from_the_fewest_queries(run, tmp_path):
     shutil.copytree(run.root, layout.root)
     summary = json.loads(layout.benchmark_summary.read_text())
     first = summary["entries"][0]
-    summary["entries"].insert(0, {**first, "mean_queries": first["mean_queries"] + 100})  # a costlier setting listed first
+    summary["entries"].insert(
+        0, {**first, "mean_queries": first["mean_queries"] + 100}
+    )  # a costlier setting listed first
     layout.benchmark_summary.write_text(json.dumps(summary))
     curves: dict[str, list[int]] = {}
     for tag, _, step in benchmark_scalars(layout):
@@ -176,7 +201,9 @@ def test_a_rerun_replaces_the_points_instead_of_adding_to_them(run, presets, tmp
 def test_off_by_default_writes_nothing_and_never_imports_tensorboard(run, presets, tmp_path, monkeypatch):
     layout = RunLayout(tmp_path / "run")
     shutil.copytree(run.root, layout.root, ignore=shutil.ignore_patterns("tb"))
-    layout.config.write_text(layout.config.read_text().replace("log: tensorboard\n", ""))  # as a run made before the key
+    layout.config.write_text(
+        layout.config.read_text().replace("log: tensorboard\n", "")
+    )  # as a run made before the key
     monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # any import of it now fails
     _reproduce(layout.root, presets)
     assert not layout.tb_dir.exists()
@@ -215,21 +242,40 @@ def test_groundtruth_scalars_carry_the_epoch_selection(tmp_path):
     layout = RunLayout(tmp_path)
     layout.groundtruth_dir.mkdir(parents=True)
     summary = {"episodes": 2, "successes": 1, "success_rate": 0.5}
-    choice = {"epoch": 4, "successes": 3, "episodes": 5, "history": [{"epoch": 4, "successes": 3, "episodes": 5},
-                                                                     {"epoch": 8, "successes": 2, "episodes": 5}]}
-    layout.groundtruth_metrics.write_text(json.dumps({"own_seeds": summary, "unseen_seeds": summary, "rounds": [],
-                                                      "bc_epoch_losses": [0.5] * 8, "expert_queries": 7, "bc_selection": choice}))
+    choice = {
+        "epoch": 4,
+        "successes": 3,
+        "episodes": 5,
+        "history": [{"epoch": 4, "successes": 3, "episodes": 5}, {"epoch": 8, "successes": 2, "episodes": 5}],
+    }
+    layout.groundtruth_metrics.write_text(
+        json.dumps(
+            {
+                "own_seeds": summary,
+                "unseen_seeds": summary,
+                "rounds": [],
+                "bc_epoch_losses": [0.5] * 8,
+                "expert_queries": 7,
+                "bc_selection": choice,
+            }
+        )
+    )
     scalars = groundtruth_scalars(layout)
-    assert [s for s in scalars if s[0].startswith("select/")] == [("select/successes", 3, 4), ("select/successes", 2, 8),
-                                                                  ("select/chosen_epoch", 4, 0)]
+    assert [s for s in scalars if s[0].startswith("select/")] == [
+        ("select/successes", 3, 4),
+        ("select/successes", 2, 8),
+        ("select/chosen_epoch", 4, 0),
+    ]
 
 
 def test_rows_from_a_share_of_the_demonstration_are_points_of_their_own(tmp_path):
     from metadagger.evaluation.tensorboard import table_scalars
 
     table = tmp_path / "queries.csv"
-    table.write_text("method,setting,demo_fraction,seed,success,expert_queries\n"
-                     "bc,,1.0,400,1,100\nbc,,0.5,400,0,50\nbc,,1.0,401,1,110\nbc,,0.5,401,0,55\n")
+    table.write_text(
+        "method,setting,demo_fraction,seed,success,expert_queries\n"
+        "bc,,1.0,400,1,100\nbc,,0.5,400,0,50\nbc,,1.0,401,1,110\nbc,,0.5,401,0,55\n"
+    )
     scalars: dict[str, list[tuple[int, float]]] = {}
     for tag, value, step in table_scalars(table):
         scalars.setdefault(tag, []).append((step, value))

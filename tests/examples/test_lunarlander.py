@@ -83,8 +83,19 @@ def test_the_task_is_pixels_with_the_heuristic_as_expert(task_class):
 
 def test_ci_preset_runs_every_stage(task_class, tmp_path):
     run = tmp_path / "run"
-    args = ["reproduce", "--task", "lunarlander", "--presets", str(EXAMPLE / "presets.yaml"), "--preset", "ci",
-            "--out", str(run), "--workers", "2"]
+    args = [
+        "reproduce",
+        "--task",
+        "lunarlander",
+        "--presets",
+        str(EXAMPLE / "presets.yaml"),
+        "--preset",
+        "ci",
+        "--out",
+        str(run),
+        "--workers",
+        "2",
+    ]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert (run / "groundtruth" / "policy.safetensors").is_file()

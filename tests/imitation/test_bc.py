@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from toy_task import TOY_ARCH
 from torch.nn.utils import parameters_to_vector
+from toy_task import TOY_ARCH
 
 from metadagger.errors import DivergedError, UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
@@ -103,8 +103,9 @@ def test_features_of_read_only_images_are_computed_from_a_copy(policy, demo):
 
 
 def test_fit_on_an_aggregate_equals_the_fit_on_its_concatenation(task, demo):
-    halves = Aggregate([Dataset(obs=demo.obs[:12], labels=demo.labels[:12]),
-                        Dataset(obs=demo.obs[12:], labels=demo.labels[12:])])
+    halves = Aggregate(
+        [Dataset(obs=demo.obs[:12], labels=demo.labels[:12]), Dataset(obs=demo.obs[12:], labels=demo.labels[12:])]
+    )
     heads = []
     for data in (demo, halves):
         policy = make_policy(task, seed=4, **TOY_ARCH)
@@ -126,9 +127,7 @@ def test_fit_rejects_mismatched_data_and_cache(policy, demo):
 
 
 def test_fit_rejects_labels_of_the_other_kind(policy, demo):
-    other = (
-        np.zeros((len(demo), 3), np.float32) if policy.discrete else np.zeros(len(demo), np.int64)
-    )
+    other = np.zeros((len(demo), 3), np.float32) if policy.discrete else np.zeros(len(demo), np.int64)
     with pytest.raises(UserError, match="dataset labels"):
         fit_bc(policy, Dataset(obs=demo.obs, labels=other), FAST)
 
@@ -211,8 +210,13 @@ def _reference_fit(policy, demo: Dataset, config: BCConfig) -> None:
                 loss_fn(policy.net(obs[batch]), labels[batch]).backward()
                 optimizer.step()
                 continue
-            shards = [(x, y) for x, y in zip(obs[batch].tensor_split(config.batch_shards),
-                                              labels[batch].tensor_split(config.batch_shards)) if len(x)]
+            shards = [
+                (x, y)
+                for x, y in zip(
+                    obs[batch].tensor_split(config.batch_shards), labels[batch].tensor_split(config.batch_shards)
+                )
+                if len(x)
+            ]
             grads = [torch.autograd.grad(loss_fn(policy.net(x), y, reduction="sum"), params) for x, y in shards]
             count = len(batch) if policy.discrete else labels[batch].numel()
             for i, param in enumerate(params):
@@ -235,7 +239,9 @@ def test_sharded_fit_adds_the_shards_gradients_in_order(task, demo, shards):
     plain = make_policy(task, seed=4, **TOY_ARCH)
     fit_bc(plain, demo, BCConfig(lr=3e-3, epochs=3, batch_size=16, seed=11))
     # the same step summed another way: close to the one-shard fit, not equal to it bit for bit
-    assert torch.allclose(parameters_to_vector(plain.net.parameters()), parameters_to_vector(fitted.net.parameters()), atol=1e-4)
+    assert torch.allclose(
+        parameters_to_vector(plain.net.parameters()), parameters_to_vector(fitted.net.parameters()), atol=1e-4
+    )
 
 
 _FIT_ON_CORES = """
@@ -252,16 +258,23 @@ from metadagger.policies import make_policy
 torch.set_num_threads(1)
 task = CorridorTask(discrete=True)
 policy = make_policy(task, seed=4, **TOY_ARCH)
-fit_bc(policy, collect(task, [0], policy=None)[0].to_dataset(), BCConfig(lr=3e-3, epochs=3, batch_size=16, batch_shards=2))
+demo = collect(task, [0], policy=None)[0].to_dataset()
+fit_bc(policy, demo, BCConfig(lr=3e-3, epochs=3, batch_size=16, batch_shards=2))
 print(hashlib.sha256(parameters_to_vector(policy.net.parameters()).detach().numpy().tobytes()).hexdigest())
 """
 
 
-@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs os.sched_setaffinity to confine a process to one core")
+@pytest.mark.skipif(
+    not hasattr(os, "sched_setaffinity"), reason="needs os.sched_setaffinity to confine a process to one core"
+)
 def test_sharded_fit_gives_the_same_weights_on_one_core_as_on_all():
     tests = str(Path(__file__).resolve().parents[1])
-    digests = [subprocess.run([sys.executable, "-c", _FIT_ON_CORES, cores, tests], capture_output=True, text=True, check=True).stdout
-               for cores in ("one", "all")]
+    digests = [
+        subprocess.run(
+            [sys.executable, "-c", _FIT_ON_CORES, cores, tests], capture_output=True, text=True, check=True
+        ).stdout
+        for cores in ("one", "all")
+    ]
     assert len(digests[0].strip()) == 64 and digests[0] == digests[1]
 
 
@@ -288,5 +301,7 @@ def test_a_diverging_fit_stops_with_one_line_naming_it_and_the_epoch(policy, dem
     if policy.discrete and head_only:
         pytest.skip("a head's cross-entropy saturates at a huge rate (zero gradients) rather than diverging")
     config = BCConfig(lr=1e36, epochs=5, batch_size=16, head_only=head_only)
-    with pytest.raises(DivergedError, match=r"the test fit diverged at epoch \d of 5 .*lower its learning rate \(now 1e\+36\)"):
+    with pytest.raises(
+        DivergedError, match=r"the test fit diverged at epoch \d of 5 .*lower its learning rate \(now 1e\+36\)"
+    ):
         fit_bc(policy, demo, config, what="the test fit")

@@ -27,7 +27,11 @@ def test_dagger_improves_over_bc_on_unseen_roads(discrete_task, discrete_demo):
 
     calls = []
     result = run_dagger(
-        policy, discrete_task, range(6), initial=discrete_demo, config=DAggerConfig(rounds=2, bc=FIT),
+        policy,
+        discrete_task,
+        range(6),
+        initial=discrete_demo,
+        config=DAggerConfig(rounds=2, bc=FIT),
         on_round=lambda i, p, m: calls.append((i, p is policy, m["dagger/dataset_size"])),
     )
     dagger_success = success_rate(discrete_task, policy, HELD_OUT)
@@ -59,7 +63,9 @@ def test_head_only_dagger_computes_each_image_once(discrete_task, discrete_demo)
     bc = BCConfig(lr=3e-3, epochs=2, head_only=True)
     cache = FeatureCache(policy)
     fit_bc(policy, discrete_demo, bc, cache=cache)
-    result = run_dagger(policy, discrete_task, [0, 1, 2], initial=discrete_demo, config=DAggerConfig(rounds=3, bc=bc), cache=cache)
+    result = run_dagger(
+        policy, discrete_task, [0, 1, 2], initial=discrete_demo, config=DAggerConfig(rounds=3, bc=bc), cache=cache
+    )
     distinct = len({image.tobytes() for image in result.dataset.obs})
     assert cache.computed == distinct < len(result.dataset)
 
@@ -69,7 +75,11 @@ def test_reset_each_round_refits_from_a_fresh_head(discrete_task, discrete_demo)
     policy = make_policy(discrete_task, seed=0, **TOY_ARCH)
     fit_bc(policy, discrete_demo, FIT)
     result = run_dagger(
-        policy, discrete_task, [0, 1], initial=discrete_demo, config=DAggerConfig(rounds=1, bc=bc, reset_each_round=True)
+        policy,
+        discrete_task,
+        [0, 1],
+        initial=discrete_demo,
+        config=DAggerConfig(rounds=1, bc=bc, reset_each_round=True),
     )
     # the same refit done by hand: the pre-DAgger weights, a head reset from bc.seed, one fit
     by_hand = make_policy(discrete_task, seed=0, **TOY_ARCH)
@@ -79,7 +89,9 @@ def test_reset_each_round_refits_from_a_fresh_head(discrete_task, discrete_demo)
     torch.testing.assert_close(policy.head_vector(), by_hand.head_vector())
 
 
-@pytest.mark.parametrize("kwargs,match", [({"rounds": 0}, "rounds must be an integer >= 1"), ({"bc": {}}, "bc must be a BCConfig")])
+@pytest.mark.parametrize(
+    "kwargs,match", [({"rounds": 0}, "rounds must be an integer >= 1"), ({"bc": {}}, "bc must be a BCConfig")]
+)
 def test_config_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
         DAggerConfig(**kwargs)

@@ -6,8 +6,21 @@ import pytest
 import torch
 
 from metadagger.errors import UserError
-from metadagger.imitation.gates import (GATES, ConformalGate, EnsembleGate, Episode, GateMemory, Labelled, NoveltyGate, RandomGate,
-                                       SafeGate, ThriftyGate, above_quantile, conformal_threshold, make_gate)
+from metadagger.imitation.gates import (
+    GATES,
+    ConformalGate,
+    EnsembleGate,
+    Episode,
+    GateMemory,
+    Labelled,
+    NoveltyGate,
+    RandomGate,
+    SafeGate,
+    ThriftyGate,
+    above_quantile,
+    conformal_threshold,
+    make_gate,
+)
 
 F = 32
 N_NEAR = N_FAR = 100
@@ -99,12 +112,16 @@ def test_quantile_rule_labels_the_top_share_of_distinct_scores():
         assert scores[mask].min() > scores[~mask].max()
     # ties at the threshold are left out: all-equal scores label nothing
     assert not above_quantile(torch.ones(50), 0.5).any()
-    assert torch.equal(above_quantile(torch.tensor([0.0, 1.0, 1.0, 1.0, 2.0]), 0.5), torch.tensor([False, False, False, False, True]))
+    assert torch.equal(
+        above_quantile(torch.tensor([0.0, 1.0, 1.0, 1.0, 2.0]), 0.5), torch.tensor([False, False, False, False, True])
+    )
 
 
 @both
 @pytest.mark.parametrize(
-    "gate", [EnsembleGate(quantile=0.5), NoveltyGate(quantile=0.5), NoveltyGate(quantile=0.5, k=3)], ids=["ensemble", "novelty", "novelty-k3"]
+    "gate",
+    [EnsembleGate(quantile=0.5), NoveltyGate(quantile=0.5), NoveltyGate(quantile=0.5, k=3)],
+    ids=["ensemble", "novelty", "novelty-k3"],
 )
 def test_uncertainty_gates_select_the_states_far_from_the_labelled_data(gate, discrete):
     features, learner, labelled = scene(discrete)
@@ -146,7 +163,11 @@ def test_thrifty_risk_is_higher_where_episodes_failed():
     g = gen(4)
     a, b = torch.randn(2, F, generator=g)
     near = lambda centre, n: centre + 0.3 * torch.randn(n, F, generator=g)  # noqa: E731
-    episodes = [Episode(near(a, 50), succeeded=True), Episode(near(b, 50), succeeded=False), Episode(near(a, 30), succeeded=True)]
+    episodes = [
+        Episode(near(a, 50), succeeded=True),
+        Episode(near(b, 50), succeeded=False),
+        Episode(near(a, 30), succeeded=True),
+    ]
     gate = ThriftyGate(rate=0.2)
     risk = gate.risk(torch.cat([near(a, 40), near(b, 40)]), episodes)
     assert risk[40:].min() > risk[:40].max()
@@ -209,7 +230,9 @@ def test_make_gate_maps_the_sweep_value_and_options():
 
 
 def test_bad_names_settings_and_options_are_user_errors():
-    with pytest.raises(UserError, match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty, thrifty, conformal"):
+    with pytest.raises(
+        UserError, match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty, thrifty, conformal"
+    ):
         make_gate("dropout", 0.5)
     with pytest.raises(UserError, match=r"RandomGate.p must be in \[0, 1\], got 1.5"):
         make_gate("random", 1.5)

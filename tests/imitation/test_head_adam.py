@@ -13,8 +13,15 @@ from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.utils.optim import adam
 
 
-def _reference(head: nn.Linear, x: torch.Tensor, y: torch.Tensor, batches: list[torch.Tensor], lr: float,
-               weight_decay: float, discrete: bool) -> list[float]:
+def _reference(
+    head: nn.Linear,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    batches: list[torch.Tensor],
+    lr: float,
+    weight_decay: float,
+    discrete: bool,
+) -> list[float]:
     optimizer = adam(head.parameters(), lr=lr, weight_decay=weight_decay)
     losses = []
     for batch in batches:

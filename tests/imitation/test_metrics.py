@@ -16,7 +16,9 @@ def test_mean_interval_is_the_normal_interval_of_the_mean():
     # mean 2, sample sd 1 (values 1, 2, 3), n 3: half-width 1.96 / sqrt(3)
     stat = mean_interval([1.0, 2.0, 3.0])
     assert stat["mean"] == 2.0 and stat["n"] == 3
-    assert stat["high"] - stat["mean"] == pytest.approx(1.96 / math.sqrt(3)) and stat["mean"] - stat["low"] == pytest.approx(1.96 / math.sqrt(3))
+    assert stat["high"] - stat["mean"] == pytest.approx(1.96 / math.sqrt(3)) and stat["mean"] - stat[
+        "low"
+    ] == pytest.approx(1.96 / math.sqrt(3))
     one = mean_interval([0.5])
     assert one["mean"] == 0.5 and math.isnan(one["low"]) and math.isnan(one["high"])
     with pytest.raises(ValueError):

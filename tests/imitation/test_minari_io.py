@@ -23,9 +23,15 @@ def dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "datasets"))
     rng = np.random.default_rng(0)
-    buffer = EpisodeBuffer(id=0, seed=0, observations=rng.integers(0, 256, (5, 8, 8, 3), dtype=np.uint8),
-                           actions=rng.integers(0, 3, 4), rewards=[0.0] * 4, terminations=[False] * 3 + [True],
-                           truncations=[False] * 4)
+    buffer = EpisodeBuffer(
+        id=0,
+        seed=0,
+        observations=rng.integers(0, 256, (5, 8, 8, 3), dtype=np.uint8),
+        actions=rng.integers(0, 3, 4),
+        rewards=[0.0] * 4,
+        terminations=[False] * 3 + [True],
+        truncations=[False] * 4,
+    )
     minari.create_dataset_from_buffers("test/damaged-v0", [buffer], observation_space=IMAGE, action_space=ACTIONS)
     return tmp_path / "datasets" / "test" / "damaged-v0" / "data"
 

@@ -64,7 +64,13 @@ def test_a_tie_goes_to_the_later_epoch(discrete_task, monkeypatch):
 def test_fit_or_resume_saves_the_chosen_epoch(discrete_task, discrete_demo, tmp_path):
     policy = make_policy(discrete_task, seed=4, **TOY_ARCH)
     selector = EpochSelector(discrete_task, policy, HELD_OUT, every=1, epochs=3)
-    fit_or_resume(policy, discrete_demo, BCConfig(lr=3e-3, epochs=3, batch_size=16), tmp_path / "pi.safetensors", selector=selector)
+    fit_or_resume(
+        policy,
+        discrete_demo,
+        BCConfig(lr=3e-3, epochs=3, batch_size=16),
+        tmp_path / "pi.safetensors",
+        selector=selector,
+    )
     saved = load_policy(tmp_path / "pi.safetensors")
     assert all(torch.equal(a, b) for a, b in zip(saved.net.parameters(), policy.net.parameters()))
     assert len(selector.history) == 3 and selector.choice["epoch"] in (1, 2, 3)

@@ -11,8 +11,15 @@ from metadagger.metal.store import PairSplit
 DIM = 12
 
 
-def synthetic_split(*, n_train: int = 60, n_val: int = 20, dim: int = DIM, seed: int = 0, context_dim: int = 4,
-                    context_effect: float = 0.0) -> PairSplit:
+def synthetic_split(
+    *,
+    n_train: int = 60,
+    n_val: int = 20,
+    dim: int = DIM,
+    seed: int = 0,
+    context_dim: int = 4,
+    context_effect: float = 0.0,
+) -> PairSplit:
     """w_BC on a rank-3 subspace; w_DA = w_BC @ M + b + noise (a linear relation a mapper can learn),
     plus ``context_effect`` times a linear map of each seed's context (``context_dim`` standard
     normal numbers, drawn apart from w_BC: only a mapper that reads them can predict that part)."""

@@ -5,8 +5,14 @@ from __future__ import annotations
 import pytest
 import torch
 
-from metadagger.mapping.diagnostics import (canonical_heads, function_error, head_outputs, memorisation, pairwise_spread,
-                                            weight_error)
+from metadagger.mapping.diagnostics import (
+    canonical_heads,
+    function_error,
+    head_outputs,
+    memorisation,
+    pairwise_spread,
+    weight_error,
+)
 
 CLASSES, FEATURES = 4, 3
 
@@ -22,7 +28,9 @@ def test_the_softmax_shift_changes_no_action_and_no_canonical_weight():
     shifted = head + shift  # the same vector added to every class's row, a constant to every bias
     assert function_error(head, shifted, features, outputs=CLASSES, discrete=True) == 0.0
     torch.testing.assert_close(canonical_heads(shifted[None], CLASSES), canonical_heads(head[None], CLASSES))
-    assert float(weight_error(shifted[None], head[None], outputs=CLASSES, discrete=True)) == pytest.approx(0.0, abs=1e-10)
+    assert float(weight_error(shifted[None], head[None], outputs=CLASSES, discrete=True)) == pytest.approx(
+        0.0, abs=1e-10
+    )
     assert float(weight_error(shifted[None], head[None], outputs=CLASSES, discrete=False)) > 1.0
 
 

@@ -80,7 +80,9 @@ def test_truncated_mapper_file_is_a_checkpoint_error(tmp_path):
 def test_tensors_that_do_not_fit_the_recorded_networks_are_named_in_one_line(tmp_path):
     arch = {"hidden": [8], "latent": 2, "ae_hidden": [8], "batchnorm": False, "dropout": 0.0, "ae_dropout": 0.0}
     scalers = {name: Standardizer(mean=torch.zeros(4), std=torch.ones(4)) for name in ("bc", "da")}
-    mapper = Mapper(kind="dm", dim=4, networks=build_networks("dm", 4, **arch), scalers=scalers, config={"kind": "dm", **arch})
+    mapper = Mapper(
+        kind="dm", dim=4, networks=build_networks("dm", 4, **arch), scalers=scalers, config={"kind": "dm", **arch}
+    )
     path = mapper.save(tmp_path / "m.safetensors")
     tensors = load_tensors(path)
     shape = tuple(tensors["networks.dm.0.0.weight"].shape)
@@ -91,8 +93,10 @@ def test_tensors_that_do_not_fit_the_recorded_networks_are_named_in_one_line(tmp
         load_mapper(path)
     message = str(info.value)
     assert "\n" not in message
-    assert message == (f"mapper file {path} does not match its own metadata (missing tensor(s) networks.dm.1.bias; "
-                       f"networks.dm.0.0.weight has shape (3, 3), expected {shape}); delete it and re-run train-mapper")
+    assert message == (
+        f"mapper file {path} does not match its own metadata (missing tensor(s) networks.dm.1.bias; "
+        f"networks.dm.0.0.weight has shape (3, 3), expected {shape}); delete it and re-run train-mapper"
+    )
 
 
 def test_a_mapper_file_replaced_after_its_fingerprint_is_refused(tmp_path):

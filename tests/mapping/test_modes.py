@@ -22,8 +22,14 @@ def _grouped_split(n_train: int = 60, n_val: int = 20, dim: int = 12) -> tuple[P
     w_da = heads[group.astype(int)] + 0.1 * g.normal(size=(n, dim))
     w_bc = 0.5 * w_da + 0.3 * g.normal(size=(n, dim))
     t = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
-    split = PairSplit(w_bc_train=t(w_bc[:n_train]), w_da_train=t(w_da[:n_train]), w_bc_val=t(w_bc[n_train:]),
-                      w_da_val=t(w_da[n_train:]), train_seeds=tuple(range(n_train)), val_seeds=tuple(range(n_train, n)))
+    split = PairSplit(
+        w_bc_train=t(w_bc[:n_train]),
+        w_da_train=t(w_da[:n_train]),
+        w_bc_val=t(w_bc[n_train:]),
+        w_da_val=t(w_da[n_train:]),
+        train_seeds=tuple(range(n_train)),
+        val_seeds=tuple(range(n_train, n)),
+    )
     return split, heads[group[n_train:].astype(int)]
 
 

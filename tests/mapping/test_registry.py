@@ -26,7 +26,9 @@ def build_linear(dim: int, *, generator: torch.Generator | None = None, **_: obj
     return {"linear": layer}
 
 
-LINEAR = MapperKind("linear", "Linear", "toy: one linear map", route=Route("bc", None, "linear", None, "da"), build=build_linear)
+LINEAR = MapperKind(
+    "linear", "Linear", "toy: one linear map", route=Route("bc", None, "linear", None, "da"), build=build_linear
+)
 
 
 @pytest.fixture
@@ -53,11 +55,23 @@ def test_a_kind_is_either_learned_or_a_control():
     with pytest.raises(ValueError, match="either route and build"):
         MapperKind("half", "Half", "route without builder", route=Route("bc", None, "x", None, "da"))
     with pytest.raises(ValueError, match="closed-form fit needs a route without autoencoders"):
-        MapperKind("odd", "Odd", "closed form through a code", route=Route("all", "sigma_all", "h", "sigma_all", "all"),
-                   build=get_kind("sam").build, closed_form=get_kind("ridge").closed_form)
+        MapperKind(
+            "odd",
+            "Odd",
+            "closed form through a code",
+            route=Route("all", "sigma_all", "h", "sigma_all", "all"),
+            build=get_kind("sam").build,
+            closed_form=get_kind("ridge").closed_form,
+        )
     with pytest.raises(ValueError, match="a context needs a route without autoencoders"):
-        MapperKind("coded", "Coded", "context through a code", route=Route("all", "sigma_all", "h", "sigma_all", "all"),
-                   build=get_kind("sam").build, context=True)
+        MapperKind(
+            "coded",
+            "Coded",
+            "context through a code",
+            route=Route("all", "sigma_all", "h", "sigma_all", "all"),
+            build=get_kind("sam").build,
+            context=True,
+        )
 
 
 def test_a_new_kind_trains_saves_loads_and_is_known_everywhere(with_linear, split, tmp_path):
@@ -66,7 +80,9 @@ def test_a_new_kind_trains_saves_loads_and_is_known_everywhere(with_linear, spli
     mapper = train_mapper(split, config, tmp_path, progress=False)
     loaded = load_mapper(tmp_path / "mapper.safetensors")
     assert loaded.kind == "linear"
-    torch.testing.assert_close(torch.from_numpy(loaded.map_batch(split.w_bc_val)), torch.from_numpy(mapper.map_batch(split.w_bc_val)))
+    torch.testing.assert_close(
+        torch.from_numpy(loaded.map_batch(split.w_bc_val)), torch.from_numpy(mapper.map_batch(split.w_bc_val))
+    )
     # the evaluation and run configs accept it without any other change
     assert EvalConfig(methods=("linear", "mean-da")).methods == ("linear", "mean-da")
     run = resolve_config("carracing", "ci", overrides=["evaluate.methods=[linear]", "mappers={linear: {epochs: 2}}"])

@@ -15,11 +15,28 @@ from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping import train as train_module
 from metadagger.mapping.mappers import Mapper, load_mapper
 from metadagger.mapping.registry import kind_names
-from metadagger.mapping.train import CURVE_COLUMNS, MapperConfig, MapperJob, evaluate_mapping, paper_config, train_mapper, train_mappers
+from metadagger.mapping.train import (
+    CURVE_COLUMNS,
+    MapperConfig,
+    MapperJob,
+    evaluate_mapping,
+    paper_config,
+    train_mapper,
+    train_mappers,
+)
 from metadagger.runfolder.driver import StageOptions
 
 KINDS = kind_names()
-STAGES = {"dm": ["dm"], "sam": ["sigma_all", "h"], "tam": ["sigma_bc", "sigma_da", "h"], "ridge": ["ridge"], "modes": ["modes"], "conditioned": ["ridge"], "mean-da": ["mean-da"], "pistar-head": ["pistar-head"]}
+STAGES = {
+    "dm": ["dm"],
+    "sam": ["sigma_all", "h"],
+    "tam": ["sigma_bc", "sigma_da", "h"],
+    "ridge": ["ridge"],
+    "modes": ["modes"],
+    "conditioned": ["ridge"],
+    "mean-da": ["mean-da"],
+    "pistar-head": ["pistar-head"],
+}
 
 
 @pytest.fixture(scope="module")
@@ -52,11 +69,15 @@ def test_save_load_round_trip_is_exact(trained, split, kind):
     mapper, out_dir = trained[kind]
     loaded = load_mapper(out_dir / "mapper.safetensors")
     assert (loaded.kind, loaded.in_dim, loaded.config) == (kind, split.w_bc_val.shape[1], mapper.config)
-    np.testing.assert_array_equal(loaded.map_batch(split.w_bc_val, split.context_val), mapper.map_batch(split.w_bc_val, split.context_val))
+    np.testing.assert_array_equal(
+        loaded.map_batch(split.w_bc_val, split.context_val), mapper.map_batch(split.w_bc_val, split.context_val)
+    )
     w, c = split.w_bc_val[0].numpy(), split.context_val[0].numpy()
     np.testing.assert_array_equal(loaded(w, c), mapper(w, c))
     assert mapper(w, c).dtype == np.float32 and mapper(w, c).shape == w.shape
-    assert loaded.needs_context == (kind == "conditioned") and loaded.context_dim == (c.shape[0] if kind == "conditioned" else 0)
+    assert loaded.needs_context == (kind == "conditioned") and loaded.context_dim == (
+        c.shape[0] if kind == "conditioned" else 0
+    )
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -106,7 +127,9 @@ def test_training_twice_gives_identical_files(tmp_path, split):
     for name in ("mapper.safetensors", "curves.csv"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     other = train_mapper(split, dataclasses.replace(config, seed=1), tmp_path / "c", progress=False)
-    assert not np.array_equal(other.map_batch(split.w_bc_val), load_mapper(tmp_path / "a" / "mapper.safetensors").map_batch(split.w_bc_val))
+    assert not np.array_equal(
+        other.map_batch(split.w_bc_val), load_mapper(tmp_path / "a" / "mapper.safetensors").map_batch(split.w_bc_val)
+    )
 
 
 def test_parallel_fits_equal_the_drivers_and_resume(tmp_path, split, pistar_head, monkeypatch):
@@ -114,12 +137,19 @@ def test_parallel_fits_equal_the_drivers_and_resume(tmp_path, split, pistar_head
     configs = {kind: tiny_config(kind, epochs=5, ae_epochs=5) for kind in kinds}
     for kind in kinds:
         train_mapper(split, configs[kind], tmp_path / "driver" / kind, pistar_head=pistar_head, progress=False)
-    jobs = [MapperJob(split=split, config=configs[kind], out_dir=tmp_path / "pool" / kind, pistar_head=pistar_head) for kind in kinds]
+    jobs = [
+        MapperJob(split=split, config=configs[kind], out_dir=tmp_path / "pool" / kind, pistar_head=pistar_head)
+        for kind in kinds
+    ]
     mappers = train_mappers(jobs, options=StageOptions(workers=2, progress=False))
     assert [m.kind for m in mappers] == list(kinds)  # in the jobs' order, whatever finished first
     for kind in kinds:
         for name in ("mapper.safetensors", "curves.csv"):
-            assert (tmp_path / "pool" / kind / name).read_bytes() == (tmp_path / "driver" / kind / name).read_bytes(), (kind, name)
+            assert (tmp_path / "pool" / kind / name).read_bytes() == (tmp_path / "driver" / kind / name).read_bytes(), (
+                kind,
+                name,
+            )
+
     # finished mappers are loaded, not refitted; a stale one is refused before any fit starts
     def no_fit(*args, **kwargs):
         raise AssertionError("a fit ran")
@@ -136,8 +166,10 @@ def test_parallel_fits_equal_the_drivers_and_resume(tmp_path, split, pistar_head
 
 def test_a_user_error_in_a_worker_is_one_short_line(tmp_path, split):
     one_pair = split.with_train_rows(torch.tensor([0]))
-    jobs = [MapperJob(split=split, config=tiny_config("ridge"), out_dir=tmp_path / "ridge"),
-            MapperJob(split=one_pair, config=tiny_config("dm"), out_dir=tmp_path / "dm", name="dm on 1 pair")]
+    jobs = [
+        MapperJob(split=split, config=tiny_config("ridge"), out_dir=tmp_path / "ridge"),
+        MapperJob(split=one_pair, config=tiny_config("dm"), out_dir=tmp_path / "dm", name="dm on 1 pair"),
+    ]
     with pytest.raises(UserError) as error:
         train_mappers(jobs, options=StageOptions(workers=2, progress=False))
     message = str(error.value)
@@ -180,7 +212,9 @@ def test_user_errors(tmp_path, split):
     with pytest.raises(UserError, match="needs pistar_head"):
         train_mapper(split, tiny_config("pistar-head"), tmp_path / "a", progress=False)
     with pytest.raises(UserError, match="pistar_head has length 3, expected 12"):
-        train_mapper(split, tiny_config("pistar-head"), tmp_path / "b", pistar_head=np.zeros(3, np.float32), progress=False)
+        train_mapper(
+            split, tiny_config("pistar-head"), tmp_path / "b", pistar_head=np.zeros(3, np.float32), progress=False
+        )
     with pytest.raises(UserError, match="at least 2 training pairs"):
         train_mapper(synthetic_split(n_train=1, n_val=1), tiny_config("dm"), tmp_path / "c", progress=False)
     with pytest.raises(UserError, match="non-empty"):
@@ -188,11 +222,20 @@ def test_user_errors(tmp_path, split):
 
 
 def test_paper_config_and_validation():
-    assert paper_config("dm").epochs == 500 and paper_config("sam").epochs == 1000 and paper_config("tam").ae_epochs == 1000
-    config = paper_config("tam", epochs=2000, latent=16)
-    assert (config.epochs, config.latent, config.lr, config.weight_decay, config.ae_weight_decay, config.batch_size) == (
-        2000, 16, 1e-4, 1e-4, 1e-5, 10
+    assert (
+        paper_config("dm").epochs == 500
+        and paper_config("sam").epochs == 1000
+        and paper_config("tam").ae_epochs == 1000
     )
+    config = paper_config("tam", epochs=2000, latent=16)
+    assert (
+        config.epochs,
+        config.latent,
+        config.lr,
+        config.weight_decay,
+        config.ae_weight_decay,
+        config.batch_size,
+    ) == (2000, 16, 1e-4, 1e-4, 1e-5, 10)
     for kwargs, field in [
         (dict(kind="xyz"), "kind"),
         (dict(hidden=(8, 0)), "hidden"),
@@ -225,7 +268,10 @@ def test_conditioned_reads_the_context_where_it_predicts_the_update(tmp_path):
     uninformed = train_mapper(plain, tiny_config("conditioned"), tmp_path / "plain", progress=False)
     ridge_plain = train_mapper(plain, tiny_config("ridge"), tmp_path / "ridge-plain", progress=False)
     args = (plain.w_bc_val, plain.w_da_val)
-    assert evaluate_mapping(uninformed, *args, context=plain.context_val)["mse"] <= 1.5 * evaluate_mapping(ridge_plain, *args)["mse"]
+    assert (
+        evaluate_mapping(uninformed, *args, context=plain.context_val)["mse"]
+        <= 1.5 * evaluate_mapping(ridge_plain, *args)["mse"]
+    )
 
 
 def test_conditioned_needs_the_context(tmp_path, split):
@@ -242,6 +288,8 @@ def test_conditioned_needs_the_context(tmp_path, split):
 @pytest.mark.parametrize("kind", ["dm", "sam"])
 def test_a_diverging_mapper_is_one_line_and_nothing_is_saved(tmp_path, split, kind):
     config = dataclasses.replace(tiny_config(kind), lr=1e30)
-    with pytest.raises(DivergedError, match=rf"the {kind} mapper's network \w+ diverged at epoch \d+ of \d+ .*lower its learning rate"):
+    with pytest.raises(
+        DivergedError, match=rf"the {kind} mapper's network \w+ diverged at epoch \d+ of \d+ .*lower its learning rate"
+    ):
         train_mapper(split, config, tmp_path / kind, progress=False)
     assert not list((tmp_path / kind).glob("*.safetensors"))

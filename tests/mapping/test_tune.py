@@ -32,8 +32,15 @@ TWO = StageOptions(workers=2, progress=False)
 
 
 def _tune(folder: Path, split, *, trials: int, base: MapperConfig = BASE, options: StageOptions = TWO, **kwargs):
-    return tune_mapper(split, base, study=folder / f"{base.kind}.db", summary=folder / f"{base.kind}.yaml", trials=trials,
-                       options=options, **kwargs)
+    return tune_mapper(
+        split,
+        base,
+        study=folder / f"{base.kind}.db",
+        summary=folder / f"{base.kind}.yaml",
+        trials=trials,
+        options=options,
+        **kwargs,
+    )
 
 
 def _trials(folder: Path, kind: str = "dm") -> list[tuple]:
@@ -74,7 +81,9 @@ def test_a_study_writes_its_database_and_the_best_settings(tmp_path, split):
     assert evaluate_mapping(mapper, split.w_bc_val, split.w_da_val)["mse"] == result.best_value
 
 
-def test_the_same_seed_gives_the_same_study_and_a_resumed_study_runs_only_the_missing_trials(reference, tmp_path, split):
+def test_the_same_seed_gives_the_same_study_and_a_resumed_study_runs_only_the_missing_trials(
+    reference, tmp_path, split
+):
     assert _tune(tmp_path, split, trials=2).ran == 2
     resumed = _tune(tmp_path, split, trials=4)
     assert (resumed.ran, resumed.completed) == (2, 4)
@@ -107,8 +116,9 @@ class _KilledAfter:
             yield fn(item)
 
 
-def test_a_killed_study_reruns_its_interrupted_trials_and_then_matches_an_uninterrupted_one(reference, tmp_path, split,
-                                                                                              monkeypatch):
+def test_a_killed_study_reruns_its_interrupted_trials_and_then_matches_an_uninterrupted_one(
+    reference, tmp_path, split, monkeypatch
+):
     with monkeypatch.context() as patch:
         patch.setattr(tune_module, "make_executor", lambda *a, **k: _KilledAfter(3))
         with pytest.raises(KeyboardInterrupt):
@@ -131,12 +141,21 @@ def test_a_study_resumes_only_with_its_pairs_and_untuned_settings(tmp_path, spli
         _tune(tmp_path, split, trials=2, seed=3)
     # a tuned field (what --apply writes) changes nothing; --rebuild starts a new study
     assert _tune(tmp_path, split, trials=1, base=tiny_config("dm", epochs=2, lr=1e-3)).ran == 0
-    rebuilt = _tune(tmp_path, synthetic_split(seed=1), trials=1, options=StageOptions(workers=2, progress=False, rebuild=True))
+    rebuilt = _tune(
+        tmp_path, synthetic_split(seed=1), trials=1, options=StageOptions(workers=2, progress=False, rebuild=True)
+    )
     assert (rebuilt.ran, rebuilt.completed) == (1, 1)
 
 
-@pytest.mark.parametrize(("kind", "why"), [("ridge", "is fitted in closed form"), ("mean-da", "is a control"),
-                                           ("pistar-head", "is a control"), ("nope", "is not a mapper kind")])
+@pytest.mark.parametrize(
+    ("kind", "why"),
+    [
+        ("ridge", "is fitted in closed form"),
+        ("mean-da", "is a control"),
+        ("pistar-head", "is a control"),
+        ("nope", "is not a mapper kind"),
+    ],
+)
 def test_kinds_without_hyperparameters_are_one_line_errors(kind, why):
     with pytest.raises(UserError, match=rf"--kind '{kind}' {why}.*; tune one of dm, sam, tam, e.g. `metadagger tune"):
         check_tunable(kind)
@@ -168,7 +187,9 @@ def _run_folder(tmp_path: Path) -> Path:
     outcome = {"success": False, "reward": 0.0, "steps": 1, "expert_queries": 1}
     store = PairStore(layout.pairs_dir)
     for i, seed in enumerate(config.pairs.seeds):
-        store.write(seed, data.w_bc_train[i], data.w_da_train[i], {"bc": outcome, "da": outcome, "kept": True, "stamp": stamp})
+        store.write(
+            seed, data.w_bc_train[i], data.w_da_train[i], {"bc": outcome, "da": outcome, "kept": True, "stamp": stamp}
+        )
     return run
 
 
@@ -195,8 +216,9 @@ def test_the_command_tunes_prints_the_set_item_and_applies_it_for_train_mapper(t
     _cli(["train-mapper", "--out", run, "--kind", "dm", "--rebuild"])
     mapper = load_mapper(layout.mapper("dm"))
     assert mapper.config == to_dict(config.mapper_config("dm"))
-    split = PairStore(layout.pairs_dir).load_split(val_fraction=config.pairs.val_fraction, seed=config.split_seed,
-                                                    seeds=config.pairs.seeds)
+    split = PairStore(layout.pairs_dir).load_split(
+        val_fraction=config.pairs.val_fraction, seed=config.split_seed, seeds=config.pairs.seeds
+    )
     assert evaluate_mapping(mapper, split.w_bc_val, split.w_da_val)["mse"] == summary["best"]["value"]
 
     result = runner.invoke(app, ["tune", "--out", str(run), "--kind", "ridge"])

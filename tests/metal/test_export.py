@@ -13,6 +13,8 @@ from toy_task import CorridorTask
 
 minari = pytest.importorskip("minari")
 
+from test_groundtruth_pairs import GT, PAIRS  # noqa: E402
+
 from metadagger.errors import UserError  # noqa: E402
 from metadagger.imitation.minari_io import read_demonstrations  # noqa: E402
 from metadagger.imitation.rollouts import collect  # noqa: E402
@@ -21,7 +23,6 @@ from metadagger.metal.groundtruth import train_groundtruth  # noqa: E402
 from metadagger.metal.pairs import collect_pairs, run_pair  # noqa: E402
 from metadagger.runfolder.driver import StageOptions  # noqa: E402
 from metadagger.runfolder.layout import RunLayout  # noqa: E402
-from test_groundtruth_pairs import GT, PAIRS  # noqa: E402
 
 SEEDS = PAIRS.seeds[:3]
 OPTIONS = StageOptions(workers=2, progress=False)
@@ -80,7 +81,7 @@ def test_pairs_data_is_what_each_pair_was_fit_on(run):
     assert len(episodes) == len(SEEDS) * rounds
     recorded = []
     run_pair(task, str(run.groundtruth), SEEDS[1], PAIRS, on_episode=lambda k, t: recorded.append((k, t)))
-    for episode, (round_idx, trajectory) in zip(episodes[rounds:2 * rounds], recorded):
+    for episode, (round_idx, trajectory) in zip(episodes[rounds : 2 * rounds], recorded):
         assert int(episode.infos["round"][0]) == round_idx and int(episode.infos["seed"][0]) == SEEDS[1]
         assert np.array_equal(episode.observations[:-1], trajectory.obs)
         assert np.array_equal(episode.actions, trajectory.learner_actions)  # the learner's own actions
@@ -93,7 +94,15 @@ def test_pairs_data_is_what_each_pair_was_fit_on(run):
 
 def test_export_is_deterministic_across_worker_counts(run, datasets):
     task = CorridorTask()
-    export_run(task, run, PAIRS, what="pairs-data", name="toy/a-v0", seeds=SEEDS, options=StageOptions(workers=1, progress=False))
+    export_run(
+        task,
+        run,
+        PAIRS,
+        what="pairs-data",
+        name="toy/a-v0",
+        seeds=SEEDS,
+        options=StageOptions(workers=1, progress=False),
+    )
     export_run(task, run, PAIRS, what="pairs-data", name="toy/b-v0", seeds=SEEDS, options=OPTIONS)
     a, b = (list(minari.load_dataset(n).iterate_episodes()) for n in ("toy/a-v0", "toy/b-v0"))
     assert len(a) == len(b)
@@ -106,10 +115,19 @@ def test_a_plain_minari_dataset_of_expert_actions_reads_as_demonstrations(datase
     from minari.data_collector import EpisodeBuffer
 
     obs = np.arange(4 * 2 * 2 * 3, dtype=np.uint8).reshape(4, 2, 2, 3)
-    buffer = EpisodeBuffer(id=0, seed=0, observations=obs, actions=np.array([0, 2, 1], dtype=np.int64),
-                           rewards=[0.0] * 3, terminations=[False, False, True], truncations=[False] * 3)
+    buffer = EpisodeBuffer(
+        id=0,
+        seed=0,
+        observations=obs,
+        actions=np.array([0, 2, 1], dtype=np.int64),
+        rewards=[0.0] * 3,
+        terminations=[False, False, True],
+        truncations=[False] * 3,
+    )
     space = gym.spaces.Box(0, 255, (2, 2, 3), np.uint8)
-    minari.create_dataset_from_buffers("plain-v0", [buffer], observation_space=space, action_space=gym.spaces.Discrete(3))
+    minari.create_dataset_from_buffers(
+        "plain-v0", [buffer], observation_space=space, action_space=gym.spaces.Discrete(3)
+    )
     data = read_demonstrations("plain-v0", observation_space=space, action_space=gym.spaces.Discrete(3))
     assert np.array_equal(data.obs, obs[:-1]) and data.labels.tolist() == [0, 2, 1]
     with pytest.raises(UserError, match=r"action space Discrete\(3\), but the task's learner has Discrete\(5\)"):
@@ -132,12 +150,21 @@ def test_bad_input_is_one_clear_error(run, datasets):
     assert sorted(p.name for p in datasets.rglob("*-v0")) == ["taken-v0"]  # nothing half-written
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["--what", "states", "--name", "toy/x-v0"], "--what 'states' is not an export; expected one of demos, dagger, pairs-data"),
-    (["--what", "demos", "--format", "hdf5", "--name", "toy/x-v0"], "--format 'hdf5' is not supported; expected one of minari"),
-    (["--what", "demos", "--name", "x"], "--name 'x' is not a Minari dataset id"),
-    (["--what", "demos", "--name", "toy/x-v0", "--seeds", "abc"], "bad seed list 'abc'"),
-])
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (
+            ["--what", "states", "--name", "toy/x-v0"],
+            "--what 'states' is not an export; expected one of demos, dagger, pairs-data",
+        ),
+        (
+            ["--what", "demos", "--format", "hdf5", "--name", "toy/x-v0"],
+            "--format 'hdf5' is not supported; expected one of minari",
+        ),
+        (["--what", "demos", "--name", "x"], "--name 'x' is not a Minari dataset id"),
+        (["--what", "demos", "--name", "toy/x-v0", "--seeds", "abc"], "bad seed list 'abc'"),
+    ],
+)
 def test_export_command_refuses_bad_input_before_any_work(tmp_path, args, needle):
     from typer.testing import CliRunner
 

@@ -21,8 +21,8 @@ from metadagger.evaluation.report_run import groundtruth_section
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.rollouts import collect, rollout
-from metadagger.metal.method import seed_context
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.metal.method import seed_context
 from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
 from metadagger.policies import load_policy
@@ -34,9 +34,13 @@ TESTS = Path(__file__).resolve().parents[1]
 # Subprocesses and Ray workers import the toy tasks from here; the caller's PYTHONPATH (e.g. a
 # source checkout) is kept, so they import the same metadagger as this process.
 PYTHONPATH = os.pathsep.join([str(TESTS), str(TESTS / "metal"), *filter(None, [os.environ.get("PYTHONPATH")])])
-GT = GroundTruthConfig(seeds=(0, 1, 2, 3), eval_seeds=(100, 101), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
+GT = GroundTruthConfig(
+    seeds=(0, 1, 2, 3), eval_seeds=(100, 101), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
+)
 PAIRS = PairConfig(
-    seeds=tuple(range(200, 206)), dagger_rounds=1, keep="all",
+    seeds=tuple(range(200, 206)),
+    dagger_rounds=1,
+    keep="all",
     bc=BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True),
     dagger_bc=BCConfig(lr=1e-2, batch_size=10, epochs=2, head_only=True),
 )
@@ -64,7 +68,10 @@ def gt_run(tmp_path_factory) -> Path:
 def test_groundtruth_writes_policy_metrics_and_round_checkpoints(gt_run):
     assert groundtruth_path(gt_run).is_file()
     assert (gt_run / "groundtruth" / "metrics.json").is_file()
-    assert sorted(p.name for p in (gt_run / "groundtruth" / "rounds").iterdir()) == ["round_0.safetensors", "round_1.safetensors"]
+    assert sorted(p.name for p in (gt_run / "groundtruth" / "rounds").iterdir()) == [
+        "round_0.safetensors",
+        "round_1.safetensors",
+    ]
     assert load_policy(groundtruth_path(gt_run)).head_size == 32 * 3 + 3
     # every fit's loss per epoch, for the TensorBoard curves; the last is the round's final loss
     metrics = json.loads((gt_run / "groundtruth" / "metrics.json").read_text())
@@ -91,7 +98,9 @@ def test_a_damaged_finished_groundtruth_is_named_and_retrained_once_deleted(gt_r
     layout = RunLayout(tmp_path / "run")
     intact = layout.groundtruth.read_bytes()
     layout.groundtruth.write_bytes(intact[:100])
-    with pytest.raises(CheckpointError, match=f"policy checkpoint is corrupt or not a safetensors file: {layout.groundtruth}"):
+    with pytest.raises(
+        CheckpointError, match=f"policy checkpoint is corrupt or not a safetensors file: {layout.groundtruth}"
+    ):
         train_groundtruth(CorridorTask(), GT, layout, rebuild=True, progress=False)
     layout.groundtruth.unlink()
     train_groundtruth(CorridorTask(), GT, layout, progress=False)
@@ -108,7 +117,9 @@ def test_keep_rules():
 def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     for run in (a, b):
-        summary = collect_pairs(CorridorTask(), with_pistar(gt_run, run), PAIRS, StageOptions(workers=2, progress=False))
+        summary = collect_pairs(
+            CorridorTask(), with_pistar(gt_run, run), PAIRS, StageOptions(workers=2, progress=False)
+        )
     assert summary["seeds"] == len(PAIRS.seeds) and summary["kept"] == len(PAIRS.seeds)
     assert sum(summary["outcomes"].values()) == len(PAIRS.seeds)
     for seed in PAIRS.seeds:
@@ -127,6 +138,7 @@ def test_a_damaged_pistar_is_named_before_any_pair_is_touched(gt_run, tmp_path):
     with pytest.raises(CheckpointError, match=f"corrupt or not a safetensors file: {layout.groundtruth}"):
         collect_pairs(CorridorTask(), layout, PAIRS, StageOptions(workers=1, progress=False))
     assert {p.name: p.read_bytes() for p in (tmp_path / "pairs").iterdir()} == before
+
 
 def test_pairs_skip_seeds_already_stored(gt_run, tmp_path):
     first = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:2]})
@@ -177,10 +189,19 @@ def test_ray_executor_pairs_equal_local(gt_run, tmp_path, monkeypatch):
     # the local Ray instance's workers inherit this, so they can import the toy task
     monkeypatch.setenv("PYTHONPATH", PYTHONPATH)
     seeds = PairConfig(**{**PAIRS.__dict__, "seeds": PAIRS.seeds[:3]})
-    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "local"), seeds, StageOptions(workers=2, progress=False))
-    collect_pairs(CorridorTask(), with_pistar(gt_run, tmp_path / "ray"), seeds, StageOptions(executor="ray", workers=2, progress=False))
+    collect_pairs(
+        CorridorTask(), with_pistar(gt_run, tmp_path / "local"), seeds, StageOptions(workers=2, progress=False)
+    )
+    collect_pairs(
+        CorridorTask(),
+        with_pistar(gt_run, tmp_path / "ray"),
+        seeds,
+        StageOptions(executor="ray", workers=2, progress=False),
+    )
     for seed in seeds.seeds:
-        assert (tmp_path / "local" / "pairs" / f"{seed}.safetensors").read_bytes() == (tmp_path / "ray" / "pairs" / f"{seed}.safetensors").read_bytes()
+        assert (tmp_path / "local" / "pairs" / f"{seed}.safetensors").read_bytes() == (
+            tmp_path / "ray" / "pairs" / f"{seed}.safetensors"
+        ).read_bytes()
 
 
 def test_each_pair_stores_its_seed_context_from_the_demonstration_and_the_bc_rollout(gt_run, tmp_path):
@@ -201,8 +222,12 @@ def test_each_pair_stores_its_seed_context_from_the_demonstration_and_the_bc_rol
     assert stored.shape == (2 * policy.net.feature_dim,)
     split = store.load_split(val_fraction=0.2, seed=0, kept_only=False)
     assert split.context_train.shape == (len(split.train_seeds), stored.shape[0])
-    assert torch.equal(split.context_train[split.train_seeds.index(seed)] if seed in split.train_seeds
-                       else split.context_val[split.val_seeds.index(seed)], stored)
+    assert torch.equal(
+        split.context_train[split.train_seeds.index(seed)]
+        if seed in split.train_seeds
+        else split.context_val[split.val_seeds.index(seed)],
+        stored,
+    )
 
 
 def test_groundtruth_can_choose_its_bc_epoch_on_held_out_seeds(tmp_path):
@@ -211,19 +236,28 @@ def test_groundtruth_can_choose_its_bc_epoch_on_held_out_seeds(tmp_path):
     choice = metrics["bc_selection"]
     assert [check["epoch"] for check in choice["history"]] == [2, 3] and choice["episodes"] == 4
     assert choice["successes"] == max(check["successes"] for check in choice["history"])
-    saved, checkpoint = load_policy(groundtruth_path(tmp_path)), load_policy(tmp_path / "groundtruth" / "rounds" / "round_0.safetensors")
+    saved, checkpoint = (
+        load_policy(groundtruth_path(tmp_path)),
+        load_policy(tmp_path / "groundtruth" / "rounds" / "round_0.safetensors"),
+    )
     assert all(torch.equal(a, b) for a, b in zip(saved.net.parameters(), checkpoint.net.parameters()))
-    assert any(line.startswith(f"pi* is epoch {choice['epoch']} of its BC fit") for line in groundtruth_section(RunLayout(tmp_path)))
+    assert any(
+        line.startswith(f"pi* is epoch {choice['epoch']} of its BC fit")
+        for line in groundtruth_section(RunLayout(tmp_path))
+    )
     # the options joined the config later: a pi* made without them keeps its stamp
     assert "select_seeds" not in stamp_of(GT) and "select_every" not in stamp_of(GT)
 
 
-@pytest.mark.parametrize("changes,match", [
-    ({"select_seeds": (3, 200)}, "select_seeds must be held out"),
-    ({"select_seeds": (101,)}, "select_seeds must be held out"),
-    ({"select_seeds": (200,), "dagger_rounds": 1}, "needs dagger_rounds: 0"),
-    ({"select_seeds": (200,), "dagger_rounds": 0, "select_every": 0}, "select_every must be an integer >= 1"),
-])
+@pytest.mark.parametrize(
+    "changes,match",
+    [
+        ({"select_seeds": (3, 200)}, "select_seeds must be held out"),
+        ({"select_seeds": (101,)}, "select_seeds must be held out"),
+        ({"select_seeds": (200,), "dagger_rounds": 1}, "needs dagger_rounds: 0"),
+        ({"select_seeds": (200,), "dagger_rounds": 0, "select_every": 0}, "select_every must be an integer >= 1"),
+    ],
+)
 def test_groundtruth_selection_settings_are_checked(changes, match):
     with pytest.raises(ValueError, match=match):
         dataclasses.replace(GT, **changes)

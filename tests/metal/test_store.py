@@ -127,7 +127,9 @@ def test_sigkill_mid_run_then_resume_completes_without_redoing(tmp_path: Path) -
     assert 5 <= len(first) < n
     before = {s: store.pair_path(s).read_bytes() for s in first}
 
-    resumed = subprocess.run([sys.executable, str(script), str(root), str(n)], capture_output=True, text=True, check=True)
+    resumed = subprocess.run(
+        [sys.executable, str(script), str(root), str(n)], capture_output=True, text=True, check=True
+    )
     second = {int(line) for line in resumed.stdout.split()}
     assert second == set(range(n)) - first  # nothing redone, nothing left out
     assert store.done_seeds() == set(range(n))
@@ -160,7 +162,9 @@ def test_a_small_positive_val_fraction_keeps_one_val_pair(tmp_path: Path) -> Non
     assert len(store.load_split(val_fraction=0.01, seed=0).val_seeds) == 1
 
 
-@pytest.mark.parametrize(("val_fraction", "match"), [(1.0, r"val_fraction must be in \[0, 1\), got 1.0"), (0.9, "too few")])
+@pytest.mark.parametrize(
+    ("val_fraction", "match"), [(1.0, r"val_fraction must be in \[0, 1\), got 1.0"), (0.9, "too few")]
+)
 def test_split_errors(tmp_path: Path, val_fraction: float, match: str) -> None:
     store = PairStore(tmp_path)
     _fill(store, range(2))
@@ -198,10 +202,14 @@ def test_bad_pair_files_are_checkpoint_errors(tmp_path: Path) -> None:
         (lambda path: path.write_bytes(path.read_bytes()[:100]), r"is corrupt or not a safetensors file \(.+\)"),
         (lambda path: path.write_bytes(b"x\n"), r"is corrupt or not a safetensors file \(.+\)"),
         (lambda path: path.write_bytes(b""), r"is corrupt or not a safetensors file \(.+\)"),
-        (lambda path: save_tensors(path, {"a": torch.zeros(DIM), "w_da": torch.zeros(DIM)}),
-         r"is not a valid pair \(it holds tensors \['a', 'w_da'\], expected w_bc, w_da and optionally context\)"),
-        (lambda path: save_tensors(path, {"w_bc": torch.zeros(DIM), "w_da": torch.zeros(DIM, dtype=torch.float64)}),
-         r"is not a valid pair \(w_da must be a non-empty 1-D float32 tensor, got torch.float64"),
+        (
+            lambda path: save_tensors(path, {"a": torch.zeros(DIM), "w_da": torch.zeros(DIM)}),
+            r"is not a valid pair \(it holds tensors \['a', 'w_da'\], expected w_bc, w_da and optionally context\)",
+        ),
+        (
+            lambda path: save_tensors(path, {"w_bc": torch.zeros(DIM), "w_da": torch.zeros(DIM, dtype=torch.float64)}),
+            r"is not a valid pair \(w_da must be a non-empty 1-D float32 tensor, got torch.float64",
+        ),
         (lambda path: path.unlink(), "is missing"),
     ],
     ids=["truncated", "garbage", "empty", "other-tensors", "other-dtype", "deleted"],
@@ -233,12 +241,21 @@ def test_a_garbled_complete_line_is_a_checkpoint_error(tmp_path: Path) -> None:
     ("args", "match"),
     [
         ((-1, *_pair(0), _record(0)), "seed must be a non-negative int, got -1"),
-        ((0, torch.zeros(DIM, dtype=torch.float64), torch.zeros(DIM), _record(0)), "w_bc must be a non-empty 1-D float32"),
-        ((0, torch.zeros(2, 3), torch.zeros(2, 3), _record(0)), r"1-D float32 tensor, got torch.float32 of shape \(2, 3\)"),
+        (
+            (0, torch.zeros(DIM, dtype=torch.float64), torch.zeros(DIM), _record(0)),
+            "w_bc must be a non-empty 1-D float32",
+        ),
+        (
+            (0, torch.zeros(2, 3), torch.zeros(2, 3), _record(0)),
+            r"1-D float32 tensor, got torch.float32 of shape \(2, 3\)",
+        ),
         ((0, torch.zeros(3), torch.zeros(4), _record(0)), "same length, got 3 and 4"),
         ((0, *_pair(0), {**_record(0), "seed": 1}), "record seed 1 does not match the seed written, 0"),
         ((0, *_pair(0), {**_record(0), "kept": "yes"}), "'kept' must be a bool"),
-        ((0, *_pair(0), {**_record(0), "da": {"success": True}}), r"record 'da' must be a mapping .* missing \['reward'"),
+        (
+            (0, *_pair(0), {**_record(0), "da": {"success": True}}),
+            r"record 'da' must be a mapping .* missing \['reward'",
+        ),
         ((0, *_pair(0), {**_record(0), "extra": object()}), "not JSON-serialisable"),
     ],
 )
@@ -264,9 +281,16 @@ def test_contexts_travel_with_the_pairs_into_the_split(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="context must be a 1-D float32 tensor"):
         store.write(6, *_pair(6), _record(6), context=torch.zeros(2, 2))
     with pytest.raises(ValueError, match=r"context_val has shape \(2, 4\), expected \(2, 3\)"):
-        PairSplit(w_bc_train=split.w_bc_train, w_da_train=split.w_da_train, w_bc_val=split.w_bc_val, w_da_val=split.w_da_val,
-                  train_seeds=split.train_seeds, val_seeds=split.val_seeds, context_train=split.context_train,
-                  context_val=torch.zeros(2, 4))
+        PairSplit(
+            w_bc_train=split.w_bc_train,
+            w_da_train=split.w_da_train,
+            w_bc_val=split.w_bc_val,
+            w_da_val=split.w_da_val,
+            train_seeds=split.train_seeds,
+            val_seeds=split.val_seeds,
+            context_train=split.context_train,
+            context_val=torch.zeros(2, 4),
+        )
 
 
 def test_a_damaged_record_or_a_nan_pair_is_one_line_naming_the_file(tmp_path):
@@ -274,7 +298,9 @@ def test_a_damaged_record_or_a_nan_pair_is_one_line_naming_the_file(tmp_path):
     store.write(1000, *_pair(1000), _record(1000))
     with open(store.jsonl_path, "a") as f:
         f.write('{"seed":1003,"stamp":"x","kept":true}\n')
-    with pytest.raises(CheckpointError, match=r"pairs.jsonl has a damaged pair record .*delete that line and re-run metadagger pairs"):
+    with pytest.raises(
+        CheckpointError, match=r"pairs.jsonl has a damaged pair record .*delete that line and re-run metadagger pairs"
+    ):
         store.records()
     store = PairStore(tmp_path / "nan")
     w_bc, w_da = _pair(1000)

@@ -74,14 +74,23 @@ def test_a_stopped_stage_call_still_counts_in_the_stage_times(tmp_path, monkeypa
     monkeypatch.undo()
     stages.stage_groundtruth(RunLayout(run), load_run(run), StageOptions(progress=False))
     again = json.loads((run / "stage_times.json").read_text())["groundtruth"]
-    assert "stopped" not in again and again["total_seconds"] == pytest.approx(entry["total_seconds"] + again["seconds"], abs=2e-3)
+    assert "stopped" not in again and again["total_seconds"] == pytest.approx(
+        entry["total_seconds"] + again["seconds"], abs=2e-3
+    )
 
 
 def test_demo_ci_preset(tmp_path):
     result = runner.invoke(app, ["demo", "--task", "carracing", "--preset", "ci", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     assert "| BC |" in result.output and "| DAgger |" in result.output
-    for name in ("table.md", "metrics.json", "rounds.csv", "success_vs_round.png", "bc.safetensors", "dagger.safetensors"):
+    for name in (
+        "table.md",
+        "metrics.json",
+        "rounds.csv",
+        "success_vs_round.png",
+        "bc.safetensors",
+        "dagger.safetensors",
+    ):
         assert (tmp_path / "demo" / name).is_file()
 
 
@@ -96,15 +105,30 @@ def test_demo_clones_from_a_minari_dataset(tmp_path, monkeypatch):
     obs = rng.integers(0, 256, (8, 96, 96, 3), dtype=np.uint8)
     image = gym.spaces.Box(0, 255, (96, 96, 3), np.uint8)
     for name, classes in (("test/steer-v0", 20), ("test/three-v0", 3)):
-        buffer = EpisodeBuffer(id=0, seed=0, observations=obs, actions=rng.integers(0, classes, 7), rewards=[0.0] * 7,
-                               terminations=[False] * 6 + [True], truncations=[False] * 7)
-        minari.create_dataset_from_buffers(name, [buffer], observation_space=image, action_space=gym.spaces.Discrete(classes))
-    result = runner.invoke(app, ["demo", "--task", "carracing", "--preset", "ci", "--out", str(tmp_path), "--demos", "test/steer-v0"])
+        buffer = EpisodeBuffer(
+            id=0,
+            seed=0,
+            observations=obs,
+            actions=rng.integers(0, classes, 7),
+            rewards=[0.0] * 7,
+            terminations=[False] * 6 + [True],
+            truncations=[False] * 7,
+        )
+        minari.create_dataset_from_buffers(
+            name, [buffer], observation_space=image, action_space=gym.spaces.Discrete(classes)
+        )
+    result = runner.invoke(
+        app, ["demo", "--task", "carracing", "--preset", "ci", "--out", str(tmp_path), "--demos", "test/steer-v0"]
+    )
     assert result.exit_code == 0, result.output
     bc_row = next(line for line in result.output.splitlines() if line.startswith("| BC |"))
     assert bc_row.rstrip(" |").endswith("| 7")  # the dataset's 7 labelled states are BC's expert queries
-    result = runner.invoke(app, ["demo", "--task", "carracing", "--preset", "ci", "--out", str(tmp_path), "--demos", "test/three-v0"])
-    assert result.exit_code == 2 and "action space Discrete(3), but the task's learner has Discrete(20)" in result.output
+    result = runner.invoke(
+        app, ["demo", "--task", "carracing", "--preset", "ci", "--out", str(tmp_path), "--demos", "test/three-v0"]
+    )
+    assert (
+        result.exit_code == 2 and "action space Discrete(3), but the task's learner has Discrete(20)" in result.output
+    )
 
 
 def _stamps(run: Path) -> dict[Path, int]:
@@ -138,10 +162,15 @@ def test_reproduce_fetch_ci_runs_mdi_and_resumes(fetch_ci_run, tmp_path):
 
     # a finished run resumes without redoing any stage, from reproduce and from the CLI
     before = _stamps(run)
-    assert _without_times(reproduce("fetch", "ci", run, options=StageOptions(progress=False)).read_text()) == _without_times(report)
+    assert _without_times(
+        reproduce("fetch", "ci", run, options=StageOptions(progress=False)).read_text()
+    ) == _without_times(report)
     again = runner.invoke(app, ["evaluate", "--out", str(run)])
     assert again.exit_code == 0, again.output
-    assert "MDM: evaluated 2 seeds" in again.output and f"MDI: evaluated 2 seeds; wrote {run / 'eval' / 'mdi.csv'}" in again.output
+    assert (
+        "MDM: evaluated 2 seeds" in again.output
+        and f"MDI: evaluated 2 seeds; wrote {run / 'eval' / 'mdi.csv'}" in again.output
+    )
     assert _stamps(run) == before
 
 
@@ -165,7 +194,9 @@ def _artifacts(run: Path) -> dict[str, bytes | list[bytes]]:
 
 def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(fetch_ci_run, tmp_path):
     first = _artifacts(fetch_ci_run)
-    second = _artifacts(reproduce("fetch", "ci", tmp_path / "b", options=StageOptions(workers=1, progress=False)).parent.parent)
+    second = _artifacts(
+        reproduce("fetch", "ci", tmp_path / "b", options=StageOptions(workers=1, progress=False)).parent.parent
+    )
     assert any(name.startswith("pairs/") and name.endswith(".safetensors") for name in first)
     assert first.keys() == second.keys()
     assert [name for name in first if first[name] != second[name]] == []
@@ -173,8 +204,13 @@ def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(fetch_ci_
 
 def test_mapper_kinds_follow_the_run_config(tmp_path):
     # every kind but the opt-in modes and conditioned (docs/mapping.md), in registry order
-    assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == tuple(k for k in kind_names() if k not in ("modes", "conditioned"))
-    assert init_run(tmp_path / "crm", "carracing", "ci", overrides=["evaluate.methods=[modes, dm]"]).mapper_kinds == ("dm", "modes")
+    assert init_run(tmp_path / "cr", "carracing", "ci").mapper_kinds == tuple(
+        k for k in kind_names() if k not in ("modes", "conditioned")
+    )
+    assert init_run(tmp_path / "crm", "carracing", "ci", overrides=["evaluate.methods=[modes, dm]"]).mapper_kinds == (
+        "dm",
+        "modes",
+    )
     assert init_run(tmp_path / "fetch", "fetch", "ci").mapper_kinds == ("dm", "ridge", "mean-da", "pistar-head")
 
 

@@ -21,11 +21,14 @@ def run(tmp_path) -> RunLayout:
     return RunLayout(tmp_path / "run")
 
 
-@pytest.mark.parametrize(("text", "problem"), [
-    (b"\x00\xff\xfe garbage", "not UTF-8 text: byte 0xff at offset 1"),
-    (b"task: carracing\npairs: {seeds: [1, 2}\n", "but got '}' at line 2, column 21"),
-    (b"- carracing\n", "expected a mapping, got list"),
-])
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        (b"\x00\xff\xfe garbage", "not UTF-8 text: byte 0xff at offset 1"),
+        (b"task: carracing\npairs: {seeds: [1, 2}\n", "but got '}' at line 2, column 21"),
+        (b"- carracing\n", "expected a mapping, got list"),
+    ],
+)
 def test_an_unreadable_config_yaml_is_one_line_for_stages_and_report(run, text, problem):
     run.config.write_bytes(text)
     for call in (lambda: load_run(run.root), lambda: build_report(run)):
@@ -33,18 +36,25 @@ def test_an_unreadable_config_yaml_is_one_line_for_stages_and_report(run, text, 
             call()
         message = str(error.value)
         assert "\n" not in message
-        assert f"{run.config} is not a readable YAML config (" in message and problem in message and "start a new run folder" in message
+        assert (
+            f"{run.config} is not a readable YAML config (" in message
+            and problem in message
+            and "start a new run folder" in message
+        )
     _refused(["pairs", "--out", run.root], "is not a readable YAML config", problem)
     _refused(["report", "--out", run.root], "is not a readable YAML config", problem)
 
 
-@pytest.mark.parametrize(("text", "needles"), [
-    ("presets: {mine: 5}\n", ("preset 'mine' is 5, not a mapping of stage sections", "mine: {pairs:")),
-    ("presets: {mine: }\n", ("preset 'mine' is None, not a mapping of stage sections",)),
-    ("presets: {}\n", ("has no presets: expected a top-level 'presets:' mapping", "docs/custom_task.md")),
-    ("presets: {small: {}}\n", ("has no preset 'mine': expected one of small; pass one with --preset",)),
-    ("presets: [\n", ("is not a readable YAML presets file (", "at line 2, column 1")),
-])
+@pytest.mark.parametrize(
+    ("text", "needles"),
+    [
+        ("presets: {mine: 5}\n", ("preset 'mine' is 5, not a mapping of stage sections", "mine: {pairs:")),
+        ("presets: {mine: }\n", ("preset 'mine' is None, not a mapping of stage sections",)),
+        ("presets: {}\n", ("has no presets: expected a top-level 'presets:' mapping", "docs/custom_task.md")),
+        ("presets: {small: {}}\n", ("has no preset 'mine': expected one of small; pass one with --preset",)),
+        ("presets: [\n", ("is not a readable YAML presets file (", "at line 2, column 1")),
+    ],
+)
 def test_a_bad_presets_file_is_one_line(tmp_path, text, needles):
     presets = tmp_path / "p.yaml"
     presets.write_text(text)
@@ -53,23 +63,26 @@ def test_a_bad_presets_file_is_one_line(tmp_path, text, needles):
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize(("override", "needle"), [
-    ("split_seed=-1", "split_seed: seed -1 is negative; use seeds >= 0"),
-    ("pairs.bc.seed=-1", "pairs.bc.seed: seed -1 is negative"),
-    ("mappers.dm.seed=-2", "mappers.dm.seed: seed -2 is negative"),
-    ("evaluate.seeds=[-1]", "evaluate.seeds: seed -1 is negative"),
-    ("benchmark.seeds=[-1]", "benchmark.seeds: seed -1 is negative"),
-    ("pairs.seeds=[2000, 2000]", "pairs.seeds: seed 2000 appears twice; list each seed once"),
-    ("groundtruth.select_seeds=[7, 7]", "groundtruth.select_seeds: seed 7 appears twice"),
-    ("pairs.seeds=2000-2001,2001", "pairs.seeds: bad seed list '2000-2001,2001': seed 2001 appears twice"),
-    ("pairs.bc.lr=.inf", "pairs.bc.lr: expected a finite number, got inf"),
-    ("mappers.dm.lr=.inf", "mappers.dm.lr: expected a finite number, got inf"),
-    ("pairs.bc.lr=.nan", "pairs.bc.lr: expected a finite number, got nan"),
-    ("diagnose.scaling=[-.inf]", "diagnose.scaling: expected a finite number, got -inf"),
-    ("mappers.dm.hidden=bogus", "mappers.dm.hidden: expected a list of int, got 'bogus'"),
-    ("task=fetch", "bad --set 'task=fetch': the task is chosen with --task, not --set"),
-    ("preset=bogus", "bad --set 'preset=bogus': the preset is chosen with --preset, not --set"),
-])
+@pytest.mark.parametrize(
+    ("override", "needle"),
+    [
+        ("split_seed=-1", "split_seed: seed -1 is negative; use seeds >= 0"),
+        ("pairs.bc.seed=-1", "pairs.bc.seed: seed -1 is negative"),
+        ("mappers.dm.seed=-2", "mappers.dm.seed: seed -2 is negative"),
+        ("evaluate.seeds=[-1]", "evaluate.seeds: seed -1 is negative"),
+        ("benchmark.seeds=[-1]", "benchmark.seeds: seed -1 is negative"),
+        ("pairs.seeds=[2000, 2000]", "pairs.seeds: seed 2000 appears twice; list each seed once"),
+        ("groundtruth.select_seeds=[7, 7]", "groundtruth.select_seeds: seed 7 appears twice"),
+        ("pairs.seeds=2000-2001,2001", "pairs.seeds: bad seed list '2000-2001,2001': seed 2001 appears twice"),
+        ("pairs.bc.lr=.inf", "pairs.bc.lr: expected a finite number, got inf"),
+        ("mappers.dm.lr=.inf", "mappers.dm.lr: expected a finite number, got inf"),
+        ("pairs.bc.lr=.nan", "pairs.bc.lr: expected a finite number, got nan"),
+        ("diagnose.scaling=[-.inf]", "diagnose.scaling: expected a finite number, got -inf"),
+        ("mappers.dm.hidden=bogus", "mappers.dm.hidden: expected a list of int, got 'bogus'"),
+        ("task=fetch", "bad --set 'task=fetch': the task is chosen with --task, not --set"),
+        ("preset=bogus", "bad --set 'preset=bogus': the preset is chosen with --preset, not --set"),
+    ],
+)
 def test_bad_field_values_are_refused_when_the_config_is_built(override, needle):
     with pytest.raises(UserError, match="^[^\n]*$") as error:
         resolve_config("carracing", "ci", overrides=[override])
@@ -78,8 +91,9 @@ def test_bad_field_values_are_refused_when_the_config_is_built(override, needle)
 
 
 def test_seed_fields_still_take_seed_lists_and_counts_are_not_seeds():
-    config = resolve_config("carracing", "ci", overrides=["pairs.seeds=1000-1002,1007", "evaluate.seeds=5000",
-                                                          "diagnose.noise_seeds=0"])
+    config = resolve_config(
+        "carracing", "ci", overrides=["pairs.seeds=1000-1002,1007", "evaluate.seeds=5000", "diagnose.noise_seeds=0"]
+    )
     assert config.pairs.seeds == (1000, 1001, 1002, 1007) and config.evaluate.seeds == (5000,)
     assert config.diagnose.noise_seeds == 0
 
@@ -103,12 +117,15 @@ def test_a_run_config_naming_its_task_and_preset_still_loads(run):
     assert (load_run(run.root).task, load_run(run.root).preset) == ("carracing", "ci")
 
 
-@pytest.mark.parametrize(("args", "needle"), [
-    (["groundtruth", "--task", "carracing", "--preset", "ci", "--set", "task=fetch"], "bad --set 'task=fetch'"),
-    (["groundtruth", "--task", "fetch", "--preset", "ci"], "holds task 'carracing' preset 'ci', not 'fetch' 'ci'"),
-    (["pairs", "--set", "pairs.dagger_rounds=4"], "pi* not found"),
-    (["evaluate", "--protocol", "mdi", "--set", "evaluate.oneshot=false"], "has no mdi section"),
-])
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["groundtruth", "--task", "carracing", "--preset", "ci", "--set", "task=fetch"], "bad --set 'task=fetch'"),
+        (["groundtruth", "--task", "fetch", "--preset", "ci"], "holds task 'carracing' preset 'ci', not 'fetch' 'ci'"),
+        (["pairs", "--set", "pairs.dagger_rounds=4"], "pi* not found"),
+        (["evaluate", "--protocol", "mdi", "--set", "evaluate.oneshot=false"], "has no mdi section"),
+    ],
+)
 def test_a_refused_command_leaves_config_yaml_as_it_was(run, args, needle):
     before = run.config.read_bytes()
     _refused([*args, "--out", run.root], needle)
@@ -136,14 +153,22 @@ def test_a_stage_writes_the_config_it_runs_with_and_puts_it_back_when_it_refuses
 def test_config_yaml_records_the_version_that_made_the_folder_and_no_set_changes_it(run):
     assert run.config.read_text().startswith(f"metadagger_version: {__version__}\n")
     assert load_run(run.root).metadagger_version == __version__
-    _refused(["pairs", "--out", run.root, "--set", "metadagger_version=9.9.9"], "bad --set 'metadagger_version=9.9.9'", "cannot be set")
+    _refused(
+        ["pairs", "--out", run.root, "--set", "metadagger_version=9.9.9"],
+        "bad --set 'metadagger_version=9.9.9'",
+        "cannot be set",
+    )
 
 
-@pytest.mark.parametrize(("recorded", "made_by"), [
-    (None, "a metadagger version before 0.2"),
-    ("0.1.0", "metadagger 0.1.0"),
-    ("9.0.0", "metadagger 9.0.0"),
-], ids=["unrecorded", "older", "newer"])
+@pytest.mark.parametrize(
+    ("recorded", "made_by"),
+    [
+        (None, "a metadagger version before 0.2"),
+        ("0.1.0", "metadagger 0.1.0"),
+        ("9.0.0", "metadagger 9.0.0"),
+    ],
+    ids=["unrecorded", "older", "newer"],
+)
 def test_a_run_folder_of_another_version_is_one_line_that_says_what_to_do(run, recorded, made_by):
     data = yaml.safe_load(run.config.read_text())
     if recorded is None:
@@ -152,8 +177,10 @@ def test_a_run_folder_of_another_version_is_one_line_that_says_what_to_do(run, r
         data["metadagger_version"] = recorded
     run.config.write_text(yaml.safe_dump(data, sort_keys=False))
     before = run.config.read_bytes()
-    expected = (f"{run.config} was made by {made_by}; this is {__version__}: start a new run folder "
-                f"(metadagger reproduce --task carracing --preset ci --out NEW) or use {made_by}")
+    expected = (
+        f"{run.config} was made by {made_by}; this is {__version__}: start a new run folder "
+        f"(metadagger reproduce --task carracing --preset ci --out NEW) or use {made_by}"
+    )
     with pytest.raises(UserError) as error:
         load_run(run.root)
     assert str(error.value) == expected
@@ -164,5 +191,7 @@ def test_a_run_folder_of_another_version_is_one_line_that_says_what_to_do(run, r
 
 def test_a_run_folder_of_another_patch_version_loads(run):
     major, minor, _ = __version__.split(".")
-    run.config.write_text(run.config.read_text().replace(f"metadagger_version: {__version__}", f"metadagger_version: {major}.{minor}.99"))
+    run.config.write_text(
+        run.config.read_text().replace(f"metadagger_version: {__version__}", f"metadagger_version: {major}.{minor}.99")
+    )
     assert load_run(run.root).metadagger_version == f"{major}.{minor}.99"

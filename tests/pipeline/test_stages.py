@@ -58,7 +58,9 @@ def test_widening_methods_from_the_command_line_fills_every_seed(finished, tmp_p
     _ok(["evaluate", "--out", layout.root, "--seeds", "5000", "--set", "evaluate.methods=[pistar-head]"])
     _ok(["evaluate", "--out", layout.root, "--seeds", "5000-5001", "--set", "evaluate.methods=[pistar-head, dm]"])
     rows = read_csv(layout.eval_table("mdm"))
-    assert sorted((r["method"], r["seed"]) for r in rows) == sorted((m, s) for m in ("bc", "pistar-head", "dm") for s in (5000, 5001))
+    assert sorted((r["method"], r["seed"]) for r in rows) == sorted(
+        (m, s) for m in ("bc", "pistar-head", "dm") for s in (5000, 5001)
+    )
     # and they are the rows the full run made
     reference = {(r["method"], r["seed"]): r for r in read_csv(RunLayout(finished).eval_table("mdm"))}
     assert all(r == reference[r["method"], r["seed"]] for r in rows)
@@ -71,8 +73,11 @@ def test_train_mapper_on_incomplete_pairs_refuses_and_reproduce_rebuilds(finishe
     (layout.pairs_dir / "pairs.jsonl").write_bytes(b"".join(lines[:-1]))
     for folder in (layout.root / "mappers", layout.eval_dir, layout.report_dir):
         shutil.rmtree(folder)
-    _refused(["train-mapper", "--out", layout.root, "--kind", "all"], "1 of 4 seeds of pairs.seeds have no current pair",
-             "metadagger pairs")
+    _refused(
+        ["train-mapper", "--out", layout.root, "--kind", "all"],
+        "1 of 4 seeds of pairs.seeds have no current pair",
+        "metadagger pairs",
+    )
     _refused(["evaluate", "--out", layout.root], "mapper dm not trained yet")
     _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root])
     # the refilled pair is the same, so the rebuilt mappers and tables are the reference run's
@@ -87,9 +92,14 @@ def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished
     _refused(["pairs", "--out", layout.root, "--set", "pairs.dagger_rounds=2"], "dagger_rounds: 1 -> 2", "--rebuild")
     assert layout.config.read_bytes() == config  # a refused command leaves the run's config as it was
     # a later option, left out of the stamps at its default
-    _refused(["pairs", "--out", layout.root, "--set", "pairs.bc.head_init=shared"], 'bc.head_init: (default) -> "shared"')
-    _refused(["train-mapper", "--out", layout.root, "--kind", "dm", "--set", "pairs.dagger_rounds=2"], "no current pair",
-             "dagger_rounds: 1 -> 2")
+    _refused(
+        ["pairs", "--out", layout.root, "--set", "pairs.bc.head_init=shared"], 'bc.head_init: (default) -> "shared"'
+    )
+    _refused(
+        ["train-mapper", "--out", layout.root, "--kind", "dm", "--set", "pairs.dagger_rounds=2"],
+        "no current pair",
+        "dagger_rounds: 1 -> 2",
+    )
     _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root, "--set", "pairs.dagger_rounds=2"])
     assert "  dagger_rounds: 2\n" in layout.config.read_text()  # the config reproduce ran with
     records = (layout.pairs_dir / "pairs.jsonl").read_text()
@@ -103,24 +113,52 @@ def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished
 
 def test_groundtruth_with_another_config_is_refused(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
-    _refused(["groundtruth", "--task", "carracing", "--preset", "ci", "--out", layout.root, "--set", "groundtruth.bc.epochs=2"],
-             "pi* in", "bc.epochs: 1 -> 2")
+    _refused(
+        [
+            "groundtruth",
+            "--task",
+            "carracing",
+            "--preset",
+            "ci",
+            "--out",
+            layout.root,
+            "--set",
+            "groundtruth.bc.epochs=2",
+        ],
+        "pi* in",
+        "bc.epochs: 1 -> 2",
+    )
 
 
 def test_config_show_prints_the_resolved_config():
-    out = _ok(["config", "show", "--task", "fetch", "--preset", "ci", "--set", "pairs.dagger_rounds=3",
-               "--set", "evaluate.methods=[dm, sam]"])
+    out = _ok(
+        [
+            "config",
+            "show",
+            "--task",
+            "fetch",
+            "--preset",
+            "ci",
+            "--set",
+            "pairs.dagger_rounds=3",
+            "--set",
+            "evaluate.methods=[dm, sam]",
+        ]
+    )
     assert "task: fetch\npreset: ci\n" in out and "  dagger_rounds: 3\n" in out and "  - dm\n  - sam\n" in out
 
 
-@pytest.mark.parametrize(("override", "needle"), [
-    ("pairs.dagger_rounds", "bad --set 'pairs.dagger_rounds': expected section.key=value"),
-    ("pairs.epochz=3", "unknown field(s) epochz"),
-    ("pairs.dagger_rounds=0", "pairs.dagger_rounds must be >= 1, got 0"),
-    ("evaluate.methods=[dm, xyz]", "unknown method(s) ['xyz']"),
-    ("mappers.dm.lr=-1", "MapperConfig.lr must be > 0"),
-    ("evaluate.methods=[dm", "not YAML"),
-])
+@pytest.mark.parametrize(
+    ("override", "needle"),
+    [
+        ("pairs.dagger_rounds", "bad --set 'pairs.dagger_rounds': expected section.key=value"),
+        ("pairs.epochz=3", "unknown field(s) epochz"),
+        ("pairs.dagger_rounds=0", "pairs.dagger_rounds must be >= 1, got 0"),
+        ("evaluate.methods=[dm, xyz]", "unknown method(s) ['xyz']"),
+        ("mappers.dm.lr=-1", "MapperConfig.lr must be > 0"),
+        ("evaluate.methods=[dm", "not YAML"),
+    ],
+)
 def test_bad_overrides_are_one_line(override, needle):
     _refused(["config", "show", "--task", "carracing", "--preset", "ci", "--set", override], needle)
 
@@ -138,22 +176,36 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
             assert "function_minus_bc" not in errors
         else:  # paired over the same validation pairs, so the means subtract
             difference = errors["function_minus_bc"]
-            assert difference["mean"] == pytest.approx(errors["function"]["mean"] - summary["methods"]["bc"]["function"]["mean"])
+            assert difference["mean"] == pytest.approx(
+                errors["function"]["mean"] - summary["methods"]["bc"]["function"]["mean"]
+            )
             assert difference["n"] == summary["val_pairs"]
-            assert math.isnan(difference["low"]) if difference["n"] == 1 else difference["low"] <= difference["mean"] <= difference["high"]
+            assert (
+                math.isnan(difference["low"])
+                if difference["n"] == 1
+                else difference["low"] <= difference["mean"] <= difference["high"]
+            )
         for control in ("mean-da", "pistar-head"):  # paired against each control, never against itself
             if name in ("bc", control):
                 assert f"function_minus_{control}" not in errors
             else:
                 difference = errors[f"function_minus_{control}"]
                 assert difference["n"] == summary["val_pairs"]
-                assert difference["mean"] == pytest.approx(errors["function"]["mean"] - summary["methods"][control]["function"]["mean"])
+                assert difference["mean"] == pytest.approx(
+                    errors["function"]["mean"] - summary["methods"][control]["function"]["mean"]
+                )
     assert summary["noise_ceiling"]["heads_per_seed"] == 3 and summary["noise_ceiling"]["function"] is not None
     assert {r["kind"] for r in summary["scaling"]} == {"dm", "sam", "tam", "ridge"}
     for row in summary["scaling"]:  # the 100% point is the run's own mapper, not fitted again
         full = row["fraction"] == 1.0
-        assert (row["function"] == summary["methods"][row["kind"]]["function"]["mean"]) if full else row["train_pairs"] < summary["train_pairs"]
-        assert row["function_minus_bc"]["mean"] == pytest.approx(row["function"] - summary["methods"]["bc"]["function"]["mean"])
+        assert (
+            (row["function"] == summary["methods"][row["kind"]]["function"]["mean"])
+            if full
+            else row["train_pairs"] < summary["train_pairs"]
+        )
+        assert row["function_minus_bc"]["mean"] == pytest.approx(
+            row["function"] - summary["methods"]["bc"]["function"]["mean"]
+        )
         assert layout.diagnostics_scaling(row["kind"], row["fraction"]).exists() != full
     log = [json.loads(line) for line in layout.diagnostics_log.read_text().splitlines()]
     assert all(row["reproduced"] for line in log for row in line["entries"].get("states", {}).get("rows", []))
@@ -164,14 +216,20 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
     report = layout.report.read_text()
     assert "## Does a mapper learn anything?" in report and "minus w_BC's (95%)" in report
     assert "minus mean-DA's (95%)" in report and "minus pi*-head's (95%)" in report
-    nearer = [k for k in ("dm", "sam", "tam", "ridge") if all(summary["methods"][k][f"function_minus_{c}"]["high"] < 0
-                                                               for c in ("mean-da", "pistar-head"))]
+    nearer = [
+        k
+        for k in ("dm", "sam", "tam", "ridge")
+        if all(summary["methods"][k][f"function_minus_{c}"]["high"] < 0 for c in ("mean-da", "pistar-head"))
+    ]
     assert ("No learned mapper is nearer to w_DA in actions than mean-DA and pi*-head" in report) == (not nearer)
 
 
 def test_reproduce_runs_the_diagnostics_only_when_asked(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
-    before = {path: path.read_bytes() for path in (layout.eval_table("mdm"), layout.mapper("sam"), layout.pairs_dir / "pairs.jsonl")}
+    before = {
+        path: path.read_bytes()
+        for path in (layout.eval_table("mdm"), layout.mapper("sam"), layout.pairs_dir / "pairs.jsonl")
+    }
     _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root])
     assert not layout.diagnostics_summary.exists()
     _ok(["reproduce", "--task", "carracing", "--preset", "ci", "--out", layout.root, "--diagnose"])
@@ -189,8 +247,11 @@ def test_a_damaged_pair_file_is_named_by_train_mapper_and_collected_again_by_pai
     layout = _copy(finished, tmp_path / "run")
     pair = sorted(layout.pairs_dir.glob("*.safetensors"))[0]
     pair.write_bytes(pair.read_bytes()[:100])
-    _refused(["train-mapper", "--out", layout.root, "--kind", "dm"], f"pair file {pair} is corrupt or not a safetensors file (",
-             f"; run `metadagger pairs --out {layout.root}`, which collects that pair again")
+    _refused(
+        ["train-mapper", "--out", layout.root, "--kind", "dm"],
+        f"pair file {pair} is corrupt or not a safetensors file (",
+        f"; run `metadagger pairs --out {layout.root}`, which collects that pair again",
+    )
     _ok(["pairs", "--out", layout.root])
     assert pair.read_bytes() == (finished / "pairs" / pair.name).read_bytes()
 
@@ -201,18 +262,28 @@ def test_a_weak_pistar_stops_before_any_pair_and_names_its_rates(finished, tmp_p
     layout = _copy(finished, tmp_path / "run")
     shutil.rmtree(layout.pairs_dir)
     pistar = layout.groundtruth.read_bytes()
-    line = _refused(["pairs", "--out", layout.root, "--set", "groundtruth.min_success=0.5"],
-                    "too weak to learn from", "own seeds 0/2", "unseen seeds 0/1 (0%, 95% interval 0%-79%)",
-                    "groundtruth.min_success=0.5", "Making pi* work on a new task")
+    line = _refused(
+        ["pairs", "--out", layout.root, "--set", "groundtruth.min_success=0.5"],
+        "too weak to learn from",
+        "own seeds 0/2",
+        "unseen seeds 0/1 (0%, 95% interval 0%-79%)",
+        "groundtruth.min_success=0.5",
+        "Making pi* work on a new task",
+    )
     assert "augment_shift" in line
     assert layout.groundtruth.read_bytes() == pistar and not layout.pairs_dir.exists()
 
 
 def test_too_few_kept_pairs_names_the_outcomes_and_pistar(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
-    _refused(["train-mapper", "--out", layout.root, "--kind", "dm", "--set", "pairs.val_fraction=0.9"],
-             "only 4 kept pairs (pairs.keep=all)", "pairs.val_fraction=0.9", "of 4 pair seeds: bc_ok/da_ok 0",
-             "bc_fail/da_fail 4", "pi*: own seeds 0/2")
+    _refused(
+        ["train-mapper", "--out", layout.root, "--kind", "dm", "--set", "pairs.val_fraction=0.9"],
+        "only 4 kept pairs (pairs.keep=all)",
+        "pairs.val_fraction=0.9",
+        "of 4 pair seeds: bc_ok/da_ok 0",
+        "bc_fail/da_fail 4",
+        "pi*: own seeds 0/2",
+    )
 
 
 def test_pairs_summary_records_how_far_dagger_moved_the_heads(finished):

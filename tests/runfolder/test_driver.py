@@ -18,6 +18,11 @@ def test_a_row_record_without_entries_is_a_corrupt_line(tmp_path: Path) -> None:
     assert log.rows([1], {"bc": {"rounds": 1}}) == [{"seed": 1, "success": True}]
     with open(log.path, "ab") as f:
         f.write(b'{"seed": 2, "rows": []}\n')
-    with pytest.raises(CheckpointError, match=re.escape(f"{log.path} has a row record without its entries: ") + ".*"
-                       + re.escape("; delete that line and re-run the stage") + "$"):
+    with pytest.raises(
+        CheckpointError,
+        match=re.escape(f"{log.path} has a row record without its entries: ")
+        + ".*"
+        + re.escape("; delete that line and re-run the stage")
+        + "$",
+    ):
         log.stamps()

@@ -33,8 +33,11 @@ def test_a_second_writer_is_refused_with_one_line_naming_the_holder(tmp_path):
     holder = _hold(tmp_path)
     try:
         started = time.monotonic()
-        with pytest.raises(UserError, match=rf"run folder {tmp_path} is in use by pid {holder.pid} on .* "
-                                            r"\(`metadagger pairs --out RUN`, since .*\); wait for it to finish"):
+        with pytest.raises(
+            UserError,
+            match=rf"run folder {tmp_path} is in use by pid {holder.pid} on .* "
+            r"\(`metadagger pairs --out RUN`, since .*\); wait for it to finish",
+        ):
             with run_lock(tmp_path):
                 pass
         assert time.monotonic() - started < 1.0

@@ -75,22 +75,34 @@ class SuccessNotBool(CorridorTask):
         return "yes"
 
 
-@pytest.mark.parametrize("task", [CorridorTask(), CorridorTask(discrete=False), metadagger.make_task("carracing"),
-                                  metadagger.make_task("carracing-family")], ids=lambda t: t.name)
+@pytest.mark.parametrize(
+    "task",
+    [
+        CorridorTask(),
+        CorridorTask(discrete=False),
+        metadagger.make_task("carracing"),
+        metadagger.make_task("carracing-family"),
+    ],
+    ids=lambda t: t.name,
+)
 def test_packaged_and_toy_tasks_pass(task):
     check_task_code(task)
 
 
-@pytest.mark.parametrize("task, needles", [
-    (OneHotExpert(), ["OneHotExpert.to_label returned", "shape (3,)", "class index", "int in 0..2"]),
-    (FloatLabel(), ["FloatLabel.to_label returned 1.0 (float)", "class index"]),
-    (OutOfRange(), ["OutOfRange.to_label returned 7", "0..2"]),
-    (GlobalRandomRoad(), ["GlobalRandomRoad.make_base_env", "seed 0 differ", "reset(seed=...)"]),
-    (LosesTheLabel(), ["LosesTheLabel.combine and to_label disagree", "expected 0"]),
-    (ReadsMissingState(), ["ReadsMissingState.expert raised AttributeError", "'state'"]),
-    (BoxShapeMismatch(), ["BoxShapeMismatch.to_label returned float32 of shape (2,)", "shape (1,)"]),
-    (SuccessNotBool(), ["SuccessNotBool.is_success returned 'yes'", "bool"]),
-], ids=lambda v: type(v).__name__ if isinstance(v, CorridorTask) else "")
+@pytest.mark.parametrize(
+    "task, needles",
+    [
+        (OneHotExpert(), ["OneHotExpert.to_label returned", "shape (3,)", "class index", "int in 0..2"]),
+        (FloatLabel(), ["FloatLabel.to_label returned 1.0 (float)", "class index"]),
+        (OutOfRange(), ["OutOfRange.to_label returned 7", "0..2"]),
+        (GlobalRandomRoad(), ["GlobalRandomRoad.make_base_env", "seed 0 differ", "reset(seed=...)"]),
+        (LosesTheLabel(), ["LosesTheLabel.combine and to_label disagree", "expected 0"]),
+        (ReadsMissingState(), ["ReadsMissingState.expert raised AttributeError", "'state'"]),
+        (BoxShapeMismatch(), ["BoxShapeMismatch.to_label returned float32 of shape (2,)", "shape (1,)"]),
+        (SuccessNotBool(), ["SuccessNotBool.is_success returned 'yes'", "bool"]),
+    ],
+    ids=lambda v: type(v).__name__ if isinstance(v, CorridorTask) else "",
+)
 def test_each_mistake_is_one_line_naming_the_method(task, needles):
     with pytest.raises(UserError) as info:
         check_task_code(task)
@@ -100,13 +112,32 @@ def test_each_mistake_is_one_line_naming_the_method(task, needles):
         assert needle in message
 
 
-@pytest.mark.parametrize("transform, space, needles", [
-    (lambda o: np.moveaxis(o, -1, 0), gym.spaces.Box(0, 255, (3, 16, 16), np.uint8), ["(3, 16, 16)", "channels-first", "moveaxis"]),
-    (lambda o: o.astype(np.float32) / 255, gym.spaces.Box(0, 1, (16, 16, 3), np.float32), ["float32", "uint8", "* 255"]),
-    (lambda o: o[0, :8].astype(np.float32), gym.spaces.Box(-1, 1, (8, 3), np.float32), ["(8, 3)", "images (H, W, C)"]),
-    (lambda o: o.astype(np.float32), gym.spaces.Box(0, 255, (16, 16, 3), np.uint8), ["reset: returned an observation of float32",
-                                                                                      "declares uint8"]),
-], ids=["channels-first", "float-image", "state-vector", "space-disagrees"])
+@pytest.mark.parametrize(
+    "transform, space, needles",
+    [
+        (
+            lambda o: np.moveaxis(o, -1, 0),
+            gym.spaces.Box(0, 255, (3, 16, 16), np.uint8),
+            ["(3, 16, 16)", "channels-first", "moveaxis"],
+        ),
+        (
+            lambda o: o.astype(np.float32) / 255,
+            gym.spaces.Box(0, 1, (16, 16, 3), np.float32),
+            ["float32", "uint8", "* 255"],
+        ),
+        (
+            lambda o: o[0, :8].astype(np.float32),
+            gym.spaces.Box(-1, 1, (8, 3), np.float32),
+            ["(8, 3)", "images (H, W, C)"],
+        ),
+        (
+            lambda o: o.astype(np.float32),
+            gym.spaces.Box(0, 255, (16, 16, 3), np.uint8),
+            ["reset: returned an observation of float32", "declares uint8"],
+        ),
+    ],
+    ids=["channels-first", "float-image", "state-vector", "space-disagrees"],
+)
 def test_wrong_observations_are_refused(transform, space, needles):
     task = CorridorTask()
     _observations(task, transform, space)
@@ -121,9 +152,22 @@ def test_a_bad_task_is_refused_before_any_work(tmp_path, monkeypatch):
     monkeypatch.setitem(_FACTORIES, "corridor-onehot", OneHotRun)
     presets = tmp_path / "presets.yaml"
     from toy_task import TINY_PRESETS
+
     presets.write_text(TINY_PRESETS)
-    result = CliRunner().invoke(app, ["reproduce", "--task", "corridor-onehot", "--presets", str(presets), "--preset", "tiny",
-                                      "--out", str(tmp_path / "run")])
+    result = CliRunner().invoke(
+        app,
+        [
+            "reproduce",
+            "--task",
+            "corridor-onehot",
+            "--presets",
+            str(presets),
+            "--preset",
+            "tiny",
+            "--out",
+            str(tmp_path / "run"),
+        ],
+    )
     assert result.exit_code == 2, result.output
     assert "OneHotRun.to_label returned" in result.output and "Traceback" not in result.output
     assert not (tmp_path / "run" / "groundtruth" / "pistar.safetensors").exists()
@@ -155,7 +199,7 @@ class FloatLabelRun(RunCorridorTask):
         return float(np.rint(action[0])) + 1
 
 
-TASK_MODULE = '''
+TASK_MODULE = """
 import numpy as np
 from toy_task import RunCorridorTask
 
@@ -165,7 +209,7 @@ class EditedTask(RunCorridorTask):
 
     def expert(self, env):
         return np.array([env.unwrapped.expert_move() * {gain}], dtype=np.float32)
-'''
+"""
 
 
 def _edited_task(folder: Path, gain: float) -> type:
@@ -192,7 +236,17 @@ def test_a_changed_task_code_makes_its_artifacts_stale(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     presets = tmp_path / "presets.yaml"
     presets.write_text(TINY_PRESETS)
-    args = ["groundtruth", "--task", "edited", "--presets", str(presets), "--preset", "tiny", "--out", str(tmp_path / "run")]
+    args = [
+        "groundtruth",
+        "--task",
+        "edited",
+        "--presets",
+        str(presets),
+        "--preset",
+        "tiny",
+        "--out",
+        str(tmp_path / "run"),
+    ]
     monkeypatch.setitem(_FACTORIES, "edited", _edited_task(tmp_path, 1.0))
     assert CliRunner().invoke(app, args).exit_code == 0
     assert CliRunner().invoke(app, args).exit_code == 0  # unchanged: reused

@@ -42,7 +42,9 @@ def test_the_expert_compensates_exactly_where_the_command_can_reach():
     rng = np.random.default_rng(0)
     for _ in range(50):
         v = variation.sample(rng)
-        reachable = np.sort(np.clip(v["gain"] * np.array([-STEER_LIMIT, STEER_LIMIT]) + v["offset"], -STEER_LIMIT, STEER_LIMIT))
+        reachable = np.sort(
+            np.clip(v["gain"] * np.array([-STEER_LIMIT, STEER_LIMIT]) + v["offset"], -STEER_LIMIT, STEER_LIMIT)
+        )
         wanted = np.array([rng.uniform(*reachable), 0.3, 0.0], dtype=np.float32)
         command = variation.compensate(v, wanted)
         assert abs(command[0]) <= STEER_LIMIT
@@ -60,7 +62,10 @@ def test_the_variation_is_in_info_never_in_the_observation():
     assert info["variation"] == family.variation_of(seed)
     np.testing.assert_array_equal(obs, plain_obs)  # the same image: the learner cannot see the variation
     # a mirrored car: the expert's command has the opposite sign of the nominal one
-    assert np.sign(info["expert_action"][0]) == -np.sign(plain_info["expert_action"][0]) or abs(plain_info["expert_action"][0]) < 0.05
+    assert (
+        np.sign(info["expert_action"][0]) == -np.sign(plain_info["expert_action"][0])
+        or abs(plain_info["expert_action"][0]) < 0.05
+    )
     _, _, _, _, info = env.step(info["expert_label"])
     assert info["variation"] == family.variation_of(seed)
     env.close()
@@ -87,8 +92,9 @@ def test_the_expert_drives_a_lap_on_a_mirrored_car():
     assert trajectory.success and trajectory.variation == family.variation_of(seed)
 
 
-@pytest.mark.parametrize("kwargs", [{"mirror_probability": 1.5}, {"gain_range": (2.0, 1.0)}, {"gain_range": (0.0, 1.0)},
-                                    {"max_offset": 0.5}])
+@pytest.mark.parametrize(
+    "kwargs", [{"mirror_probability": 1.5}, {"gain_range": (2.0, 1.0)}, {"gain_range": (0.0, 1.0)}, {"max_offset": 0.5}]
+)
 def test_bad_variation_settings_are_user_errors(kwargs):
     with pytest.raises(UserError):
         make_task("carracing-family", **kwargs)
@@ -111,15 +117,35 @@ def test_a_custom_family_runs_the_pipeline_and_reports_each_seeds_variation(corr
     from metadagger.pipeline.run_config import load_run
 
     run = RunLayout(tmp_path / "family")
-    result = runner.invoke(app, ["reproduce", "--task", "corridor-family", "--presets", str(corridor_family), "--preset", "tiny",
-                                 "--out", str(run.root), "--workers", "1", "--set", "evaluate.methods=[dm, mean-da, pistar-head]",
-                                 "--set", "mappers={dm: {epochs: 3}}",
-                                 "--set", "benchmark={seeds: [300, 301], methods: [bc, mdm, dagger], grids: {}}"])
+    result = runner.invoke(
+        app,
+        [
+            "reproduce",
+            "--task",
+            "corridor-family",
+            "--presets",
+            str(corridor_family),
+            "--preset",
+            "tiny",
+            "--out",
+            str(run.root),
+            "--workers",
+            "1",
+            "--set",
+            "evaluate.methods=[dm, mean-da, pistar-head]",
+            "--set",
+            "mappers={dm: {epochs: 3}}",
+            "--set",
+            "benchmark={seeds: [300, 301], methods: [bc, mdm, dagger], grids: {}}",
+        ],
+    )
     assert result.exit_code == 0, result.output
     # pi* learns the nominal member: the same weights as a pi* trained on the plain corridor
     plain = RunLayout(tmp_path / "plain")
     train_groundtruth(RunCorridorTask(max_episode_steps=12), load_run(run.root).groundtruth, plain, progress=False)
-    for a, b in zip(load_policy(run.groundtruth).net.state_dict().values(), load_policy(plain.groundtruth).net.state_dict().values()):
+    for a, b in zip(
+        load_policy(run.groundtruth).net.state_dict().values(), load_policy(plain.groundtruth).net.state_dict().values()
+    ):
         assert np.array_equal(a.numpy(), b.numpy())
     family = CorridorFamily(max_episode_steps=12)
     records = {r["seed"]: r for r in PairStore(run.pairs_dir).records()}

@@ -91,9 +91,12 @@ def test_worker_exception_names_the_item_and_closes() -> None:
 
 def test_a_user_error_in_a_worker_stays_a_user_error() -> None:
     jobs = [_Job(seed) for seed in range(1000, 1006)]
-    with make_executor("local", workers=2) as ex, pytest.raises(
-        UserError, match=r"^seed 1003: mapper checkpoint is corrupt or not a safetensors file: m\.safetensors$"
-    ) as info:
+    with (
+        make_executor("local", workers=2) as ex,
+        pytest.raises(
+            UserError, match=r"^seed 1003: mapper checkpoint is corrupt or not a safetensors file: m\.safetensors$"
+        ) as info,
+    ):
         list(ex.imap_unordered(_corrupt_file_on_seed_1003, jobs))
     assert not isinstance(info.value, WorkerError)
     assert isinstance(info.value.__cause__, CheckpointError)
@@ -127,11 +130,20 @@ def test_ray_not_installed_says_how_to_install(monkeypatch: pytest.MonkeyPatch) 
 
 
 @pytest.mark.parametrize("scheme", ["ray://", ""], ids=["ray-client", "host-port"])
-@pytest.mark.parametrize("port, message", [
-    ("closed_port", "cannot reach a Ray cluster at '{address}' .*'ray://HEAD:10001'"),
-    ("silent_port", "'{address}' accepts connections but does not answer as a Ray cluster within 3 s.*'ray://HEAD:10001'"),
-], ids=["refused", "never-answers"])
-def test_an_unreachable_ray_address_fails_within_seconds(request: pytest.FixtureRequest, port: str, message: str, scheme: str) -> None:
+@pytest.mark.parametrize(
+    "port, message",
+    [
+        ("closed_port", "cannot reach a Ray cluster at '{address}' .*'ray://HEAD:10001'"),
+        (
+            "silent_port",
+            "'{address}' accepts connections but does not answer as a Ray cluster within 3 s.*'ray://HEAD:10001'",
+        ),
+    ],
+    ids=["refused", "never-answers"],
+)
+def test_an_unreachable_ray_address_fails_within_seconds(
+    request: pytest.FixtureRequest, port: str, message: str, scheme: str
+) -> None:
     pytest.importorskip("ray", reason='Ray is optional: pip install -c constraints.txt -e ".[ray]"')
     address = f"{scheme}127.0.0.1:{request.getfixturevalue(port)}"
     start = time.monotonic()
@@ -145,7 +157,9 @@ def test_auto_is_checked_before_any_work_like_any_address(closed_port: int, monk
     from ray._private import services
 
     monkeypatch.setenv("RAY_ADDRESS", f"127.0.0.1:{closed_port}")  # what "auto" connects to first
-    with pytest.raises(UserError, match=f"cannot reach a Ray cluster at '127.0.0.1:{closed_port}' \\(found for 'auto'\\)"):
+    with pytest.raises(
+        UserError, match=f"cannot reach a Ray cluster at '127.0.0.1:{closed_port}' \\(found for 'auto'\\)"
+    ):
         check_executor_options("ray", None, "auto")
     monkeypatch.delenv("RAY_ADDRESS")
 
@@ -153,7 +167,9 @@ def test_auto_is_checked_before_any_work_like_any_address(closed_port: int, monk
         raise ConnectionError("Could not find any running Ray instance.")
 
     monkeypatch.setattr(services, "canonicalize_bootstrap_address", no_cluster)
-    with pytest.raises(UserError, match="no Ray cluster found for address 'auto': RAY_ADDRESS is not set and no `ray start`"):
+    with pytest.raises(
+        UserError, match="no Ray cluster found for address 'auto': RAY_ADDRESS is not set and no `ray start`"
+    ):
         check_executor_options("ray", None, "auto")
 
 
@@ -196,7 +212,9 @@ def test_a_refused_connection_names_the_token_of_this_machine(monkeypatch: pytes
     assert "token" not in str(error.value)  # no token here: nothing to say about one
     (tmp_path / ".ray").mkdir()
     (tmp_path / ".ray" / "auth_token").write_text("x" * 64)
-    with pytest.raises(UserError, match=r"^cannot connect to Ray at '127\.0\.0\.1:6379' .*set RAY_AUTH_MODE=token[^\n]*$"):
+    with pytest.raises(
+        UserError, match=r"^cannot connect to Ray at '127\.0\.0\.1:6379' .*set RAY_AUTH_MODE=token[^\n]*$"
+    ):
         make_executor("ray", address="127.0.0.1:6379")
     monkeypatch.setenv("RAY_AUTH_MODE", "token")
     with pytest.raises(UserError) as error:

@@ -13,6 +13,7 @@ def _write(files: dict[str, str]):
     def write(folder):
         for name, text in files.items():
             (folder / name).write_text(text)
+
     return write
 
 

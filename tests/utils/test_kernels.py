@@ -25,7 +25,7 @@ PROBE = textwrap.dedent("""
     from metadagger.utils.kernels import kernel_stamp
     torch.ones(2) + 1
     print(torch.backends.cpu.get_cpu_capability(), "numpy-avx512:" + str(__cpu_features__.get("X86_V4", False)),
-          "opencv-avx512:" + str("*AVX512-SKX" in cv2.getCPUFeaturesLine() and "AVX512-SKX?" not in cv2.getCPUFeaturesLine()),
+          "opencv-avx512:" + str("*AVX512-SKX" in (line := cv2.getCPUFeaturesLine()) and "AVX512-SKX?" not in line),
           "stamp:" + str(kernel_stamp()["kernels"] != "native"))
 """)
 
@@ -39,7 +39,6 @@ def _probe(script: str = PROBE, **env: str) -> list[str]:
 
 def _has_avx512() -> bool:
     import numpy
-
     from numpy._core._multiarray_umath import __cpu_features__
 
     return bool(__cpu_features__.get("AVX512F")) and "X86_V4" in numpy._core._multiarray_umath.__cpu_dispatch__
@@ -47,8 +46,10 @@ def _has_avx512() -> bool:
 
 @X86
 def test_importing_metadagger_and_its_command_line_loads_no_numerical_library():
-    script = ("import sys, metadagger, metadagger.cli.entry; "
-              "print(*[m for m in ('numpy', 'torch', 'cv2', 'gymnasium', 'mujoco') if m in sys.modules] or ['none'])")
+    script = (
+        "import sys, metadagger, metadagger.cli.entry; "
+        "print(*[m for m in ('numpy', 'torch', 'cv2', 'gymnasium', 'mujoco') if m in sys.modules] or ['none'])"
+    )
     assert _probe(script) == ["none"]
 
 
@@ -78,11 +79,15 @@ def test_a_users_own_setting_wins():
 
 @X86
 def test_a_library_loaded_before_the_pin_is_named_in_the_stamp():
-    script = ("import numpy, metadagger; metadagger.pin_cpu_kernels(); "
-              "from metadagger.utils.kernels import kernel_stamp; print(*kernel_stamp()['kernels']['loaded_unpinned'])")
+    script = (
+        "import numpy, metadagger; metadagger.pin_cpu_kernels(); "
+        "from metadagger.utils.kernels import kernel_stamp; print(*kernel_stamp()['kernels']['loaded_unpinned'])"
+    )
     assert _probe(script) == ["numpy"]
-    pinned_first = ("import metadagger; metadagger.pin_cpu_kernels(); import numpy; "
-                    "from metadagger.utils.kernels import kernel_stamp; print('loaded_unpinned' in kernel_stamp()['kernels'])")
+    pinned_first = (
+        "import metadagger; metadagger.pin_cpu_kernels(); import numpy; "
+        "from metadagger.utils.kernels import kernel_stamp; print('loaded_unpinned' in kernel_stamp()['kernels'])"
+    )
     assert _probe(pinned_first) == ["False"]
 
 

@@ -15,8 +15,11 @@ SRC = Path(__file__).resolve().parents[2] / "src" / "metadagger"
 
 def test_no_module_builds_torchs_default_adam():
     """torch.optim.Adam's default CPU path takes MKL's square roots, which differ by CPU."""
-    direct = [str(path.relative_to(SRC)) for path in SRC.rglob("*.py")
-              if path.name != "optim.py" and re.search(r"optim\.Adam\(|optim\.AdamW\(", path.read_text())]
+    direct = [
+        str(path.relative_to(SRC))
+        for path in SRC.rglob("*.py")
+        if path.name != "optim.py" and re.search(r"optim\.Adam\(|optim\.AdamW\(", path.read_text())
+    ]
     assert direct == []
 
 
@@ -37,7 +40,7 @@ def test_a_gradient_laid_out_otherwise_steps_the_weights_it_belongs_to():
     must still pair each gradient element with its own weight."""
     conv = torch.nn.Conv2d(3, 4, 3)
     x = torch.randn(2, 3, 8, 8, generator=torch.Generator().manual_seed(0))
-    grad, = torch.autograd.grad(conv(x).square().sum(), [conv.weight])
+    (grad,) = torch.autograd.grad(conv(x).square().sum(), [conv.weight])
     channels_last = grad.to(memory_format=torch.channels_last)
     assert channels_last.stride() != conv.weight.stride()
     steps = []

@@ -45,7 +45,9 @@ def smooth_actions(seed: int, steps: int) -> np.ndarray:
     return actions
 
 
-def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), steps: int = 1000, warmup_steps: int = 100) -> dict:
+def bench_env(
+    task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), steps: int = 1000, warmup_steps: int = 100
+) -> dict:
     """Step our base env and upstream's on the same seeds and actions; return both rates.
 
     Both envs are built with ``gym.make`` (same wrappers) and take turns, 50 steps at a time,
@@ -75,7 +77,10 @@ def bench_env(task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), step
     if task == "fetch":
         return _bench_fetch(seeds, steps)
     if task not in ENV_PAIRS:
-        raise UserError(f"bench env: unknown task {task!r}: expected one of {', '.join([*ENV_PAIRS, 'fetch'])}; pass --task carracing")
+        raise UserError(
+            f"bench env: unknown task {task!r}: expected one of {', '.join([*ENV_PAIRS, 'fetch'])}; pass --task "
+            "carracing"
+        )
     ids = ENV_PAIRS[task]
     register_envs()  # our id, for gym.make
     envs = [_TimedEnv(env_id) for env_id in ids]
@@ -117,7 +122,9 @@ def _bench_fetch(seeds: Sequence[int], steps: int) -> dict:
     try:
         from metadagger.tasks.fetch.env import bench_fetch_env
     except ImportError as exc:
-        raise UserError(f"bench env --task fetch needs the fetch extra ({exc}); pip install -c constraints.txt -e '.[fetch]'") from None
+        raise UserError(
+            f"bench env --task fetch needs the fetch extra ({exc}); pip install -c constraints.txt -e '.[fetch]'"
+        ) from None
     return {"task": "fetch", **bench_fetch_env(seeds=list(seeds), steps=steps), "machine": _machine()}
 
 
@@ -211,8 +218,14 @@ def _machine() -> dict[str, Any]:
     }
 
 
-def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1, 2), target_kept: int = 375,
-                nodes: Sequence[int] = (4, 16)) -> dict:
+def bench_pairs(
+    run: str | Path,
+    *,
+    seeds: int = 4,
+    workers: Sequence[int] = (1, 2),
+    target_kept: int = 375,
+    nodes: Sequence[int] = (4, 16),
+) -> dict:
     """Time pair collection with 1 and 2 workers on the first ``seeds`` pair seeds of a run.
 
     Each measurement collects into a fresh temporary store (process-pool start-up included), so
@@ -226,11 +239,11 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     import dataclasses
     import tempfile
 
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.metal.groundtruth import load_groundtruth
     from metadagger.metal.pairs import collect_pairs
     from metadagger.pipeline.stages import load_run, run_task
     from metadagger.runfolder.driver import StageOptions
+    from metadagger.runfolder.layout import RunLayout
 
     run = Path(run)
     layout = RunLayout(run)
@@ -238,7 +251,9 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
     if target_kept < 1 or any(n < 1 for n in nodes):
         raise UserError(f"bench pairs needs --target-kept >= 1 and --nodes >= 1, got {target_kept} and {list(nodes)}")
     if seeds < 1 or len(config.pairs.seeds) < seeds:
-        raise UserError(f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}")
+        raise UserError(
+            f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}"
+        )
     load_groundtruth(layout)  # a missing or corrupt pi* is named under its own path, not the scratch copies'
     run_summary = layout.pairs_summary
     run_kept = read_json(run_summary, "the run's pairs summary") if run_summary.is_file() else None
@@ -272,7 +287,7 @@ def bench_pairs(run: str | Path, *, seeds: int = 4, workers: Sequence[int] = (1,
         "minutes_for_target_kept": minutes,
         "extrapolated": {
             "assumes": f"a Ray cluster of N nodes like this machine, each running {best} workers, collects "
-                       "N times this machine's pairs per hour (not measured)",
+            "N times this machine's pairs per hour (not measured)",
             "pair_seeds_for_target_kept": math.ceil(target_kept / kept_share) if kept_share > 0 else None,
             "hours_on_ray_nodes": {str(n): None if minutes is None else minutes / 60.0 / n for n in (1, *nodes)},
         },
@@ -293,8 +308,10 @@ def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:
         return Policy(net=net, task="carracing")
 
     rng = np.random.default_rng(seed)
-    data = Dataset(obs=rng.integers(0, 256, (images, 96, 96, 3), dtype=np.uint8),
-                   labels=rng.integers(0, 20, images).astype(np.int64))
+    data = Dataset(
+        obs=rng.integers(0, 256, (images, 96, 96, 3), dtype=np.uint8),
+        labels=rng.integers(0, 20, images).astype(np.int64),
+    )
     full_s = fit_bc(fresh(), data, BCConfig(epochs=epochs, seed=seed))["seconds"]
     policy = fresh()
     cache = FeatureCache(policy)
@@ -340,8 +357,18 @@ def bench_kernels(task: str = "carracing", *, preset: str = "ci", repeats: int =
         for r in range(repeats):
             for kernels in ("pinned", "native") if r % 2 == 0 else ("native", "pinned"):
                 out = Path(tmp) / f"{kernels}-{r}"
-                command = [sys.executable, "-m", "metadagger.cli", "reproduce", "--task", task, "--preset", preset,
-                           "--out", str(out)]
+                command = [
+                    sys.executable,
+                    "-m",
+                    "metadagger.cli",
+                    "reproduce",
+                    "--task",
+                    task,
+                    "--preset",
+                    preset,
+                    "--out",
+                    str(out),
+                ]
                 start = time.perf_counter()
                 done = subprocess.run(command, env=_kernel_environment(kernels), capture_output=True, text=True)
                 if done.returncode != 0:

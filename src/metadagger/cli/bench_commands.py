@@ -13,8 +13,12 @@ from metadagger.cli.options import OUT, TASK, user_errors
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
 
 
-def _measure_and_write(out: Path, flag: str, measure: Callable[[], dict],
-                       shown: Callable[[str, Any], bool] = lambda key, value: key != "machine") -> None:
+def _measure_and_write(
+    out: Path,
+    flag: str,
+    measure: Callable[[], dict],
+    shown: Callable[[str, Any], bool] = lambda key, value: key != "machine",
+) -> None:
     """Check ``out`` (given as ``flag``) before any work, run ``measure``, write its JSON to ``out``
     and echo the items ``shown`` keeps (by default all but the machine description)."""
     from metadagger.cli.bench import write_bench
@@ -32,15 +36,21 @@ def _measure_and_write(out: Path, flag: str, measure: Callable[[], dict],
 def bench_env_cmd(
     task: str = TASK,
     seeds: str = typer.Option("0-2", "--seeds", help="Seeds to step."),
-    steps: int = typer.Option(1000, "--steps", min=1, help="Steps per seed (1000: a full episode, as upstream registers it)."),
+    steps: int = typer.Option(
+        1000, "--steps", min=1, help="Steps per seed (1000: a full episode, as upstream registers it)."
+    ),
     out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
 ) -> None:
     """Steps per second of our env against upstream's, on the same seeds and actions."""
     from metadagger.cli.bench import bench_env
     from metadagger.utils.yaml_config import parse_seeds
 
-    _measure_and_write(out, "--out", lambda: bench_env(task, seeds=parse_seeds(seeds), steps=steps),
-                       shown=lambda key, value: not isinstance(value, (dict, list)))
+    _measure_and_write(
+        out,
+        "--out",
+        lambda: bench_env(task, seeds=parse_seeds(seeds), steps=steps),
+        shown=lambda key, value: not isinstance(value, (dict, list)),
+    )
 
 
 @bench_app.command("bc")
@@ -62,8 +72,12 @@ def bench_pairs_cmd(
     out: Path = OUT,
     seeds: int = typer.Option(4, "--seeds", help="How many of the run's pair seeds to time."),
     json_out: Path = typer.Option(Path("runs/bench/pairs.json"), "--json", help="JSON file to write."),
-    target_kept: int = typer.Option(375, "--target-kept", help="Kept pairs to extrapolate the time for (the paper's: 375)."),
-    nodes: list[int] = typer.Option([4, 16], "--nodes", help="Ray cluster sizes to extrapolate to (nodes like this machine); repeatable."),
+    target_kept: int = typer.Option(
+        375, "--target-kept", help="Kept pairs to extrapolate the time for (the paper's: 375)."
+    ),
+    nodes: list[int] = typer.Option(
+        [4, 16], "--nodes", help="Ray cluster sizes to extrapolate to (nodes like this machine); repeatable."
+    ),
 ) -> None:
     """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
     pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
@@ -91,7 +105,9 @@ def bench_kernels_cmd(
 @user_errors
 def bench_ops_cmd(
     out: Path = typer.Option(Path("runs/bench/ops.json"), "--out", help="JSON file to write."),
-    compare: Optional[Path] = typer.Option(None, "--compare", help="Another machine's fingerprint (its --out) to compare with."),
+    compare: Optional[Path] = typer.Option(
+        None, "--compare", help="Another machine's fingerprint (its --out) to compare with."
+    ),
 ) -> None:
     """A fingerprint of every kind of computation a run does (sha256 of each output on fixed
     inputs); with --compare, the computations whose bits differ on the other machine, first one first."""

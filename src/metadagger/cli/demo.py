@@ -54,15 +54,18 @@ class DemoConfig:
             raise UserError("DemoConfig: train_seeds and eval_seeds must both be non-empty")
         shared = sorted(set(self.train_seeds) & set(self.eval_seeds))
         if shared:
-            raise UserError(f"DemoConfig: eval_seeds must be unseen, but {shared} are also train_seeds; pick disjoint ranges")
+            raise UserError(
+                f"DemoConfig: eval_seeds must be unseen, but {shared} are also train_seeds; pick disjoint ranges"
+            )
         if self.dagger_rounds < 1:
             raise UserError(f"DemoConfig.dagger_rounds must be >= 1, got {self.dagger_rounds}")
         if self.max_episode_steps < 1:
             raise UserError(f"DemoConfig.max_episode_steps must be >= 1, got {self.max_episode_steps}")
 
 
-def demo_config(task: str, preset: str, *, rounds: int | None = None, epochs: int | None = None,
-                demos: str | None = None) -> DemoConfig:
+def demo_config(
+    task: str, preset: str, *, rounds: int | None = None, epochs: int | None = None, demos: str | None = None
+) -> DemoConfig:
     """The demo section of a task's preset, with optional overrides (validated like the preset)."""
     data = {"task": task, **load_preset(task, preset).get("demo", {})}
     if demos is not None:
@@ -87,7 +90,9 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
     folder = RunLayout(out).demo_dir
     task = make_task(config.task, max_episode_steps=config.max_episode_steps)
 
-    data = _demonstrations(task, config, progress=progress)  # a dataset that does not fit is refused before anything is written
+    data = _demonstrations(
+        task, config, progress=progress
+    )  # a dataset that does not fit is refused before anything is written
     write_text(folder / "config.yaml", dump_yaml(config))
     demo_queries = len(data)
 
@@ -106,12 +111,19 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
 
     dagger_policy = policy.copy()
     run_dagger(
-        dagger_policy, task, config.train_seeds, initial=data,
-        config=DAggerConfig(rounds=config.dagger_rounds, bc=config.bc), progress=progress, on_round=on_round,
+        dagger_policy,
+        task,
+        config.train_seeds,
+        initial=data,
+        config=DAggerConfig(rounds=config.dagger_rounds, bc=config.bc),
+        progress=progress,
+        on_round=on_round,
     )
     dagger_policy.save(folder / "dagger.safetensors")
 
-    table = _table(summarize(bc_rows), demo_queries, summarize(dagger_rows), curve[-1]["expert_queries"], len(config.eval_seeds))
+    table = _table(
+        summarize(bc_rows), demo_queries, summarize(dagger_rows), curve[-1]["expert_queries"], len(config.eval_seeds)
+    )
     write_text(folder / "table.md", table + "\n")
     write_json(folder / "metrics.json", {"bc": bc_rows, "dagger": dagger_rows, "curve": curve})
     write_csv(folder / "rounds.csv", curve, fields=tuple(curve[0]))
@@ -139,18 +151,25 @@ def _table(bc: dict, bc_queries: int, da: dict, da_queries: int, n_eval: int) ->
     for name, s, q in (("BC", bc, bc_queries), ("DAgger", da, da_queries)):
         lines.append(
             f"| {name} | {s['success_rate']:.0%} ({s['successes']}/{s['episodes']}) | "
-            f"{s['success_ci_low']:.0%}-{s['success_ci_high']:.0%} | {s['mean_reward']:.1f} | {s['mean_steps']:.0f} | {q} |"
+            f"{s['success_ci_low']:.0%}-{s['success_ci_high']:.0%} | {s['mean_reward']:.1f} | {s['mean_steps']:.0f} | "
+            f"{q} |"
         )
     return "\n".join(lines)
 
 
 def _plot(curve: list[dict], path: Path, *, task: str) -> None:
-    from metadagger.utils.plotting import save_figure, plt
+    from metadagger.utils.plotting import plt, save_figure
 
     fig, ax = plt.subplots(figsize=(5, 3.5))
     rounds = [r["round"] for r in curve]
     ax.plot(rounds, [r["success_rate"] for r in curve], marker="o", label="success rate")
-    ax.fill_between(rounds, [r["success_ci_low"] for r in curve], [r["success_ci_high"] for r in curve], alpha=0.2, label="95% Wilson CI")
+    ax.fill_between(
+        rounds,
+        [r["success_ci_low"] for r in curve],
+        [r["success_ci_high"] for r in curve],
+        alpha=0.2,
+        label="95% Wilson CI",
+    )
     ax.set_xlabel("DAgger round (0 = BC)")
     ax.set_ylabel("success on unseen seeds")
     ax.set_ylim(-0.02, 1.02)

@@ -80,7 +80,9 @@ def main(argv: Optional[list[str]] = None) -> None:
         print_error(message)
         sys.exit(exc.exit_code)
     if _stopped_by:
-        print_error(f"stopped by {SIGNAL_NAMES[_stopped_by[0]]}: finished work is kept; run the same command again to resume where it stopped")
+        print_error(
+            f"stopped by {SIGNAL_NAMES[_stopped_by[0]]}: finished work is kept; run the same command again to resume "
+            "where it stopped"
+        )
         sys.exit(128 + _stopped_by[0])  # the shell's convention: 143 for SIGTERM, 130 for Ctrl-C
     sys.exit(code if isinstance(code, int) else 0)
-

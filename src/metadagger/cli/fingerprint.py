@@ -70,7 +70,9 @@ def _policy_step(ops: dict[str, Callable[[], Any]]) -> None:
     from metadagger.policies import PolicyNet
     from metadagger.utils.optim import adam
 
-    frames = torch.from_numpy((_integers(_BATCH * _SIZE * _SIZE * 3, 5) & 255).astype(np.uint8).reshape(_BATCH, _SIZE, _SIZE, 3))
+    frames = torch.from_numpy(
+        (_integers(_BATCH * _SIZE * _SIZE * 3, 5) & 255).astype(np.uint8).reshape(_BATCH, _SIZE, _SIZE, 3)
+    )
     labels = torch.from_numpy((_integers(_BATCH, 6) % _CLASSES).astype(np.int64))
     net = PolicyNet(obs_shape=(_SIZE, _SIZE, 3), n_outputs=_CLASSES, discrete=True)
     net.init_weights(0)
@@ -97,9 +99,12 @@ def _policy_step(ops: dict[str, Callable[[], Any]]) -> None:
         loss = F.cross_entropy(logits, labels)
         loss.backward()
         optimizer.step()
-        return {"logits": logits, "loss": loss,
-                **{f"grad {name}": p.grad for name, p in net.named_parameters()},
-                "weights after Adam": list(net.parameters())}
+        return {
+            "logits": logits,
+            "loss": loss,
+            **{f"grad {name}": p.grad for name, p in net.named_parameters()},
+            "weights after Adam": list(net.parameters()),
+        }
 
     ops["torch.init (xavier_uniform_)"] = lambda: list(net.parameters())
     ops["torch.preprocess"] = lambda: x
@@ -145,7 +150,12 @@ def fingerprint_kernels() -> dict[str, Any]:
         value = op()
         parts = value.items() if isinstance(value, dict) else [(None, value)]
         digests += [_digest(name if part is None else f"{name}: {part}", v) for part, v in parts]
-    return {"ops": digests, "kernels": kernel_stamp(), "machine": machine_description(), "commit": source_revision() or "unknown"}
+    return {
+        "ops": digests,
+        "kernels": kernel_stamp(),
+        "machine": machine_description(),
+        "commit": source_revision() or "unknown",
+    }
 
 
 def read_fingerprint(path: Path) -> dict[str, Any]:

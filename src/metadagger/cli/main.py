@@ -25,14 +25,30 @@ from metadagger.utils.kernels import pin_cpu_kernels
 
 pin_cpu_kernels()  # before the registry below loads torch, and before any command's tensor operation
 
-from metadagger.cli.bench_commands import bench_app  # noqa: E402
-from metadagger.cli.options import (ADDRESS, BUILTIN_PRESET, EXECUTOR, OUT, PRESET, PRESETS_FILE, REBUILD, SET, TASK,  # noqa: E402
-                                    WORKERS, stage_options, user_errors)
-from metadagger.cli.results_commands import results_app  # noqa: E402
-from metadagger.mapping.registry import kind_names, trained_names  # noqa: E402
+from metadagger.cli.bench_commands import bench_app
+from metadagger.cli.options import (
+    ADDRESS,
+    BUILTIN_PRESET,
+    EXECUTOR,
+    OUT,
+    PRESET,
+    PRESETS_FILE,
+    REBUILD,
+    SET,
+    TASK,
+    WORKERS,
+    stage_options,
+    user_errors,
+)
+from metadagger.cli.results_commands import results_app
+from metadagger.mapping.registry import kind_names, trained_names
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.")
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="Meta-Learning DAgger: imitation learning that maps BC weights to DAgger weights.",
+)
 app.add_typer(bench_app, name="bench")
 app.add_typer(results_app, name="results")
 config_app = typer.Typer(no_args_is_help=True, help="Inspect run configs.")
@@ -57,8 +73,12 @@ def demo(
     out: Path = typer.Option(Path("runs/demo"), "--out", help="Run folder to write to."),
     rounds: Optional[int] = typer.Option(None, "--rounds", help="Override the preset's DAgger rounds."),
     epochs: Optional[int] = typer.Option(None, "--epochs", help="Override the preset's BC epochs per fit."),
-    demos: Optional[str] = typer.Option(None, "--demos", help="Clone from this Minari dataset (its spaces must match the "
-                                        "task's learner) instead of the expert's demonstrations of the train seeds."),
+    demos: Optional[str] = typer.Option(
+        None,
+        "--demos",
+        help="Clone from this Minari dataset (its spaces must match the "
+        "task's learner) instead of the expert's demonstrations of the train seeds.",
+    ),
 ) -> None:
     """BC from expert demos, then DAgger rounds; both evaluated on unseen seeds."""
     from metadagger.cli.demo import demo_config, run_demo
@@ -77,10 +97,10 @@ def expert(
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the per-seed rows as JSON here."),
 ) -> None:
     """Measure the task's expert (acting through the learner's action space) on seeds."""
-    from metadagger.utils.yaml_config import parse_seeds
     from metadagger.evaluation.expert import evaluate_expert, expert_table
-    from metadagger.utils.io import check_output_file, write_json
     from metadagger.tasks import make_task
+    from metadagger.utils.io import check_output_file, write_json
+    from metadagger.utils.yaml_config import parse_seeds
 
     if out is not None:
         check_output_file(out, "--out")
@@ -95,7 +115,9 @@ def expert(
 @user_errors
 def check_task_cmd(
     task: str = TASK,
-    seeds: str = typer.Option("0-9", "--seeds", help="Seeds the expert is measured on: a range '0-9', a list '1,5,9' or one seed."),
+    seeds: str = typer.Option(
+        "0-9", "--seeds", help="Seeds the expert is measured on: a range '0-9', a list '1,5,9' or one seed."
+    ),
 ) -> None:
     """Check a task's code (observation and action spaces, the expert's labels, combine and
     to_label, seeded episodes), then measure its expert on seeds: success, episode lengths and
@@ -112,23 +134,34 @@ def check_task_cmd(
     check_task_code(built)
     env = built.make_base_env()
     try:
-        typer.echo(f"{task}: the task's code passes the checks (observations {env.observation_space.dtype} "
-                   f"{tuple(env.observation_space.shape)}, learner actions {built.learner_action_space}, "
-                   f"{built.max_episode_steps} steps an episode at most)")
+        typer.echo(
+            f"{task}: the task's code passes the checks (observations {env.observation_space.dtype} "
+            f"{tuple(env.observation_space.shape)}, learner actions {built.learner_action_space}, "
+            f"{built.max_episode_steps} steps an episode at most)"
+        )
     finally:
         env.close()
     start = time.perf_counter()
     rows = evaluate_expert(built, seed_list)
     typer.echo(expert_table(rows, seconds=time.perf_counter() - start))
     if not any(r["success"] for r in rows):
-        typer.echo(f"warning: the expert succeeds on none of {len(rows)} seeds: is_success or the expert is wrong, "
-                   "and nothing can be imitated", err=True)
+        typer.echo(
+            f"warning: the expert succeeds on none of {len(rows)} seeds: is_success or the expert is wrong, "
+            "and nothing can be imitated",
+            err=True,
+        )
 
 
 @app.command()
 @user_errors
-def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets: Optional[Path] = PRESETS_FILE,
-                overrides: list[str] = SET, rebuild: bool = REBUILD) -> None:
+def groundtruth(
+    task: str = TASK,
+    preset: str = PRESET,
+    out: Path = OUT,
+    presets: Optional[Path] = PRESETS_FILE,
+    overrides: list[str] = SET,
+    rebuild: bool = REBUILD,
+) -> None:
     """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
     from metadagger.metal.groundtruth import pistar_rates
     from metadagger.pipeline.stages import init_run, stage_groundtruth
@@ -140,21 +173,32 @@ def groundtruth(task: str = TASK, preset: str = PRESET, out: Path = OUT, presets
     metrics = stage_groundtruth(layout, config, StageOptions(rebuild=rebuild))
     typer.echo(f"pi*: {pistar_rates(metrics)}")
     if metrics["unseen_seeds"]["success_rate"] < config.groundtruth.min_success:
-        typer.echo(f"warning: pi* is below groundtruth.min_success={config.groundtruth.min_success:g} on its unseen seeds: "
-                   "the pairs stage will refuse it (docs/custom_task.md, \"Making pi* work on a new task\")", err=True)
+        typer.echo(
+            f"warning: pi* is below groundtruth.min_success={config.groundtruth.min_success:g} on its unseen seeds: "
+            'the pairs stage will refuse it (docs/custom_task.md, "Making pi* work on a new task")',
+            err=True,
+        )
     if metrics.get("bc_selection"):
         choice = metrics["bc_selection"]
-        typer.echo(f"pi* is epoch {choice['epoch']} of its BC fit: {choice['successes']}/{choice['episodes']} held-out seeds")
+        typer.echo(
+            f"pi* is epoch {choice['epoch']} of its BC fit: {choice['successes']}/{choice['episodes']} held-out seeds"
+        )
     typer.echo(f"wrote {layout.groundtruth}")
 
 
 @app.command()
 @user_errors
-def pairs(out: Path = OUT, overrides: list[str] = SET, rebuild: bool = REBUILD, executor: str = EXECUTOR,
-          workers: Optional[int] = WORKERS, address: Optional[str] = ADDRESS) -> None:
+def pairs(
+    out: Path = OUT,
+    overrides: list[str] = SET,
+    rebuild: bool = REBUILD,
+    executor: str = EXECUTOR,
+    workers: Optional[int] = WORKERS,
+    address: Optional[str] = ADDRESS,
+) -> None:
     """Collect per-seed (w_BC, w_DA) pairs with pi*'s frozen trunk; resumes unfinished seeds."""
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_pairs
+    from metadagger.runfolder.layout import RunLayout
 
     options = stage_options(rebuild, executor, workers, address)  # before any work
     layout = RunLayout(out)
@@ -181,8 +225,8 @@ def train_mapper_cmd(
 ) -> None:
     """Train mappers on the run's kept pairs (curves.csv and curves.png beside each), one kind
     per worker."""
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_mappers
+    from metadagger.runfolder.layout import RunLayout
 
     options = stage_options(rebuild, executor, workers, address)  # before any work
     kinds = kind_names() if kind == "all" else (kind,)
@@ -194,16 +238,31 @@ def train_mapper_cmd(
 @user_errors
 def tune(
     out: Path = OUT,
-    kind: str = typer.Option(..., "--kind", help=f"The mapper kind to tune: {', '.join(trained_names())} (the kinds "
-                             "trained by Adam; ridge and the controls have nothing to tune)."),
-    trials: int = typer.Option(30, "--trials", help="Completed trials the study should hold in all; a resumed study runs "
-                               "only the missing ones."),
+    kind: str = typer.Option(
+        ...,
+        "--kind",
+        help=f"The mapper kind to tune: {', '.join(trained_names())} (the kinds "
+        "trained by Adam; ridge and the controls have nothing to tune).",
+    ),
+    trials: int = typer.Option(
+        30,
+        "--trials",
+        help="Completed trials the study should hold in all; a resumed study runs only the missing ones.",
+    ),
     seed: int = typer.Option(0, "--seed", help="Seeds the sampler (a trial's own seed is mappers.<kind>.seed)."),
-    apply: bool = typer.Option(False, "--apply", help="Write the best settings into the run's config.yaml (mappers.<kind>), "
-                               "for train-mapper --rebuild and reproduce."),
+    apply: bool = typer.Option(
+        False,
+        "--apply",
+        help="Write the best settings into the run's config.yaml (mappers.<kind>), "
+        "for train-mapper --rebuild and reproduce.",
+    ),
     overrides: list[str] = SET,
-    rebuild: bool = typer.Option(False, "--rebuild", help="Delete the kind's study and start a new one (a study resumes "
-                                 "only with the pairs, split and untuned settings it was made from)."),
+    rebuild: bool = typer.Option(
+        False,
+        "--rebuild",
+        help="Delete the kind's study and start a new one (a study resumes "
+        "only with the pairs, split and untuned settings it was made from).",
+    ),
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
@@ -211,18 +270,22 @@ def tune(
     """Search a mapper's hyperparameters with Optuna: trials train on the run's training pairs and
     are scored on its validation pairs (never on evaluation seeds); the study in tune/<kind>.db
     resumes, the best trial goes to tune/<kind>.yaml (docs/tuning.md)."""
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_tune
+    from metadagger.runfolder.layout import RunLayout
 
     options = stage_options(rebuild, executor, workers, address)
     layout = RunLayout(out)
     result = stage_tune(layout, load_run(out, overrides), kind, trials=trials, seed=seed, apply=apply, options=options)
     baseline = "" if result.baseline_value is None else f" (trial 0, the run's settings: {result.baseline_value:.6g})"
-    typer.echo(f"{kind}: best of {result.completed} trials is trial {result.best_trial}, validation MSE "
-               f"{result.best_value:.6g}{baseline}; {result.ran} {'trial' if result.ran == 1 else 'trials'} ran now")
+    typer.echo(
+        f"{kind}: best of {result.completed} trials is trial {result.best_trial}, validation MSE "
+        f"{result.best_value:.6g}{baseline}; {result.ran} {'trial' if result.ran == 1 else 'trials'} ran now"
+    )
     typer.echo(f"wrote {result.summary} (study: {result.study})")
     if apply:
-        typer.echo(f"applied to {layout.config}; retrain with: metadagger train-mapper --out {out} --kind {kind} --rebuild")
+        typer.echo(
+            f"applied to {layout.config}; retrain with: metadagger train-mapper --out {out} --kind {kind} --rebuild"
+        )
     else:
         typer.echo(f"use it with train-mapper --kind {kind} --rebuild, or reproduce: --set '{result.set_item}'")
 
@@ -234,8 +297,12 @@ PROTOCOLS = ("mdm", "mdi", "all")
 @user_errors
 def evaluate(
     out: Path = OUT,
-    seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's evaluate.seeds and mdi.seeds)."),
-    protocol: str = typer.Option("all", "--protocol", help="mdm (MDM and one-shot), mdi (runs with an mdi section) or all."),
+    seeds: Optional[str] = typer.Option(
+        None, "--seeds", help="Unseen seeds (default: the run's evaluate.seeds and mdi.seeds)."
+    ),
+    protocol: str = typer.Option(
+        "all", "--protocol", help="mdm (MDM and one-shot), mdi (runs with an mdi section) or all."
+    ),
     overrides: list[str] = SET,
     rebuild: bool = REBUILD,
     executor: str = EXECUTOR,
@@ -245,9 +312,9 @@ def evaluate(
     """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds, and the
     MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) for runs whose config has an mdi section.
     Only the missing (seed, method) rows are evaluated."""
-    from metadagger.utils.yaml_config import parse_seeds
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_evaluate, stage_mdi
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.utils.yaml_config import parse_seeds
 
     options = stage_options(rebuild, executor, workers, address)
     if protocol not in PROTOCOLS:
@@ -260,7 +327,10 @@ def evaluate(
     if protocol in ("mdm", "all"):
         rows = stage_evaluate(layout, config, seeds=chosen, options=options)
         tables = ("mdm", "oneshot") if config.evaluate.oneshot else ("mdm",)
-        typer.echo(f"MDM: evaluated {len({r['seed'] for r in rows})} seeds; wrote {', '.join(str(layout.eval_table(t)) for t in tables)}")
+        typer.echo(
+            f"MDM: evaluated {len({r['seed'] for r in rows})} seeds; wrote "
+            f"{', '.join(str(layout.eval_table(t)) for t in tables)}"
+        )
     if protocol in ("mdi", "all") and config.mdi is not None:
         rows = stage_mdi(layout, config, seeds=chosen, options=options)
         typer.echo(f"MDI: evaluated {len({r['seed'] for r in rows})} seeds; wrote {layout.eval_table('mdi')}")
@@ -271,9 +341,13 @@ def evaluate(
 def benchmark(
     out: Path = OUT,
     seeds: Optional[str] = typer.Option(None, "--seeds", help="Unseen seeds (default: the run's benchmark.seeds)."),
-    methods: Optional[str] = typer.Option(None, "--methods", help="Comma-separated: bc, mdm, dagger, bc-refit, dagger-random, "
-                                          "dagger-ensemble, dagger-safe, dagger-novelty, dagger-thrifty, dagger-conformal, mdi "
-                                          "(default: benchmark.methods)."),
+    methods: Optional[str] = typer.Option(
+        None,
+        "--methods",
+        help="Comma-separated: bc, mdm, dagger, bc-refit, dagger-random, "
+        "dagger-ensemble, dagger-safe, dagger-novelty, dagger-thrifty, dagger-conformal, mdi "
+        "(default: benchmark.methods).",
+    ),
     overrides: list[str] = SET,
     rebuild: bool = REBUILD,
     executor: str = EXECUTOR,
@@ -282,19 +356,26 @@ def benchmark(
 ) -> None:
     """Success against expert queries: DAgger, gated DAgger baselines and MetaL DAgger on unseen
     seeds (benchmark/queries.csv, summary.json, queries.png). Only the missing rows are run."""
-    from metadagger.utils.yaml_config import parse_seeds
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_benchmark
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.utils.yaml_config import parse_seeds
 
     options = stage_options(rebuild, executor, workers, address)
     layout = RunLayout(out)
     config = load_run(out, overrides)
     if config.benchmark is None:
-        raise UserError(f"run {out} has no benchmark section; add one with --set 'benchmark={{seeds: 5000-5009}}' or use a preset that has one")
+        raise UserError(
+            f"run {out} has no benchmark section; add one with --set 'benchmark={{seeds: 5000-5009}}' or use a preset "
+            "that has one"
+        )
     chosen = tuple(m.strip() for m in methods.split(",") if m.strip()) if methods is not None else None
-    rows = stage_benchmark(layout, config, seeds=parse_seeds(seeds) if seeds is not None else None, methods=chosen, options=options)
-    typer.echo(f"benchmark: {len(rows)} rows on {len({r['seed'] for r in rows})} seeds; wrote {layout.benchmark_table}, "
-               f"{layout.benchmark_summary}, {layout.benchmark_figure}")
+    rows = stage_benchmark(
+        layout, config, seeds=parse_seeds(seeds) if seeds is not None else None, methods=chosen, options=options
+    )
+    typer.echo(
+        f"benchmark: {len(rows)} rows on {len({r['seed'] for r in rows})} seeds; wrote {layout.benchmark_table}, "
+        f"{layout.benchmark_summary}, {layout.benchmark_figure}"
+    )
 
 
 @app.command()
@@ -309,22 +390,28 @@ def diagnose(
     """Does a mapper learn anything? Function- and weight-space errors of every kind and control
     on the validation pairs, the noise ceiling, memorisation and the data-scaling curve
     (diagnostics/mapping.json, scaling.png; a section of the report)."""
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_diagnose
+    from metadagger.runfolder.layout import RunLayout
 
     options = stage_options(False, executor, workers, address)
     layout = RunLayout(out)
     summary = stage_diagnose(layout, load_run(out, overrides), options=options)
-    typer.echo(f"diagnostics: {len(summary['methods']) - 1} kinds and controls on {summary['val_pairs']} validation pairs; "
-               f"wrote {layout.diagnostics_summary}, {layout.diagnostics_figure}")
+    typer.echo(
+        f"diagnostics: {len(summary['methods']) - 1} kinds and controls on {summary['val_pairs']} validation pairs; "
+        f"wrote {layout.diagnostics_summary}, {layout.diagnostics_figure}"
+    )
 
 
 @app.command()
 @user_errors
 def export(
     out: Path = OUT,
-    what: str = typer.Option(..., "--what", help="demos (the expert's), dagger (the pairs' per-seed DAgger rollouts) or "
-                             "pairs-data (both: everything each pair was fit on)."),
+    what: str = typer.Option(
+        ...,
+        "--what",
+        help="demos (the expert's), dagger (the pairs' per-seed DAgger rollouts) or "
+        "pairs-data (both: everything each pair was fit on).",
+    ),
     fmt: str = typer.Option("minari", "--format", help="minari (the only format)."),
     name: str = typer.Option(..., "--name", help="Minari dataset id, e.g. metadagger/carracing-demos-v0."),
     seeds: Optional[str] = typer.Option(None, "--seeds", help="Seeds to export (default: the run's pairs.seeds)."),
@@ -335,19 +422,28 @@ def export(
 ) -> None:
     """Write a run's episodes as a Minari dataset: observations, the learner's action, the expert's
     label, whether it was queried, the DAgger round and the seed (docs/minari.md)."""
-    from metadagger.utils.yaml_config import parse_seeds
     from metadagger.metal.export import check_export
-    from metadagger.runfolder.layout import RunLayout
     from metadagger.pipeline.stages import load_run, stage_export
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.utils.yaml_config import parse_seeds
 
     seed_list = parse_seeds(seeds) if seeds is not None else None  # a malformed value before the dataset store is read
     check_export(what, fmt, name)
     options = stage_options(False, executor, workers, address)
-    summary = stage_export(RunLayout(out), load_run(out, overrides), what=what, name=name, seeds=seed_list, options=options)
-    checked = ("" if what == "demos" else f", {summary['checked']} re-run pairs equal to the stored ones" if summary["checked"]
-               else ", no stored pair of these seeds to compare the re-run with")
-    typer.echo(f"export: {summary['episodes']} episodes, {summary['steps']} steps{checked}; wrote Minari dataset {name} "
-               f"({summary['dataset']}); read it with minari.load_dataset({name!r})")
+    summary = stage_export(
+        RunLayout(out), load_run(out, overrides), what=what, name=name, seeds=seed_list, options=options
+    )
+    checked = (
+        ""
+        if what == "demos"
+        else f", {summary['checked']} re-run pairs equal to the stored ones"
+        if summary["checked"]
+        else ", no stored pair of these seeds to compare the re-run with"
+    )
+    typer.echo(
+        f"export: {summary['episodes']} episodes, {summary['steps']} steps{checked}; wrote Minari dataset {name} "
+        f"({summary['dataset']}); read it with minari.load_dataset({name!r})"
+    )
 
 
 @app.command()
@@ -355,8 +451,11 @@ def export(
 def video(
     out: Path = OUT,
     seed: int = typer.Option(..., "--seed", help="The seed to show, e.g. one of benchmark.seeds."),
-    methods: str = typer.Option("bc,dm,dagger", "--methods", help="Comma-separated: expert, bc, dagger and mapper kinds of the run "
-                                "(dm, ridge, pistar-head, ...)."),
+    methods: str = typer.Option(
+        "bc,dm,dagger",
+        "--methods",
+        help="Comma-separated: expert, bc, dagger and mapper kinds of the run (dm, ridge, pistar-head, ...).",
+    ),
     fps: int = typer.Option(30, "--fps", help="Frames (env steps) per second."),
     scale: int = typer.Option(3, "--scale", help="Pixels per observation pixel."),
     gif_stride: int = typer.Option(3, "--gif-stride", help="The GIF keeps every n-th frame (the MP4 keeps all)."),
@@ -368,8 +467,9 @@ def video(
     from metadagger.runfolder.layout import RunLayout
 
     names = [m.strip() for m in methods.split(",") if m.strip()]
-    mp4, gif = stage_video(RunLayout(out), load_run(out, overrides), seed=seed, methods=names, fps=fps, scale=scale,
-                           gif_stride=gif_stride)
+    mp4, gif = stage_video(
+        RunLayout(out), load_run(out, overrides), seed=seed, methods=names, fps=fps, scale=scale, gif_stride=gif_stride
+    )
     typer.echo(f"wrote {mp4} and {gif}")
 
 
@@ -394,24 +494,40 @@ def reproduce(
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
-    log: Optional[str] = typer.Option(None, "--log", help="tensorboard: also write every stage's curves and evaluations as "
-                                      "TensorBoard scalars under OUT/tb (needs the tensorboard extra); none: off. Sets the "
-                                      "run's log key (default: the run's, none for a new run)."),
-    diagnose: bool = typer.Option(False, "--diagnose", help="also run the mapping diagnostics on the validation pairs "
-                                  "after the benchmark (`metadagger diagnose`; a section of the report)."),
+    log: Optional[str] = typer.Option(
+        None,
+        "--log",
+        help="tensorboard: also write every stage's curves and evaluations as "
+        "TensorBoard scalars under OUT/tb (needs the tensorboard extra); none: off. Sets the "
+        "run's log key (default: the run's, none for a new run).",
+    ),
+    diagnose: bool = typer.Option(
+        False,
+        "--diagnose",
+        help="also run the mapping diagnostics on the validation pairs "
+        "after the benchmark (`metadagger diagnose`; a section of the report).",
+    ),
 ) -> None:
     """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> benchmark
     (runs with a benchmark section) -> diagnose (with --diagnose) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
-    from metadagger.runfolder.layout import RunLayout
-    from metadagger.pipeline.stages import load_run, reproduce as run_all
     from metadagger.pipeline.run_config import check_log
+    from metadagger.pipeline.stages import load_run
+    from metadagger.pipeline.stages import reproduce as run_all
+    from metadagger.runfolder.layout import RunLayout
 
     if log is not None:
         check_log(log, "--log")
     overrides = [*overrides, f"log={log}"] if log is not None else overrides
-    path = run_all(task, preset, out, presets_file=presets, overrides=overrides, diagnose=diagnose,
-                   options=stage_options(False, executor, workers, address))
+    path = run_all(
+        task,
+        preset,
+        out,
+        presets_file=presets,
+        overrides=overrides,
+        diagnose=diagnose,
+        options=stage_options(False, executor, workers, address),
+    )
     typer.echo(path.read_text())
     typer.echo(f"wrote {path}")
     if load_run(out).log == "tensorboard":
@@ -421,9 +537,11 @@ def reproduce(
 
 @config_app.command("show")
 @user_errors
-def config_show(task: str = TASK, preset: str = PRESET, presets: Optional[Path] = PRESETS_FILE, overrides: list[str] = SET) -> None:
+def config_show(
+    task: str = TASK, preset: str = PRESET, presets: Optional[Path] = PRESETS_FILE, overrides: list[str] = SET
+) -> None:
     """Print the resolved config of a preset with --set overrides, as YAML (what a new run would use)."""
-    from metadagger.utils.yaml_config import dump_yaml
     from metadagger.pipeline.run_config import resolve_config
+    from metadagger.utils.yaml_config import dump_yaml
 
     typer.echo(dump_yaml(resolve_config(task, preset, presets, overrides)), nl=False)

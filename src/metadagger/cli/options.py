@@ -35,23 +35,39 @@ def print_error(message: str) -> None:
 
 
 TASK = typer.Option("carracing", "--task", help="Task name: carracing, fetch, or one an installed package adds.")
-PRESET = typer.Option("quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci) or from --presets.")
-PRESETS_FILE = typer.Option(None, "--presets", help="YAML file of your own presets (same layout as pipeline/presets/<task>.yaml).")
-BUILTIN_PRESET = typer.Option("quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci).")
+PRESET = typer.Option(
+    "quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci) or from --presets."
+)
+PRESETS_FILE = typer.Option(
+    None, "--presets", help="YAML file of your own presets (same layout as pipeline/presets/<task>.yaml)."
+)
+BUILTIN_PRESET = typer.Option(
+    "quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci)."
+)
 OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
-SET = typer.Option([], "--set", help="Override a config field: section.key=value, the value read as YAML "
-                   "(e.g. --set pairs.dagger_rounds=4 --set 'evaluate.methods=[dm, sam]'); repeatable.")
-REBUILD = typer.Option(False, "--rebuild", help="Redo this stage's work that was made from other inputs (another pi*, "
-                       "other pairs or settings) instead of refusing.")
+SET = typer.Option(
+    [],
+    "--set",
+    help="Override a config field: section.key=value, the value read as YAML "
+    "(e.g. --set pairs.dagger_rounds=4 --set 'evaluate.methods=[dm, sam]'); repeatable.",
+)
+REBUILD = typer.Option(
+    False,
+    "--rebuild",
+    help="Redo this stage's work that was made from other inputs (another pi*, "
+    "other pairs or settings) instead of refusing.",
+)
 EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
 WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
-ADDRESS = typer.Option(None, "--address", help="Ray cluster: ray://HEAD:10001, HEAD:6379 or auto (default: start a local Ray instance).")
+ADDRESS = typer.Option(
+    None, "--address", help="Ray cluster: ray://HEAD:10001, HEAD:6379 or auto (default: start a local Ray instance)."
+)
 
 
 def stage_options(rebuild: bool, executor: str, workers: int | None, address: str | None) -> StageOptions:
     """A stage's options from the command line, its executor options checked before any work."""
-    from metadagger.utils.executors import check_executor_options
     from metadagger.runfolder.driver import StageOptions
+    from metadagger.utils.executors import check_executor_options
 
     check_executor_options(executor, workers, address)
     return StageOptions(rebuild=rebuild, executor=executor, workers=workers, address=address)

@@ -35,8 +35,21 @@ from typing import Any, Iterator, Sequence
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
-from metadagger.evaluation.methods import (BC_REFIT, GATED, MDI_METHODS, MDM_PREFIX, METHODS, GateKey, MapperKey, MethodKey, RefitKey, RoundKey,
-                                           ShotKey, reads_demonstration, with_demo_fractions)
+from metadagger.evaluation.methods import (
+    BC_REFIT,
+    GATED,
+    MDI_METHODS,
+    MDM_PREFIX,
+    METHODS,
+    GateKey,
+    MapperKey,
+    MethodKey,
+    RefitKey,
+    RoundKey,
+    ShotKey,
+    reads_demonstration,
+    with_demo_fractions,
+)
 from metadagger.evaluation.paired import paired_comparison
 from metadagger.evaluation.rows import write_csv
 from metadagger.evaluation.tables import method_label
@@ -44,18 +57,27 @@ from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gates import Gate, make_gate
 from metadagger.imitation.metrics import summarize
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.utils.io import write_json
-from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.registry import control_names
-from metadagger.metal.method import (Round, SeedLearner, bc_head, dagger_rounds, demonstration, demonstration_share, map_head,
-                                     seed_context, seeded)
-from metadagger.utils.plotting import draw_figure, interval_errors, plt, save_figure
-from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
+from metadagger.metal.method import (
+    Round,
+    SeedLearner,
+    bc_head,
+    dagger_rounds,
+    demonstration,
+    demonstration_share,
+    map_head,
+    seed_context,
+    seeded,
+)
+from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, Stamp, drive, plan
+from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.io import write_json
 from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.plotting import draw_figure, interval_errors, plt, save_figure
 
 #: Columns of ``benchmark/queries.csv``.
 FIELDS = ("method", "setting", "demo_fraction", "seed", "success", "reward", "steps", "expert_queries")
@@ -71,9 +93,16 @@ class BenchmarkConfig:
     """``bc``, ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, ``bc-refit`` (w_BC refitted
     as DAgger refits it, on the demonstration alone: a control), the gated methods, and ``mdi``
     (the MDI protocol's methods; runs with an ``mdi`` section)."""
-    grids: dict = field(default_factory=lambda: {"dagger-random": [0.05, 0.2, 0.5], "dagger-ensemble": [0.5, 0.8, 0.95],
-                                                "dagger-safe": [0.5, 0.8, 0.95], "dagger-novelty": [0.5, 0.8, 0.95],
-                                                "dagger-thrifty": [0.025, 0.1, 0.25], "dagger-conformal": [0.05, 0.2, 0.5]})
+    grids: dict = field(
+        default_factory=lambda: {
+            "dagger-random": [0.05, 0.2, 0.5],
+            "dagger-ensemble": [0.5, 0.8, 0.95],
+            "dagger-safe": [0.5, 0.8, 0.95],
+            "dagger-novelty": [0.5, 0.8, 0.95],
+            "dagger-thrifty": [0.025, 0.1, 0.25],
+            "dagger-conformal": [0.05, 0.2, 0.5],
+        }
+    )
     """Each gated method's sweep: the random share p; the score quantile above which a state is
     labelled (about 1 - quantile of each round's states); ThriftyDAgger's target rate of each of
     its two tests (their union labels at most twice it); the conformal gate's miscoverage (about
@@ -104,21 +133,34 @@ class BenchmarkConfig:
             if method in GATED:
                 grid = self.grids.get(method)
                 if not grid:
-                    raise UserError(f"benchmark.grids.{method} is missing or empty; give its settings, e.g. [0.5, 0.8, 0.95]")
+                    raise UserError(
+                        f"benchmark.grids.{method} is missing or empty; give its settings, e.g. [0.5, 0.8, 0.95]"
+                    )
                 for value in grid:
                     make_gate(GATED[method], value, **self.gate_options(method))  # range checks now, not hours later
-        if 1.0 not in self.demo_fractions or any(not 0.0 < f <= 1.0 for f in self.demo_fractions) \
-                or len(set(self.demo_fractions)) != len(self.demo_fractions):
-            raise UserError(f"benchmark.demo_fractions must be distinct shares in (0, 1] with 1 among them, got "
-                            f"{list(self.demo_fractions)}; e.g. [0.25, 0.5, 1.0]")
+        if (
+            1.0 not in self.demo_fractions
+            or any(not 0.0 < f <= 1.0 for f in self.demo_fractions)
+            or len(set(self.demo_fractions)) != len(self.demo_fractions)
+        ):
+            raise UserError(
+                f"benchmark.demo_fractions must be distinct shares in (0, 1] with 1 among them, got "
+                f"{list(self.demo_fractions)}; e.g. [0.25, 0.5, 1.0]"
+            )
         if self.ensemble_heads < 2 or self.novelty_k < 1:
-            raise UserError(f"benchmark.ensemble_heads must be >= 2 and benchmark.novelty_k >= 1, got "
-                            f"{self.ensemble_heads} and {self.novelty_k}")
+            raise UserError(
+                f"benchmark.ensemble_heads must be >= 2 and benchmark.novelty_k >= 1, got "
+                f"{self.ensemble_heads} and {self.novelty_k}"
+            )
 
     def gate_options(self, method: str) -> dict[str, Any]:
         """Keyword options of a gated method's gate."""
-        return {"dagger-ensemble": {"K": self.ensemble_heads}, "dagger-novelty": {"k": self.novelty_k},
-                "dagger-thrifty": {"K": self.ensemble_heads}, "dagger-conformal": {"k": self.novelty_k}}.get(method, {})
+        return {
+            "dagger-ensemble": {"K": self.ensemble_heads},
+            "dagger-novelty": {"k": self.novelty_k},
+            "dagger-thrifty": {"K": self.ensemble_heads},
+            "dagger-conformal": {"k": self.novelty_k},
+        }.get(method, {})
 
 
 @dataclass(frozen=True)
@@ -146,8 +188,16 @@ def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...],
 
 
 def _row(key: MethodKey, seed: int, traj: Trajectory, queries: int) -> dict[str, Any]:
-    return {"method": key.method, "setting": key.setting, "demo_fraction": key.demo_fraction, "seed": seed,
-            "success": bool(traj.success), "reward": float(traj.reward), "steps": int(traj.steps), "expert_queries": int(queries)}
+    return {
+        "method": key.method,
+        "setting": key.setting,
+        "demo_fraction": key.demo_fraction,
+        "seed": seed,
+        "success": bool(traj.success),
+        "reward": float(traj.reward),
+        "steps": int(traj.steps),
+        "expert_queries": int(queries),
+    }
 
 
 def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
@@ -167,14 +217,18 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
     return {"seed": seed, "entries": {key.id: [rows[key]] for key in keys if key in rows}}
 
 
-def _demonstration_rows(job: BenchmarkJob, learner: SeedLearner, demo: Trajectory, keys: list[MethodKey]) -> dict[MethodKey, dict[str, Any]]:
+def _demonstration_rows(
+    job: BenchmarkJob, learner: SeedLearner, demo: Trajectory, keys: list[MethodKey]
+) -> dict[MethodKey, dict[str, Any]]:
     """The rows of ``keys`` (all but MDI's) that start from w_BC fitted on ``demo`` by the learner's fresh head."""
     seed, rows = job.seed, {}
     data = demo.to_dataset()
     w_bc = bc_head(learner, data, seeded(job.bc, seed))
     # w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round
     first = learner.roll(w_bc, early_stop=job.early_stop)
-    rows.update({key: _row(key, seed, first, len(data)) for key in keys if type(key) is MethodKey and key.method == "bc"})
+    rows.update(
+        {key: _row(key, seed, first, len(data)) for key in keys if type(key) is MethodKey and key.method == "bc"}
+    )
     mdm = {key: cached_mapper(job.mappers[key.kind]) for key in keys if isinstance(key, MapperKey)}
     context = seed_context(learner.cache, data.obs, first.obs) if any(m.needs_context for m in mdm.values()) else None
     for key, mapper in mdm.items():
@@ -182,8 +236,16 @@ def _demonstration_rows(job: BenchmarkJob, learner: SeedLearner, demo: Trajector
         rows[key] = _row(key, seed, learner.roll(map_head(mapper, w_bc, context), early_stop=job.early_stop), queries)
 
     def dagger(gate: Gate | None) -> Iterator[Round]:
-        return dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=job.rounds, fit=seeded(job.dagger_bc, seed),
-                             gate=gate, early_stop=job.early_stop)
+        return dagger_rounds(
+            learner,
+            start=w_bc,
+            first=first,
+            demo=demo,
+            rounds=job.rounds,
+            fit=seeded(job.dagger_bc, seed),
+            gate=gate,
+            early_stop=job.early_stop,
+        )
 
     by_round = {key.round: key for key in keys if isinstance(key, RoundKey)}
     if by_round:
@@ -205,36 +267,66 @@ def _demonstration_rows(job: BenchmarkJob, learner: SeedLearner, demo: Trajector
 def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> dict[MethodKey, dict[str, Any]]:
     """Table 6's one- and two-shot outcomes of DAgger-MDI, DAgger-BC and DAgger on this seed."""
     assert job.mdi is not None
-    mdi_job = MDIJob(task=job.task, groundtruth=job.groundtruth, seed=job.seed, methods=tuple(MDI_METHODS),
-                     mappers={"dagger-mdi": job.mappers["mdi"]}, config=job.mdi, context_early_stop=job.early_stop)
+    mdi_job = MDIJob(
+        task=job.task,
+        groundtruth=job.groundtruth,
+        seed=job.seed,
+        methods=tuple(MDI_METHODS),
+        mappers={"dagger-mdi": job.mappers["mdi"]},
+        config=job.mdi,
+        context_early_stop=job.early_stop,
+    )
     outcomes = {method: rows[0] for method, rows in evaluate_mdi_seed(mdi_job)["entries"].items()}
     out: dict[MethodKey, dict[str, Any]] = {}
     for key in keys:
         r = outcomes[key.mdi_method]
         two = key.shot == "twoshot" and r["two_shot_run"]
-        out[key] = {"method": key.method, "setting": key.setting, "demo_fraction": key.demo_fraction, "seed": job.seed,
-                    "success": r["two_shot_success"] if key.shot == "twoshot" else r["one_shot_success"],
-                    "reward": r["two_shot_reward"] if two else r["one_shot_reward"],
-                    "steps": r["two_shot_steps"] if two else r["one_shot_steps"],
-                    "expert_queries": r["expert_queries"] if key.shot == "twoshot" else r["demo_steps"]}
+        out[key] = {
+            "method": key.method,
+            "setting": key.setting,
+            "demo_fraction": key.demo_fraction,
+            "seed": job.seed,
+            "success": r["two_shot_success"] if key.shot == "twoshot" else r["one_shot_success"],
+            "reward": r["two_shot_reward"] if two else r["one_shot_reward"],
+            "steps": r["two_shot_steps"] if two else r["one_shot_steps"],
+            "expert_queries": r["expert_queries"] if key.shot == "twoshot" else r["demo_steps"],
+        }
     return out
 
 
-def benchmark_stamps(task: Task, layout: RunLayout, job_settings: dict[str, Any], config: BenchmarkConfig,
-                     keys: list[MethodKey], mdi: MDIConfig | None, mdi_mapper: str | None) -> dict[str, Stamp]:
+def benchmark_stamps(
+    task: Task,
+    layout: RunLayout,
+    job_settings: dict[str, Any],
+    config: BenchmarkConfig,
+    keys: list[MethodKey],
+    mdi: MDIConfig | None,
+    mdi_mapper: str | None,
+) -> dict[str, Stamp]:
     """What each method key's rows are made from: the shared fits, pi*, and the method's own inputs."""
-    common = {"protocol": "benchmark", **kernel_stamp(), **task_stamp(task), **job_settings,
-              "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
+    common = {
+        "protocol": "benchmark",
+        **kernel_stamp(),
+        **task_stamp(task),
+        **job_settings,
+        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+    }
     stamps: dict[str, Stamp] = {}
     for key in keys:
         own: dict[str, Any] = {} if key.demo_fraction == 1.0 else {"demo_fraction": key.demo_fraction}
         if isinstance(key, MapperKey):
-            own = {**own, "mapper_fingerprint": file_fingerprint(layout.mapper(key.kind)),
-                   **({} if reads_demonstration(key) else {"charged": "no query"})}
+            own = {
+                **own,
+                "mapper_fingerprint": file_fingerprint(layout.mapper(key.kind)),
+                **({} if reads_demonstration(key) else {"charged": "no query"}),
+            }
         elif isinstance(key, GateKey):
             own = {**own, "gate": config.gate_options(key.method)}
         elif isinstance(key, ShotKey) and mdi is not None and mdi_mapper is not None:
-            own = {"mdi": stamp_of(mdi, drop=("seeds", "controls")), "mapper_fingerprint": file_fingerprint(layout.mapper(mdi_mapper))}
+            own = {
+                "mdi": stamp_of(mdi, drop=("seeds", "controls")),
+                "mapper_fingerprint": file_fingerprint(layout.mapper(mdi_mapper)),
+            }
         stamps[key.id] = {**common, **own}
     return stamps
 
@@ -274,24 +366,55 @@ def run_benchmark(
     """
     with_mdi = "mdi" in config.methods
     if with_mdi and mdi is None:
-        raise UserError(f"benchmark method mdi needs an mdi section, but run {layout.root} has none; "
-                        "drop mdi from --methods (or benchmark.methods), or add an mdi section")
+        raise UserError(
+            f"benchmark method mdi needs an mdi section, but run {layout.root} has none; "
+            "drop mdi from --methods (or benchmark.methods), or add an mdi section"
+        )
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
-    stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi.mapper if with_mdi else None)
+    stamps = benchmark_stamps(
+        task, layout, settings, config, keys, mdi if with_mdi else None, mdi.mapper if with_mdi else None
+    )
     log = RowLog(layout.benchmark_log)
-    todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="the benchmark",
-                fix=f"run `metadagger benchmark --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`")
+    todo = plan(
+        config.seeds,
+        stamps,
+        log,
+        rebuild=options.rebuild,
+        what="the benchmark",
+        fix=f"run `metadagger benchmark --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`",
+    )
     # each mapper file as its stamps fingerprinted it: a worker refuses other bytes
-    mappers = {key.kind: MapperFile(str(layout.mapper(key.kind)), stamps[key.id]["mapper_fingerprint"])
-               for key in keys if isinstance(key, MapperKey)}
-    mappers.update({"mdi": MapperFile(str(layout.mapper(mdi.mapper)), stamps[key.id]["mapper_fingerprint"])
-                    for key in keys if isinstance(key, ShotKey) and mdi is not None})
+    mappers = {
+        key.kind: MapperFile(str(layout.mapper(key.kind)), stamps[key.id]["mapper_fingerprint"])
+        for key in keys
+        if isinstance(key, MapperKey)
+    }
+    mappers.update(
+        {
+            "mdi": MapperFile(str(layout.mapper(mdi.mapper)), stamps[key.id]["mapper_fingerprint"])
+            for key in keys
+            if isinstance(key, ShotKey) and mdi is not None
+        }
+    )
     by_id = {key.id: key for key in keys}
-    jobs = [BenchmarkJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods,
-                         keys=tuple(by_id[m] for m in p.methods), mappers=mappers,
-                         config=config, rounds=rounds, bc=bc, dagger_bc=dagger_bc, early_stop=early_stop,
-                         mdi=mdi if with_mdi else None) for p in todo]
+    jobs = [
+        BenchmarkJob(
+            task=task,
+            groundtruth=str(layout.groundtruth),
+            seed=p.seed,
+            methods=p.methods,
+            keys=tuple(by_id[m] for m in p.methods),
+            mappers=mappers,
+            config=config,
+            rounds=rounds,
+            bc=bc,
+            dagger_bc=dagger_bc,
+            early_stop=early_stop,
+            mdi=mdi if with_mdi else None,
+        )
+        for p in todo
+    ]
     drive(benchmark_seed, jobs, log=log, stamps=stamps, options=options, desc="benchmark")
     rows = log.rows(config.seeds, stamps)
     write_csv(layout.benchmark_table, rows, fields=FIELDS)
@@ -315,13 +438,27 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
     entries = []
     for (method, setting, fraction), group in groups.items():
         s = summarize(group)
-        entries.append({"method": method, "setting": setting, "demo_fraction": fraction, "seeds": s["episodes"], "successes": s["successes"],
-                        "success_rate": s["success_rate"], "success_ci_low": s["success_ci_low"],
-                        "success_ci_high": s["success_ci_high"], "mean_reward": s["mean_reward"],
-                        "mean_queries": s["expert_queries"] / s["episodes"]})
+        entries.append(
+            {
+                "method": method,
+                "setting": setting,
+                "demo_fraction": fraction,
+                "seeds": s["episodes"],
+                "successes": s["successes"],
+                "success_rate": s["success_rate"],
+                "success_ci_low": s["success_ci_low"],
+                "success_ci_high": s["success_ci_high"],
+                "mean_reward": s["mean_reward"],
+                "mean_queries": s["expert_queries"] / s["episodes"],
+            }
+        )
     refs = references(entries)
-    return {"entries": entries, "meta_training_queries": dict(meta_queries), "references": refs,
-            "comparisons": comparisons(groups, refs)}
+    return {
+        "entries": entries,
+        "meta_training_queries": dict(meta_queries),
+        "references": refs,
+        "comparisons": comparisons(groups, refs),
+    }
 
 
 def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -351,10 +488,20 @@ def comparisons(groups: dict[Group, list[dict[str, Any]]], refs: list[dict[str, 
             if not seeds:
                 continue
             a, b = [mine[s] for s in seeds], [other[s] for s in seeds]
-            stats = paired_comparison([r["success"] for r in a], [r["success"] for r in b],
-                                      [r["reward"] for r in a], [r["reward"] for r in b])
-            out.append({"method": method, "setting": setting, "demo_fraction": fraction, "against": ref["method"],
-                        "against_setting": ref["setting"], "against_demo_fraction": ref["demo_fraction"], **stats})
+            stats = paired_comparison(
+                [r["success"] for r in a], [r["success"] for r in b], [r["reward"] for r in a], [r["reward"] for r in b]
+            )
+            out.append(
+                {
+                    "method": method,
+                    "setting": setting,
+                    "demo_fraction": fraction,
+                    "against": ref["method"],
+                    "against_setting": ref["setting"],
+                    "against_demo_fraction": ref["demo_fraction"],
+                    **stats,
+                }
+            )
     return out
 
 
@@ -376,7 +523,7 @@ def query_ticks(values: Sequence[float]) -> list[float]:
     if len(ticks) <= MAX_TICKS:
         return ticks
     low, high = math.floor(math.log10(ticks[0])), math.ceil(math.log10(ticks[-1]))
-    steps = [m * 10.0 ** e for e in range(low, high + 1) for m in (1, 2, 5)]
+    steps = [m * 10.0**e for e in range(low, high + 1) for m in (1, 2, 5)]
     inside = [t for t in steps if ticks[0] <= t <= ticks[-1]]
     return inside if len(inside) >= 2 else [ticks[0], ticks[-1]]
 
@@ -409,7 +556,9 @@ def plot_queries(summary: dict[str, Any], path: Path) -> Path:
     by_method: dict[str, list[dict[str, Any]]] = {}
     for e in summary["entries"]:
         by_method.setdefault(e["method"], []).append(e)
-    points = [(method, e) for method, group in by_method.items() for e in sorted(group, key=lambda e: e["mean_queries"])]
+    points = [
+        (method, e) for method, group in by_method.items() for e in sorted(group, key=lambda e: e["mean_queries"])
+    ]
     counts = [float(e["mean_queries"]) for _, e in points]
     zero_at = min((q for q in counts if q > 0), default=2.0) / 2
     xs = [q if q > 0 else zero_at for q in counts]
@@ -421,8 +570,16 @@ def plot_queries(summary: dict[str, Any], path: Path) -> Path:
         entries = [points[k][1] for k in mine]
         rates = [e["success_rate"] for e in entries]
         err = interval_errors(rates, [e["success_ci_low"] for e in entries], [e["success_ci_high"] for e in entries])
-        ax.errorbar([shown[k] for k in mine], rates, yerr=err, marker=MARKERS[i % len(MARKERS)], ms=4, capsize=2, lw=1.2,
-                    label=method_label(method))
+        ax.errorbar(
+            [shown[k] for k in mine],
+            rates,
+            yerr=err,
+            marker=MARKERS[i % len(MARKERS)],
+            ms=4,
+            capsize=2,
+            lw=1.2,
+            label=method_label(method),
+        )
     ax.set_xscale("log")
     pad = 10.0 ** max(0.06 * span, 0.08)
     ax.set_xlim(min(shown) / pad, max(shown) * pad)
@@ -433,7 +590,9 @@ def plot_queries(summary: dict[str, Any], path: Path) -> Path:
     ax.set_xticks(ticks, labels)
     ax.minorticks_off()
     shared = len(set(xs)) < len(xs)
-    ax.set_xlabel("mean expert queries per seed (log)" + ("; points at one count are spread sideways" if shared else ""))
+    ax.set_xlabel(
+        "mean expert queries per seed (log)" + ("; points at one count are spread sideways" if shared else "")
+    )
     ax.set_ylabel("success rate (95% Wilson interval)")
     ax.set_ylim(-0.03, 1.03)
     ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0))

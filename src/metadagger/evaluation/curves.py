@@ -26,7 +26,13 @@ def plot_curves(csv_path: str | Path, png_path: str | Path) -> Path:
     models = list(dict.fromkeys(r["model"] for r in rows if r["train_loss"]))
     mapped = [r for r in rows if r["val_mse_weights"] or r["train_mse_weights"]]
     panels = [
-        (m, [r for r in rows if r["model"] == m], "train_loss", "val_loss", "MSE (latent codes)" if m == "h" else "MSE (standardised)")
+        (
+            m,
+            [r for r in rows if r["model"] == m],
+            "train_loss",
+            "val_loss",
+            "MSE (latent codes)" if m == "h" else "MSE (standardised)",
+        )
         for m in models
     ]
     if mapped:
@@ -37,8 +43,11 @@ def plot_curves(csv_path: str | Path, png_path: str | Path) -> Path:
         if len(data) == 1:
             ax.axis("off")
             ax.set_title(f"{title}: one point, no curve")
-            values = ", ".join(f"{label} {v:.3g}" for key, label in ((train_key, "train"), (val_key, "validation"))
-                               if (v := _value(data[0], key)) is not None)
+            values = ", ".join(
+                f"{label} {v:.3g}"
+                for key, label in ((train_key, "train"), (val_key, "validation"))
+                if (v := _value(data[0], key)) is not None
+            )
             ax.text(0.5, 0.5, f"{ylabel}: {values}", ha="center", va="center", transform=ax.transAxes)
             continue
         ax.set_title(title)
@@ -52,4 +61,3 @@ def plot_curves(csv_path: str | Path, png_path: str | Path) -> Path:
         ax.set_ylabel(ylabel)
         ax.legend()
     return save_figure(fig, png_path)
-

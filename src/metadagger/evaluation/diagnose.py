@@ -33,17 +33,17 @@ import torch
 
 from metadagger.errors import UserError
 from metadagger.imitation.metrics import mean_interval
-from metadagger.utils.io import load_tensors, save_tensors, write_json
-from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.diagnostics import canonical_heads, function_error, memorisation, pairwise_spread, weight_error
 from metadagger.mapping.mappers import Mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperConfig, MapperJob, mapper_stamp, train_mappers
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairSplit
-from metadagger.utils.plotting import draw_figure, plt, save_figure
 from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, drive, plan
+from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks.base import Task
+from metadagger.utils.io import load_tensors, save_tensors, write_json
+from metadagger.utils.plotting import draw_figure, plt, save_figure
 
 #: Line styles of the constant controls in the scaling figure (one each, in turn).
 CONTROL_DASHES = ("-.", ":", (0, (5, 2, 1, 2, 1, 2)))
@@ -73,7 +73,9 @@ class DiagnoseConfig:
         if not isinstance(self.noise_refits, int) or self.noise_refits < 1:
             raise UserError(f"diagnose.noise_refits must be an integer >= 1, got {self.noise_refits!r}")
         if not self.scaling or not all(0.0 < f <= 1.0 for f in self.scaling):
-            raise UserError(f"diagnose.scaling must be shares in (0, 1], got {list(self.scaling)!r}; e.g. [0.25, 0.5, 1.0]")
+            raise UserError(
+                f"diagnose.scaling must be shares in (0, 1], got {list(self.scaling)!r}; e.g. [0.25, 0.5, 1.0]"
+            )
 
 
 @dataclass(frozen=True)
@@ -90,20 +92,30 @@ def diagnose_seed(job: DiagnoseJob) -> dict[str, Any]:
     if "states" in job.methods:
         pair = run_pair(job.task, job.groundtruth, job.seed, job.pairs, with_states=True)
         n = len(pair.dagger_features)
-        keep = np.unique(np.linspace(0, n - 1, min(job.config.states, n)).round().astype(int)) if n else np.zeros(0, dtype=int)
-        out["tensors"]["states"] = {"features": pair.dagger_features[torch.from_numpy(keep)].contiguous(),
-                                    "w_bc": torch.from_numpy(pair.w_bc), "w_da": torch.from_numpy(pair.w_da)}
+        keep = (
+            np.unique(np.linspace(0, n - 1, min(job.config.states, n)).round().astype(int))
+            if n
+            else np.zeros(0, dtype=int)
+        )
+        out["tensors"]["states"] = {
+            "features": pair.dagger_features[torch.from_numpy(keep)].contiguous(),
+            "w_bc": torch.from_numpy(pair.w_bc),
+            "w_da": torch.from_numpy(pair.w_da),
+        }
         out["entries"]["states"] = [{"seed": job.seed, "states": int(len(keep)), "dagger_states": int(n)}]
     if "noise" in job.methods:
-        refits = [run_pair(job.task, job.groundtruth, job.seed, job.pairs, fit_seed=job.seed + REFIT_STRIDE * m).w_da
-                  for m in range(1, job.config.noise_refits + 1)]
+        refits = [
+            run_pair(job.task, job.groundtruth, job.seed, job.pairs, fit_seed=job.seed + REFIT_STRIDE * m).w_da
+            for m in range(1, job.config.noise_refits + 1)
+        ]
         out["tensors"]["noise"] = {"w_da": torch.from_numpy(np.stack(refits))}
         out["entries"]["noise"] = [{"seed": job.seed, "refits": len(refits)}]
     return out
 
 
-def collect_seed_data(task: Task, layout: RunLayout, pairs: PairConfig, config: DiagnoseConfig, split: PairSplit,
-                      options: StageOptions) -> None:
+def collect_seed_data(
+    task: Task, layout: RunLayout, pairs: PairConfig, config: DiagnoseConfig, split: PairSplit, options: StageOptions
+) -> None:
     """Run the missing per-seed work: state samples of every validation seed, refits of the
     noise-ceiling seeds; each result is checked against the stored pair and saved."""
     base = pair_stamp(task, layout, pairs)
@@ -111,8 +123,17 @@ def collect_seed_data(task: Task, layout: RunLayout, pairs: PairConfig, config: 
     log = RowLog(layout.diagnostics_log)
     noise = set(split.val_seeds[: config.noise_seeds])
     todo = plan(split.val_seeds, stamps, log, rebuild=True, what="the diagnostics", fix="")
-    jobs = [DiagnoseJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, pairs=pairs, config=config,
-                        methods=tuple(m for m in p.methods if m == "states" or p.seed in noise)) for p in todo]
+    jobs = [
+        DiagnoseJob(
+            task=task,
+            groundtruth=str(layout.groundtruth),
+            seed=p.seed,
+            pairs=pairs,
+            config=config,
+            methods=tuple(m for m in p.methods if m == "states" or p.seed in noise),
+        )
+        for p in todo
+    ]
     stored = {seed: i for i, seed in enumerate(split.val_seeds)}
 
     def save(result: dict[str, Any]) -> None:
@@ -122,29 +143,51 @@ def collect_seed_data(task: Task, layout: RunLayout, pairs: PairConfig, config: 
             i = stored[seed]
             same = torch.equal(states["w_bc"], split.w_bc_val[i]) and torch.equal(states["w_da"], split.w_da_val[i])
             if not same:
-                raise UserError(f"re-running the pair of seed {seed} did not give its stored w_BC and w_DA: the pairs were made "
-                                f"with other code or settings; run `metadagger pairs --out {layout.root} --rebuild`")
+                raise UserError(
+                    f"re-running the pair of seed {seed} did not give its stored w_BC and w_DA: the pairs were made "
+                    f"with other code or settings; run `metadagger pairs --out {layout.root} --rebuild`"
+                )
             result["entries"]["states"][0]["reproduced"] = True
         for what, tensors in result.pop("tensors").items():
             save_tensors(layout.diagnostics_seed(what, seed), tensors, metadata={"seed": str(seed)})
 
-    drive(diagnose_seed, [j for j in jobs if j.methods], log=log, stamps=stamps, save=save, options=options,
-          desc="diagnostics")
+    drive(
+        diagnose_seed,
+        [j for j in jobs if j.methods],
+        log=log,
+        stamps=stamps,
+        save=save,
+        options=options,
+        desc="diagnostics",
+    )
 
 
 def _features(layout: RunLayout, seed: int) -> torch.Tensor:
     return load_tensors(layout.diagnostics_seed("states", seed), what=f"state sample of seed {seed}")["features"]
 
 
-def _function_errors(predicted: torch.Tensor, split: PairSplit, features: list[torch.Tensor], *, outputs: int,
-                     discrete: bool) -> torch.Tensor:
+def _function_errors(
+    predicted: torch.Tensor, split: PairSplit, features: list[torch.Tensor], *, outputs: int, discrete: bool
+) -> torch.Tensor:
     """Function-space error of each validation pair's predicted head against its w_DA."""
-    return torch.tensor([function_error(p, t, f, outputs=outputs, discrete=discrete)
-                         for p, t, f in zip(predicted, split.w_da_val, features)], dtype=torch.float64)
+    return torch.tensor(
+        [
+            function_error(p, t, f, outputs=outputs, discrete=discrete)
+            for p, t, f in zip(predicted, split.w_da_val, features)
+        ],
+        dtype=torch.float64,
+    )
 
 
-def _errors(predicted: torch.Tensor, functions: torch.Tensor, split: PairSplit, *, outputs: int, discrete: bool,
-            against: dict[str, torch.Tensor] | None = None) -> dict[str, Any]:
+def _errors(
+    predicted: torch.Tensor,
+    functions: torch.Tensor,
+    split: PairSplit,
+    *,
+    outputs: int,
+    discrete: bool,
+    against: dict[str, torch.Tensor] | None = None,
+) -> dict[str, Any]:
     """Weight- and function-space errors and memorisation of ``predicted``, whose per-pair
     function-space errors are ``functions``; for each ``name -> per-pair function-space error`` of
     ``against`` (w_BC's as ``bc``, a control's by its kind) also the paired difference to it with
@@ -153,12 +196,20 @@ def _errors(predicted: torch.Tensor, functions: torch.Tensor, split: PairSplit, 
     weights = weight_error(predicted, truth, outputs=outputs, discrete=discrete)
     raw = weight_error(predicted, truth, outputs=outputs, discrete=False)
     if discrete:  # distances between heads that choose the same actions are 0
-        ratios = memorisation(canonical_heads(predicted, outputs), canonical_heads(truth, outputs),
-                              canonical_heads(split.w_da_train, outputs))
+        ratios = memorisation(
+            canonical_heads(predicted, outputs),
+            canonical_heads(truth, outputs),
+            canonical_heads(split.w_da_train, outputs),
+        )
     else:
         ratios = memorisation(predicted, truth, split.w_da_train)
-    errors = {"weight": _mean_sd(weights), "weight_raw": _mean_sd(raw), "function": _mean_sd(functions),
-              "memorisation_median": float(ratios.median()), "memorisation_below_half": float((ratios < 0.5).to(torch.float64).mean())}
+    errors = {
+        "weight": _mean_sd(weights),
+        "weight_raw": _mean_sd(raw),
+        "function": _mean_sd(functions),
+        "memorisation_median": float(ratios.median()),
+        "memorisation_below_half": float((ratios < 0.5).to(torch.float64).mean()),
+    }
     for name, reference in (against or {}).items():
         errors[f"function_minus_{name}"] = mean_interval((functions - reference).tolist())
     return errors
@@ -169,7 +220,9 @@ def _mean_sd(values: torch.Tensor) -> dict[str, float]:
     return {"mean": float(values.mean()), "sd": float(values.std(unbiased=False)), "n": int(len(values))}
 
 
-def noise_ceiling(layout: RunLayout, split: PairSplit, config: DiagnoseConfig, *, outputs: int, discrete: bool) -> dict[str, Any]:
+def noise_ceiling(
+    layout: RunLayout, split: PairSplit, config: DiagnoseConfig, *, outputs: int, discrete: bool
+) -> dict[str, Any]:
     """Mean pairwise weight- and function-space distance of each noise seed's w_DA (its own and
     its refits'), averaged over the noise seeds."""
     seeds = split.val_seeds[: config.noise_seeds]
@@ -180,21 +233,39 @@ def noise_ceiling(layout: RunLayout, split: PairSplit, config: DiagnoseConfig, *
         weight, function = pairwise_spread(heads, _features(layout, seed), outputs=outputs, discrete=discrete)
         weights.append(weight)
         functions.append(function)
-    return {"seeds": list(seeds), "heads_per_seed": config.noise_refits + 1,
-            "weight": _mean_sd(torch.tensor(weights)) if seeds else None,
-            "function": _mean_sd(torch.tensor(functions)) if seeds else None}
+    return {
+        "seeds": list(seeds),
+        "heads_per_seed": config.noise_refits + 1,
+        "weight": _mean_sd(torch.tensor(weights)) if seeds else None,
+        "function": _mean_sd(torch.tensor(functions)) if seeds else None,
+    }
 
 
-def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, MapperConfig], fractions: tuple[float, ...],
-                  features: list[torch.Tensor], *, seed: int, outputs: int, discrete: bool, bc: torch.Tensor,
-                  trained: dict[str, Mapper] | None = None, options: StageOptions = StageOptions()) -> list[dict[str, Any]]:
+def scaling_curve(
+    layout: RunLayout,
+    split: PairSplit,
+    configs: dict[str, MapperConfig],
+    fractions: tuple[float, ...],
+    features: list[torch.Tensor],
+    *,
+    seed: int,
+    outputs: int,
+    discrete: bool,
+    bc: torch.Tensor,
+    trained: dict[str, Mapper] | None = None,
+    options: StageOptions = StageOptions(),
+) -> list[dict[str, Any]]:
     """Each learned kind of ``configs`` trained on nested shares of the training pairs (one order
     from ``seed``; the fits in parallel on ``options``' executor): its mean function- and
     weight-space error on the validation pairs, and its function-space error's paired difference
     to ``bc`` (w_BC's, per pair). A point made from the very pairs and config of a mapper in
     ``trained`` (the run's own, at 100%) takes that mapper instead of a new fit."""
     order = np.random.default_rng(seed).permutation(len(split.train_seeds))
-    points = [(kind, fraction, max(2, int(round(fraction * len(order))))) for kind in configs for fraction in sorted(fractions)]
+    points = [
+        (kind, fraction, max(2, int(round(fraction * len(order)))))
+        for kind in configs
+        for fraction in sorted(fractions)
+    ]
     subsets = {count: split.with_train_rows(torch.from_numpy(np.sort(order[:count]))) for _, _, count in points}
     mappers: dict[int, Mapper] = {}
     jobs = {}
@@ -203,22 +274,45 @@ def scaling_curve(layout: RunLayout, split: PairSplit, configs: dict[str, Mapper
         if same is not None and same.stamp == mapper_stamp(subsets[count], configs[kind]):
             mappers[number] = same
         else:
-            jobs[number] = MapperJob(split=subsets[count], config=configs[kind], out_dir=layout.diagnostics_scaling(kind, fraction),
-                                     name=f"{kind} on {count} pairs")
+            jobs[number] = MapperJob(
+                split=subsets[count],
+                config=configs[kind],
+                out_dir=layout.diagnostics_scaling(kind, fraction),
+                name=f"{kind} on {count} pairs",
+            )
     mappers.update(zip(jobs, train_mappers(list(jobs.values()), rebuild=True, options=options)))
     rows = []
     for number, (kind, fraction, count) in enumerate(points):
         heads = torch.from_numpy(mappers[number].map_batch(split.w_bc_val, split.context_val))
         functions = _function_errors(heads, split, features, outputs=outputs, discrete=discrete)
         errors = _errors(heads, functions, subsets[count], outputs=outputs, discrete=discrete, against={"bc": bc})
-        rows.append({"kind": kind, "fraction": fraction, "train_pairs": count, "function": errors["function"]["mean"],
-                     "weight": errors["weight"]["mean"], "function_minus_bc": errors["function_minus_bc"]})
+        rows.append(
+            {
+                "kind": kind,
+                "fraction": fraction,
+                "train_pairs": count,
+                "function": errors["function"]["mean"],
+                "weight": errors["weight"]["mean"],
+                "function_minus_bc": errors["function_minus_bc"],
+            }
+        )
     return rows
 
 
-def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: dict[str, Mapper], pairs: PairConfig,
-                     config: DiagnoseConfig, *, scaling_configs: dict[str, MapperConfig], split_seed: int, outputs: int,
-                     discrete: bool, options: StageOptions = StageOptions()) -> dict[str, Any]:
+def diagnose_mappers(
+    task: Task,
+    layout: RunLayout,
+    split: PairSplit,
+    mappers: dict[str, Mapper],
+    pairs: PairConfig,
+    config: DiagnoseConfig,
+    *,
+    scaling_configs: dict[str, MapperConfig],
+    split_seed: int,
+    outputs: int,
+    discrete: bool,
+    options: StageOptions = StageOptions(),
+) -> dict[str, Any]:
     """Every diagnostic of every mapper in ``mappers`` on the validation pairs of ``split``; writes
     ``mapping.json`` and the scaling figure and returns the summary.
 
@@ -238,24 +332,54 @@ def diagnose_mappers(task: Task, layout: RunLayout, split: PairSplit, mappers: d
     collect_seed_data(task, layout, pairs, config, split, options)
     features = [_features(layout, seed) for seed in split.val_seeds]
     ceiling = noise_ceiling(layout, split, config, outputs=outputs, discrete=discrete)
-    predicted = {"bc": split.w_bc_val} | {kind: torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val))
-                                          for kind, mapper in mappers.items()}
-    functions = {name: _function_errors(heads, split, features, outputs=outputs, discrete=discrete)
-                 for name, heads in predicted.items()}
+    predicted = {"bc": split.w_bc_val} | {
+        kind: torch.from_numpy(mapper.map_batch(split.w_bc_val, split.context_val)) for kind, mapper in mappers.items()
+    }
+    functions = {
+        name: _function_errors(heads, split, features, outputs=outputs, discrete=discrete)
+        for name, heads in predicted.items()
+    }
     bc = functions["bc"]
     references = ["bc", *(kind for kind in mappers if not get_kind(kind).learned)]  # w_BC and the controls
-    methods = {name: _errors(heads, functions[name], split, outputs=outputs, discrete=discrete,
-                             against={r: functions[r] for r in references if name != "bc" and r != name})
-               for name, heads in predicted.items()}
+    methods = {
+        name: _errors(
+            heads,
+            functions[name],
+            split,
+            outputs=outputs,
+            discrete=discrete,
+            against={r: functions[r] for r in references if name != "bc" and r != name},
+        )
+        for name, heads in predicted.items()
+    }
     for errors in methods.values():
         for space in ("weight", "function"):
             floor = ceiling[space]["mean"] if ceiling[space] else math.nan
             errors[f"{space}_over_ceiling"] = errors[space]["mean"] / floor if floor and floor > 0 else math.nan
-    scaling = scaling_curve(layout, split, scaling_configs, config.scaling, features, seed=split_seed,
-                            outputs=outputs, discrete=discrete, bc=bc, trained=mappers, options=options)
-    summary = {"task": task.name, "discrete": discrete, "train_pairs": len(split.train_seeds), "val_pairs": len(split.val_seeds),
-               "states_per_seed": config.states, "noise_ceiling": ceiling, "methods": methods, "scaling": scaling,
-               "kinds": {kind: get_kind(kind).label for kind in mappers}}
+    scaling = scaling_curve(
+        layout,
+        split,
+        scaling_configs,
+        config.scaling,
+        features,
+        seed=split_seed,
+        outputs=outputs,
+        discrete=discrete,
+        bc=bc,
+        trained=mappers,
+        options=options,
+    )
+    summary = {
+        "task": task.name,
+        "discrete": discrete,
+        "train_pairs": len(split.train_seeds),
+        "val_pairs": len(split.val_seeds),
+        "states_per_seed": config.states,
+        "noise_ceiling": ceiling,
+        "methods": methods,
+        "scaling": scaling,
+        "kinds": {kind: get_kind(kind).label for kind in mappers},
+    }
     write_json(layout.diagnostics_summary, summary)
     draw_figure(layout.diagnostics_figure, lambda path: plot_scaling(scaling, methods, path))
     return summary

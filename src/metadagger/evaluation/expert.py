@@ -28,8 +28,11 @@ def expert_table(rows: list[dict[str, Any]], seconds: float | None = None) -> st
     s = summarize(rows)
     steps = [int(r["steps"]) for r in rows]
     head = "| episodes | successes | success rate | mean reward | episode steps (min / mean / max) |"
-    cells = (f"| {s['episodes']} | {s['successes']} | {s['success_rate']:.1%} ({s['success_ci_low']:.0%}-{s['success_ci_high']:.0%}) "
-             f"| {s['mean_reward']:.1f} | {min(steps)} / {s['mean_steps']:.1f} / {max(steps)} |")
+    cells = (
+        f"| {s['episodes']} | {s['successes']} | {s['success_rate']:.1%} "
+        f"({s['success_ci_low']:.0%}-{s['success_ci_high']:.0%}) "
+        f"| {s['mean_reward']:.1f} | {min(steps)} / {s['mean_steps']:.1f} / {max(steps)} |"
+    )
     rule = "|---:|---:|---:|---:|---:|"
     if seconds is not None:
         head, rule = head + " steps per second |", rule + "---:|"

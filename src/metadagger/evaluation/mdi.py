@@ -43,16 +43,25 @@ from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.utils.io import save_tensors
-from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import MapperFile, cached_mapper, load_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.groundtruth import cached_groundtruth
-from metadagger.metal.method import SeedLearner, bc_head, dagger_rounds, demonstration, map_head, one_shot, seed_context, seeded
-from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
+from metadagger.metal.method import (
+    SeedLearner,
+    bc_head,
+    dagger_rounds,
+    demonstration,
+    map_head,
+    one_shot,
+    seed_context,
+    seeded,
+)
+from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, Stamp, drive, plan
+from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.io import save_tensors
 from metadagger.utils.kernels import kernel_stamp
 
 #: The three methods of Table 6, in table order.
@@ -70,10 +79,21 @@ SHOTS = ("oneshot", "twoshot")
 #: distance between the learner's and the expert's actions in the final test (empty for tasks
 #: with discrete actions).
 MDI_FIELDS = (
-    "method", "seed",
-    "one_shot_success", "one_shot_reward", "one_shot_steps", "one_shot_early_stopped",
-    "two_shot_run", "two_shot_success", "two_shot_reward", "two_shot_steps", "two_shot_early_stopped",
-    "demo_steps", "expert_queries", "cosine_total", "cosine_per_action",
+    "method",
+    "seed",
+    "one_shot_success",
+    "one_shot_reward",
+    "one_shot_steps",
+    "one_shot_early_stopped",
+    "two_shot_run",
+    "two_shot_success",
+    "two_shot_reward",
+    "two_shot_steps",
+    "two_shot_early_stopped",
+    "demo_steps",
+    "expert_queries",
+    "cosine_total",
+    "cosine_per_action",
 )
 
 
@@ -90,7 +110,8 @@ class MDIConfig:
     dagger_bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=12, head_only=True))
     """The head-only refit of the DAgger round (step 8); the default is ``pairs.dagger_bc``'s."""
     early_stop: float | None = None
-    """Threshold of the cosine early stop on every learner rollout (the Fetch presets: 40, docs/fetch.md); None: no early stop."""
+    """Threshold of the cosine early stop on every learner rollout (the Fetch presets: 40, docs/fetch.md);
+    None: no early stop."""
     mapper: str = "dm"
     """Kind of the mapper that initialises DAgger-MDI (the run's ``mappers/<kind>/``; the paper's
     Table 9 trains one mapping network)."""
@@ -108,7 +129,9 @@ class MDIConfig:
         if not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in self.seeds):
             raise UserError(f"mdi.seeds must be non-negative integers, got {self.seeds!r}")
         if not ((self.bc is None or self.bc.head_only) and self.dagger_bc.head_only):
-            raise UserError("mdi.bc.head_only and mdi.dagger_bc.head_only must be true: only layer n is initialised and fitted")
+            raise UserError(
+                "mdi.bc.head_only and mdi.dagger_bc.head_only must be true: only layer n is initialised and fitted"
+            )
         check_threshold("mdi.early_stop", self.early_stop)
         if self.mapper not in kind_names():
             raise UserError(f"mdi.mapper must be one of {', '.join(kind_names())}, got {self.mapper!r}")
@@ -187,7 +210,9 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
             inits["dagger-bc"] = w_bc
         # step 5: each initialisation refitted on the demonstration; for DAgger that is step 2's fit
         # itself (the Xavier head, the same data and settings), so w_BC is not fitted twice
-        one_shot_heads = {"dagger": w_bc} | {method: one_shot(learner, init, data, fit) for method, init in inits.items()}
+        one_shot_heads = {"dagger": w_bc} | {
+            method: one_shot(learner, init, data, fit) for method, init in inits.items()
+        }
         inits["dagger"] = xavier
         for method in job.methods:
             heads[method, "oneshot"] = one_shot_heads[method]
@@ -198,20 +223,30 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                 # steps 8-9: one DAgger round labels the one-shot test's states and refits from the
                 # saved initialisation (Table 6) or from the one-shot head
                 start = inits[method] if config.dagger_init == "saved" else one_shot_heads[method]
-                (round_,) = dagger_rounds(learner, start=start, first=first, demo=demo, rounds=1, fit=refit,
-                                          early_stop=config.early_stop)
+                (round_,) = dagger_rounds(
+                    learner, start=start, first=first, demo=demo, rounds=1, fit=refit, early_stop=config.early_stop
+                )
                 heads[method, "twoshot"], final = round_.head, round_.rollout
             cosine_total, cosine_mean = _cosine(job.task, final)
-            entries[method] = [{
-                "method": method, "seed": seed,
-                "one_shot_success": bool(first.success), "one_shot_reward": float(first.reward),
-                "one_shot_steps": int(first.steps), "one_shot_early_stopped": bool(first.early_stopped),
-                "two_shot_run": ran, "two_shot_success": bool(final.success),
-                "two_shot_reward": float(final.reward) if ran else None, "two_shot_steps": int(final.steps) if ran else None,
-                "two_shot_early_stopped": bool(final.early_stopped) if ran else None,
-                "demo_steps": len(data), "expert_queries": len(data) + (first.expert_queries if ran else 0),
-                "cosine_total": cosine_total, "cosine_per_action": cosine_mean,
-            }]
+            entries[method] = [
+                {
+                    "method": method,
+                    "seed": seed,
+                    "one_shot_success": bool(first.success),
+                    "one_shot_reward": float(first.reward),
+                    "one_shot_steps": int(first.steps),
+                    "one_shot_early_stopped": bool(first.early_stopped),
+                    "two_shot_run": ran,
+                    "two_shot_success": bool(final.success),
+                    "two_shot_reward": float(final.reward) if ran else None,
+                    "two_shot_steps": int(final.steps) if ran else None,
+                    "two_shot_early_stopped": bool(final.early_stopped) if ran else None,
+                    "demo_steps": len(data),
+                    "expert_queries": len(data) + (first.expert_queries if ran else 0),
+                    "cosine_total": cosine_total,
+                    "cosine_per_action": cosine_mean,
+                }
+            ]
     return {"seed": seed, "entries": entries, "heads": heads}
 
 
@@ -225,7 +260,9 @@ def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
     for kind in config.kinds.values():
         path = layout.mapper(kind)
         if not path.is_file():
-            raise UserError(f"MDI mapper not found at {path}; run `metadagger train-mapper --out {layout.root} --kind {kind}` first")
+            raise UserError(
+                f"MDI mapper not found at {path}; run `metadagger train-mapper --out {layout.root} --kind {kind}` first"
+            )
         mapper_dim = load_mapper(path).dim
         if mapper_dim != head_size:
             raise UserError(
@@ -234,17 +271,27 @@ def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
             )
 
 
-def mdi_stamps(task: Task, layout: RunLayout, config: MDIConfig, context_early_stop: float | None = None) -> dict[str, Stamp]:
+def mdi_stamps(
+    task: Task, layout: RunLayout, config: MDIConfig, context_early_stop: float | None = None
+) -> dict[str, Stamp]:
     """What each MDI method's rows are made from: the protocol's settings, pi* and its initialiser
     (and, for an initialiser that reads the seed's context, the early stop of its BC rollout)."""
-    common = {"protocol": "mdi", **kernel_stamp(), **task_stamp(task), **stamp_of(config, drop=("seeds", "mapper", "controls")),
-              "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
+    common = {
+        "protocol": "mdi",
+        **kernel_stamp(),
+        **task_stamp(task),
+        **stamp_of(config, drop=("seeds", "mapper", "controls")),
+        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+    }
     kinds = config.kinds
 
     def own(method: str) -> dict[str, Any]:
         if method not in kinds:
             return {}
-        return {"mapper_fingerprint": file_fingerprint(layout.mapper(kinds[method])), **context_inputs(kinds[method], context_early_stop)}
+        return {
+            "mapper_fingerprint": file_fingerprint(layout.mapper(kinds[method])),
+            **context_inputs(kinds[method], context_early_stop),
+        }
 
     return {method: {**common, **own(method)} for method in config.methods}
 
@@ -278,12 +325,31 @@ def evaluate_mdi(
     _check_inputs(task, layout, config)
     stamps = mdi_stamps(task, layout, config, context_early_stop)
     log = RowLog(layout.eval_log("mdi"))
-    todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="MDI evaluation",
-                fix=f"run `metadagger evaluate --out {layout.root} --protocol mdi --rebuild` to redo it, or `metadagger reproduce`")
-    jobs = [MDIJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config,
-                   mappers={m: MapperFile(str(layout.mapper(config.kinds[m])), stamps[m]["mapper_fingerprint"])
-                            for m in p.methods if m in config.kinds},
-                   context_early_stop=context_early_stop) for p in todo]
+    todo = plan(
+        config.seeds,
+        stamps,
+        log,
+        rebuild=options.rebuild,
+        what="MDI evaluation",
+        fix=f"run `metadagger evaluate --out {layout.root} --protocol mdi --rebuild` to redo it, or `metadagger "
+        "reproduce`",
+    )
+    jobs = [
+        MDIJob(
+            task=task,
+            groundtruth=str(layout.groundtruth),
+            seed=p.seed,
+            methods=p.methods,
+            config=config,
+            mappers={
+                m: MapperFile(str(layout.mapper(config.kinds[m])), stamps[m]["mapper_fingerprint"])
+                for m in p.methods
+                if m in config.kinds
+            },
+            context_early_stop=context_early_stop,
+        )
+        for p in todo
+    ]
 
     def save(result: dict[str, Any]) -> None:
         for (method, shot), head in result["heads"].items():

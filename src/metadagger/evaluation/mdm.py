@@ -21,15 +21,15 @@ from metadagger.errors import UserError
 from metadagger.evaluation.rows import ROW_FIELDS, write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.utils.io import save_tensors
-from metadagger.runfolder.layout import RunLayout
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.method import SeedLearner, bc_head, demonstration, map_head, one_shot, seed_context, seeded
-from metadagger.runfolder.driver import RowLog, SeedJob, Stamp, StageOptions, drive, plan
+from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, Stamp, drive, plan
+from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.io import save_tensors
 from metadagger.utils.kernels import kernel_stamp
 
 #: Prefix of the one-shot rows of a mapper kind: ``oneshot-<kind>``.
@@ -81,9 +81,17 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
         def test(owner: str, method: str, head: np.ndarray, extra: dict[str, int]) -> Trajectory:
             trajectory = learner.roll(head)
             heads[method] = head
-            entries.setdefault(owner, []).append({"method": method, "seed": job.seed, "success": bool(trajectory.success),
-                                                  "reward": float(trajectory.reward), "steps": int(trajectory.steps),
-                                                  "expert_queries": len(demo), **extra})
+            entries.setdefault(owner, []).append(
+                {
+                    "method": method,
+                    "seed": job.seed,
+                    "success": bool(trajectory.success),
+                    "reward": float(trajectory.reward),
+                    "steps": int(trajectory.steps),
+                    "expert_queries": len(demo),
+                    **extra,
+                }
+            )
             return trajectory
 
         demo = demonstration(learner).to_dataset()
@@ -108,14 +116,30 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
     return {"seed": job.seed, "entries": entries, "heads": heads}
 
 
-def mdm_stamps(task: Task, layout: RunLayout, config: EvalConfig, bc: BCConfig, early_stop: float | None = None) -> dict[str, Stamp]:
+def mdm_stamps(
+    task: Task, layout: RunLayout, config: EvalConfig, bc: BCConfig, early_stop: float | None = None
+) -> dict[str, Stamp]:
     """What each MDM method's rows are made from: the protocol's settings, pi* and its mapper (and,
     for a mapper with a context, the early stop of its BC rollout)."""
-    common = {"protocol": "mdm", **kernel_stamp(), **task_stamp(task), "bc": stamp_of(bc), "oneshot": config.oneshot,
-              "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
-    return {"bc": common, **{kind: {**common, "mapper_fingerprint": file_fingerprint(layout.mapper(kind)),
-                                    **context_inputs(kind, early_stop)}
-                             for kind in config.methods}}
+    common = {
+        "protocol": "mdm",
+        **kernel_stamp(),
+        **task_stamp(task),
+        "bc": stamp_of(bc),
+        "oneshot": config.oneshot,
+        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+    }
+    return {
+        "bc": common,
+        **{
+            kind: {
+                **common,
+                "mapper_fingerprint": file_fingerprint(layout.mapper(kind)),
+                **context_inputs(kind, early_stop),
+            }
+            for kind in config.methods
+        },
+    }
 
 
 def evaluate_run(
@@ -135,14 +159,34 @@ def evaluate_run(
     """
     missing = [m for m in config.methods if not layout.mapper(m).is_file()]
     if missing:
-        raise UserError(f"mappers not trained yet: {', '.join(missing)}; run `metadagger train-mapper --out {layout.root} --kind all` first")
+        raise UserError(
+            f"mappers not trained yet: {', '.join(missing)}; run `metadagger train-mapper --out {layout.root} --kind "
+            "all` first"
+        )
     stamps = mdm_stamps(task, layout, config, bc, early_stop)
     log = RowLog(layout.eval_log("mdm"))
-    todo = plan(config.seeds, stamps, log, rebuild=options.rebuild, what="MDM evaluation",
-                fix=f"run `metadagger evaluate --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`")
+    todo = plan(
+        config.seeds,
+        stamps,
+        log,
+        rebuild=options.rebuild,
+        what="MDM evaluation",
+        fix=f"run `metadagger evaluate --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`",
+    )
     mappers = {m: MapperFile(str(layout.mapper(m)), stamps[m]["mapper_fingerprint"]) for m in config.methods}
-    jobs = [EvalJob(task=task, groundtruth=str(layout.groundtruth), mappers=mappers, seed=p.seed, methods=p.methods,
-                    bc=bc, oneshot=config.oneshot, early_stop=early_stop) for p in todo]
+    jobs = [
+        EvalJob(
+            task=task,
+            groundtruth=str(layout.groundtruth),
+            mappers=mappers,
+            seed=p.seed,
+            methods=p.methods,
+            bc=bc,
+            oneshot=config.oneshot,
+            early_stop=early_stop,
+        )
+        for p in todo
+    ]
 
     def save(result: dict[str, Any]) -> None:
         for method, head in result["heads"].items():

@@ -117,8 +117,11 @@ def mdi_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]],
     """Table 6's one- and two-shot tests of DAgger-MDI, DAgger-BC and DAgger (runs with an mdi section)."""
     if not mdi:
         return []
-    return [ShotKey(name, setting, mdi_method=method, shot=shot)
-            for method, name in MDI_METHODS.items() for shot, setting in MDI_SHOTS.items()]
+    return [
+        ShotKey(name, setting, mdi_method=method, shot=shot)
+        for method, name in MDI_METHODS.items()
+        for shot, setting in MDI_SHOTS.items()
+    ]
 
 
 #: Every benchmark method by its name in ``benchmark.methods``: the keys of its rows, given the
@@ -144,13 +147,19 @@ def reads_demonstration(key: MethodKey) -> bool:
 def starts_from_demonstration(key: MethodKey) -> bool:
     """Whether the method also runs from a shorter demonstration: BC, the learned MDM kinds and the
     gated DAgger settings (plain DAgger and MDI keep the whole one, the reference they are read against)."""
-    return (type(key) is MethodKey and key.method == "bc") or isinstance(key, GateKey) or (
-        isinstance(key, MapperKey) and reads_demonstration(key))
+    return (
+        (type(key) is MethodKey and key.method == "bc")
+        or isinstance(key, GateKey)
+        or (isinstance(key, MapperKey) and reads_demonstration(key))
+    )
 
 
 def with_demo_fractions(keys: Sequence[MethodKey], fractions: Sequence[float]) -> list[MethodKey]:
     """``keys`` (each on the whole demonstration), each followed by its keys on every shorter
     share in ``fractions`` (ascending) where :func:`starts_from_demonstration`."""
     shorter = sorted(f for f in fractions if f < 1.0)
-    return [k for key in keys for k in (key, *(dataclasses.replace(key, demo_fraction=f) for f in shorter
-                                                if starts_from_demonstration(key)))]
+    return [
+        k
+        for key in keys
+        for k in (key, *(dataclasses.replace(key, demo_fraction=f) for f in shorter if starts_from_demonstration(key)))
+    ]

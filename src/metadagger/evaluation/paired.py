@@ -30,28 +30,44 @@ def _mean_difference(a: np.ndarray, b: np.ndarray, axis: int = -1) -> np.ndarray
     return np.mean(a - b, axis=axis)
 
 
-def paired_comparison(success_a: Sequence[bool], success_b: Sequence[bool],
-                      reward_a: Sequence[float], reward_b: Sequence[float]) -> dict[str, Any]:
+def paired_comparison(
+    success_a: Sequence[bool], success_b: Sequence[bool], reward_a: Sequence[float], reward_b: Sequence[float]
+) -> dict[str, Any]:
     """A against B on the same seeds (the four sequences in one seed order); the fields of the
     module docstring and ``seeds``."""
     a, b = np.asarray(success_a, float), np.asarray(success_b, float)
     ra, rb = np.asarray(reward_a, float), np.asarray(reward_b, float)
     if not (a.shape == b.shape == ra.shape == rb.shape) or a.ndim != 1 or a.size == 0:
-        raise ValueError(f"a paired comparison needs four sequences of one length >= 1, got shapes "
-                         f"{a.shape}, {b.shape}, {ra.shape}, {rb.shape}")
+        raise ValueError(
+            f"a paired comparison needs four sequences of one length >= 1, got shapes "
+            f"{a.shape}, {b.shape}, {ra.shape}, {rb.shape}"
+        )
     only_a, only_b = int(np.sum((a == 1) & (b == 0))), int(np.sum((a == 0) & (b == 1)))
     if a.size > 1:
-        interval = stats.bootstrap((a, b), _mean_difference, paired=True, vectorized=True, n_resamples=RESAMPLES,
-                                   confidence_level=LEVEL, method="percentile",
-                                   rng=np.random.default_rng(BOOTSTRAP_SEED)).confidence_interval
+        interval = stats.bootstrap(
+            (a, b),
+            _mean_difference,
+            paired=True,
+            vectorized=True,
+            n_resamples=RESAMPLES,
+            confidence_level=LEVEL,
+            method="percentile",
+            rng=np.random.default_rng(BOOTSTRAP_SEED),
+        ).confidence_interval
         low, high = float(interval.low), float(interval.high)
     else:  # one seed: nothing to resample
         low = high = float(a[0] - b[0])
     discordant = only_a + only_b
-    return {"seeds": int(a.size), "difference": float(np.mean(a - b)), "ci_low": low, "ci_high": high,
-            "only_a": only_a, "only_b": only_b,
-            "p_value": float(stats.binomtest(only_a, discordant, 0.5).pvalue) if discordant else 1.0,
-            "p_improvement": float(np.mean((ra > rb) + 0.5 * (ra == rb)))}
+    return {
+        "seeds": int(a.size),
+        "difference": float(np.mean(a - b)),
+        "ci_low": low,
+        "ci_high": high,
+        "only_a": only_a,
+        "only_b": only_b,
+        "p_value": float(stats.binomtest(only_a, discordant, 0.5).pvalue) if discordant else 1.0,
+        "p_improvement": float(np.mean((ra > rb) + 0.5 * (ra == rb))),
+    }
 
 
 def verdict(comparison: dict[str, Any]) -> str:

@@ -26,8 +26,18 @@ from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import check_writable, write_text
 from metadagger.utils.yaml_config import read_run_data
 
-SECTIONS = (run_section, groundtruth_section, pairs_section, mappers_section, diagnostics_section, mdm_section, oneshot_section, mdi_section,
-            benchmark_section, family_section)
+SECTIONS = (
+    run_section,
+    groundtruth_section,
+    pairs_section,
+    mappers_section,
+    diagnostics_section,
+    mdm_section,
+    oneshot_section,
+    mdi_section,
+    benchmark_section,
+    family_section,
+)
 
 
 def build_report(layout: RunLayout) -> Path:
@@ -37,15 +47,22 @@ def build_report(layout: RunLayout) -> Path:
         UserError: the folder holds no run (no config), or no stage has written anything yet.
     """
     if not layout.config.is_file():
-        raise UserError(f"nothing has been run in {layout.root} (no config.yaml there); "
-                        "pass the --out of a run started with `metadagger groundtruth` or `metadagger reproduce`")
+        raise UserError(
+            f"nothing has been run in {layout.root} (no config.yaml there); "
+            "pass the --out of a run started with `metadagger groundtruth` or `metadagger reproduce`"
+        )
     check_writable(layout.report_dir)  # before any figure is drawn
     parts = [line for section in SECTIONS for line in section(layout)]
     if not parts:
-        raise UserError(f"nothing to report in {layout.root}: no stage has finished yet; run `metadagger reproduce` or a stage first")
+        raise UserError(
+            f"nothing to report in {layout.root}: no stage has finished yet; run `metadagger reproduce` or a stage "
+            "first"
+        )
     return write_text(layout.report, "\n".join([_title(layout), "", *parts]) + "\n")
 
 
 def _title(layout: RunLayout) -> str:
     config = read_run_data(layout.config)
-    return f"# MetaL DAgger report: {config.get('task', '?')}, preset {config.get('preset', '?')} (`{layout.root.name}`)"
+    return (
+        f"# MetaL DAgger report: {config.get('task', '?')}, preset {config.get('preset', '?')} (`{layout.root.name}`)"
+    )

@@ -31,16 +31,37 @@ def benchmark_section(layout: RunLayout) -> list[str]:
     if not entries:
         return []
     seeds = max(e["seeds"] for e in entries)
-    lines = ["## Success against expert queries", "",
-             f"{seeds} unseen seeds. A query is one expert label of one state (the demonstration's steps included); "
-             "every method starts from pi*'s trunk and the seed's BC head.", ""]
-    lines += figure_lines(layout.figures, FIGURE, "success against expert queries", lambda path: plot_queries(summary, path)) + [""]
-    cells = [(method_label(e["method"]), setting_cell(e),
-              f"{pct(e['success_rate'])} ({e['successes']}/{e['seeds']}; {pct(e['success_ci_low'])}-{pct(e['success_ci_high'])})",
-              f"{e['mean_reward']:.1f}", f"{e['mean_queries']:.1f}") for e in entries]
-    lines += markdown_table(("method", "setting", "success (95% Wilson interval)", "mean reward", "mean queries per seed"), cells)
-    return (lines + [""] + _paired(entries, summary.get("references", []), summary.get("comparisons", []))
-            + _matching(entries) + _amortisation(entries, summary["meta_training_queries"]))
+    lines = [
+        "## Success against expert queries",
+        "",
+        f"{seeds} unseen seeds. A query is one expert label of one state (the demonstration's steps included); "
+        "every method starts from pi*'s trunk and the seed's BC head.",
+        "",
+    ]
+    lines += figure_lines(
+        layout.figures, FIGURE, "success against expert queries", lambda path: plot_queries(summary, path)
+    ) + [""]
+    cells = [
+        (
+            method_label(e["method"]),
+            setting_cell(e),
+            f"{pct(e['success_rate'])} ({e['successes']}/{e['seeds']}; "
+            f"{pct(e['success_ci_low'])}-{pct(e['success_ci_high'])})",
+            f"{e['mean_reward']:.1f}",
+            f"{e['mean_queries']:.1f}",
+        )
+        for e in entries
+    ]
+    lines += markdown_table(
+        ("method", "setting", "success (95% Wilson interval)", "mean reward", "mean queries per seed"), cells
+    )
+    return (
+        lines
+        + [""]
+        + _paired(entries, summary.get("references", []), summary.get("comparisons", []))
+        + _matching(entries)
+        + _amortisation(entries, summary["meta_training_queries"])
+    )
 
 
 def setting_cell(entry: dict[str, Any]) -> str:
@@ -78,14 +99,22 @@ def _paired(entries: list[dict[str, Any]], refs: list[dict[str, Any]], compariso
         row = [method_label(e["method"]), setting_cell(e)]
         for r in refs:
             c = found.get((_key(e), _key(r)))
-            row.append("-" if c is None else f"{_points(c['difference'])} ({_points(c['ci_low'])} to {_points(c['ci_high'])}); "
-                                             f"{c['only_a']}:{c['only_b']}, p {c['p_value']:.2g}; PI {c['p_improvement']:.2f}")
+            row.append(
+                "-"
+                if c is None
+                else f"{_points(c['difference'])} ({_points(c['ci_low'])} to {_points(c['ci_high'])}); "
+                f"{c['only_a']}:{c['only_b']}, p {c['p_value']:.2g}; PI {c['p_improvement']:.2f}"
+            )
         cells.append(tuple(row))
-    lines = ["### Paired comparisons with the controls and the best gate", "",
-             "On the same seeds: the difference in success rate (points) with its 95% bootstrap interval over seeds; "
-             "the seeds only this method : only the other solved, with the exact McNemar p; PI, the probability of "
-             "improvement (the share of seeds with the higher reward, ties half). The best gate is the gated DAgger "
-             "setting with the highest success here (chosen on these seeds, which favours it).", ""]
+    lines = [
+        "### Paired comparisons with the controls and the best gate",
+        "",
+        "On the same seeds: the difference in success rate (points) with its 95% bootstrap interval over seeds; "
+        "the seeds only this method : only the other solved, with the exact McNemar p; PI, the probability of "
+        "improvement (the share of seeds with the higher reward, ties half). The best gate is the gated DAgger "
+        "setting with the highest success here (chosen on these seeds, which favours it).",
+        "",
+    ]
     lines += markdown_table(("method", "setting", *(f"against {n}" for n in names)), cells) + [""]
     return lines + _conclusions(entries, refs, found, names) + [""]
 
@@ -94,8 +123,9 @@ def _points(value: float) -> str:
     return f"{100 * value:+.1f}"
 
 
-def _conclusions(entries: list[dict[str, Any]], refs: list[dict[str, Any]], found: dict[tuple, dict[str, Any]],
-                 names: list[str]) -> list[str]:
+def _conclusions(
+    entries: list[dict[str, Any]], refs: list[dict[str, Any]], found: dict[tuple, dict[str, Any]], names: list[str]
+) -> list[str]:
     """Which methods the paired intervals show better than every reference, and which not."""
     above_all = []
     for e in entries:
@@ -105,7 +135,10 @@ def _conclusions(entries: list[dict[str, Any]], refs: list[dict[str, Any]], foun
     against = ", ".join(names)
     if above_all:
         return [f"Better than every one of {against} (paired 95% interval above 0): {', '.join(above_all)}."]
-    return [f"No method is shown better than every one of {against}: no paired 95% interval lies above 0 against all of them."]
+    return [
+        f"No method is shown better than every one of {against}: no paired 95% interval lies above 0 against all of "
+        "them."
+    ]
 
 
 def _dagger_final(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -123,15 +156,25 @@ def _matching(entries: list[dict[str, Any]]) -> list[str]:
     target = MATCH_SHARE * final["success_rate"]
     cells = []
     for method in dict.fromkeys(e["method"] for e in entries):
-        ok = sorted((e for e in entries if e["method"] == method and e["success_rate"] >= target), key=lambda e: e["mean_queries"])
+        ok = sorted(
+            (e for e in entries if e["method"] == method and e["success_rate"] >= target),
+            key=lambda e: e["mean_queries"],
+        )
         if ok:
             e = ok[0]
             cells.append((method_label(method), setting_cell(e), pct(e["success_rate"]), f"{e['mean_queries']:.1f}"))
         else:
             cells.append((method_label(method), "never", "-", "-"))
-    return ([f"### Cheapest setting reaching {MATCH_SHARE:.0%} of DAgger's final success ({pct(final['success_rate'])} after "
-             f"{final['setting']} rounds, {final['mean_queries']:.1f} queries per seed)", ""]
-            + markdown_table(("method", "setting", "success", "mean queries per seed"), cells) + [""])
+    return (
+        [
+            f"### Cheapest setting reaching {MATCH_SHARE:.0%} of DAgger's final success ({pct(final['success_rate'])} "
+            "after "
+            f"{final['setting']} rounds, {final['mean_queries']:.1f} queries per seed)",
+            "",
+        ]
+        + markdown_table(("method", "setting", "success", "mean queries per seed"), cells)
+        + [""]
+    )
 
 
 def _amortisation(entries: list[dict[str, Any]], meta: dict[str, int]) -> list[str]:
@@ -140,20 +183,34 @@ def _amortisation(entries: list[dict[str, Any]], meta: dict[str, int]) -> list[s
     often as that round (a saving bought with lost successes repays nothing)."""
     final = _dagger_final(entries)
     spent = int(meta.get("pistar", 0)) + int(meta.get("pairs", 0))
-    lines = ["### Amortised cost of MetaL DAgger", "",
-             f"Meta-training spent {spent} expert queries: {meta.get('pistar', 0)} on pi* and {meta.get('pairs', 0)} on the pairs.", ""]
+    lines = [
+        "### Amortised cost of MetaL DAgger",
+        "",
+        f"Meta-training spent {spent} expert queries: {meta.get('pistar', 0)} on pi* and {meta.get('pairs', 0)} on "
+        "the pairs.",
+        "",
+    ]
     mdm = [e for e in entries if e["method"].startswith(MDM_PREFIX)]
     if final is None or not mdm:
         return lines
     cells = []
     for e in mdm:
         saving = final["mean_queries"] - e["mean_queries"]
-        cells.append((_reference_label(e), pct(e["success_rate"]), f"{saving:.1f}", _repaid_after(e, final, saving, spent)))
-    return lines + [f"Against DAgger after {final['setting']} rounds ({pct(final['success_rate'])} success, "
-                    f"{final['mean_queries']:.1f} queries per seed). A method repays meta-training only if it succeeds, at "
-                    "least as often as DAgger, with fewer queries; otherwise its saving buys nothing and the last column "
-                    "says why:", ""] + markdown_table(
-        ("method", "success", "queries saved per seed", "new seeds to repay meta-training"), cells) + [""]
+        cells.append(
+            (_reference_label(e), pct(e["success_rate"]), f"{saving:.1f}", _repaid_after(e, final, saving, spent))
+        )
+    return (
+        lines
+        + [
+            f"Against DAgger after {final['setting']} rounds ({pct(final['success_rate'])} success, "
+            f"{final['mean_queries']:.1f} queries per seed). A method repays meta-training only if it succeeds, at "
+            "least as often as DAgger, with fewer queries; otherwise its saving buys nothing and the last column "
+            "says why:",
+            "",
+        ]
+        + markdown_table(("method", "success", "queries saved per seed", "new seeds to repay meta-training"), cells)
+        + [""]
+    )
 
 
 def _repaid_after(entry: dict[str, Any], final: dict[str, Any], saving: float, spent: int) -> str:

@@ -38,24 +38,50 @@ def family_section(layout: RunLayout) -> list[str]:
     variations = {s: task.variation_of(s) for s in seeds}
     sizes = {s: task.variation_size(variations[s]) for s in seeds}
     methods = list(outcomes)
-    lines = ["## Task family: the seed's variation beside each method's outcome", "",
-             f"Each unseen seed draws a variation the learner never observes (`{task.name}`, docs/families.md); "
-             "its size is how far the seed's system is from the nominal one pi* was trained on. "
-             "A method that learned the variation from the demonstration succeeds on large variations too; "
-             "pi*'s head (the nominal member's policy) should not.", ""]
+    lines = [
+        "## Task family: the seed's variation beside each method's outcome",
+        "",
+        f"Each unseen seed draws a variation the learner never observes (`{task.name}`, docs/families.md); "
+        "its size is how far the seed's system is from the nominal one pi* was trained on. "
+        "A method that learned the variation from the demonstration succeeds on large variations too; "
+        "pi*'s head (the nominal member's policy) should not.",
+        "",
+    ]
     median = statistics.median(sizes.values())
     small = {s for s in seeds if sizes[s] <= median}
     lines += [f"### Success on the smaller and the larger half of the variations (size <= {median:.3f} and above)", ""]
-    lines += markdown_table(("method", f"small ({_seeds(len(small))})", f"large ({_seeds(len(seeds) - len(small))})", "all"), [
-        (label, rate(r for s, r in outcomes[label].items() if s in small),
-         rate(r for s, r in outcomes[label].items() if s not in small), rate(outcomes[label].values())) for label in methods])
+    lines += markdown_table(
+        ("method", f"small ({_seeds(len(small))})", f"large ({_seeds(len(seeds) - len(small))})", "all"),
+        [
+            (
+                label,
+                rate(r for s, r in outcomes[label].items() if s in small),
+                rate(r for s, r in outcomes[label].items() if s not in small),
+                rate(outcomes[label].values()),
+            )
+            for label in methods
+        ],
+    )
     lines += ["", "### Per seed (✓ success, ✗ failure, - not run)", ""]
     keys = sorted(variations[seeds[0]])
-    lines += markdown_table(("seed", *keys, "size", *methods), [
-        (s, *(f"{variations[s][k]:+.3f}" for k in keys), f"{sizes[s]:.3f}",
-         *(_mark(outcomes[m].get(s)) for m in methods)) for s in seeds])
-    return lines + ["", "### Success against the variation's size (one marker per seed; filled: success)", ""] + figure_lines(
-        layout.figures, FIGURE, "success against variation", lambda path: _figure(outcomes, sizes, path)) + [""]
+    lines += markdown_table(
+        ("seed", *keys, "size", *methods),
+        [
+            (
+                s,
+                *(f"{variations[s][k]:+.3f}" for k in keys),
+                f"{sizes[s]:.3f}",
+                *(_mark(outcomes[m].get(s)) for m in methods),
+            )
+            for s in seeds
+        ],
+    )
+    return (
+        lines
+        + ["", "### Success against the variation's size (one marker per seed; filled: success)", ""]
+        + figure_lines(layout.figures, FIGURE, "success against variation", lambda path: _figure(outcomes, sizes, path))
+        + [""]
+    )
 
 
 def _run_task(layout: RunLayout) -> Task | None:
@@ -81,12 +107,16 @@ def _outcomes(layout: RunLayout) -> dict[str, dict[int, dict[str, Any]]]:
     if layout.eval_table("mdi").is_file():
         table = by_method(read_csv(layout.eval_table("mdi")))
         for m in method_order(table):
-            outcomes[f"{method_label(m)}, one shot"] = {s: {"success": r["one_shot_success"]} for s, r in table[m].items()}
+            outcomes[f"{method_label(m)}, one shot"] = {
+                s: {"success": r["one_shot_success"]} for s, r in table[m].items()
+            }
     if layout.benchmark_table.is_file():
         dagger = [r for r in read_csv(layout.benchmark_table) if r["method"] == "dagger"]
         if dagger:
             rounds = max(int(r["setting"]) for r in dagger)
-            outcomes[f"DAgger, {rounds} round{'s' * (rounds != 1)}"] = {r["seed"]: r for r in dagger if int(r["setting"]) == rounds}
+            outcomes[f"DAgger, {rounds} round{'s' * (rounds != 1)}"] = {
+                r["seed"]: r for r in dagger if int(r["setting"]) == rounds
+            }
     return outcomes
 
 

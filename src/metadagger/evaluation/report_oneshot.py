@@ -28,8 +28,29 @@ def oneshot_section(layout: RunLayout) -> list[str]:
         cells = []
         for seed in sorted(rows):
             b, m, o = mdm["bc"][seed], mdm[method][seed], rows[seed]
-            cells.append((seed, f"{b['reward']:.1f}", b["steps"], f"{m['reward']:.1f}", m["steps"], f"{o['reward']:.1f}",
-                          o["steps"], "yes" if o["success"] else "no"))
-        lines += markdown_table(("seed", "BC reward", "BC steps", "mapped reward", "mapped steps", "one-shot reward",
-                                 "one-shot steps", "success"), cells) + [""]
+            cells.append(
+                (
+                    seed,
+                    f"{b['reward']:.1f}",
+                    b["steps"],
+                    f"{m['reward']:.1f}",
+                    m["steps"],
+                    f"{o['reward']:.1f}",
+                    o["steps"],
+                    "yes" if o["success"] else "no",
+                )
+            )
+        lines += markdown_table(
+            (
+                "seed",
+                "BC reward",
+                "BC steps",
+                "mapped reward",
+                "mapped steps",
+                "one-shot reward",
+                "one-shot steps",
+                "success",
+            ),
+            cells,
+        ) + [""]
     return lines

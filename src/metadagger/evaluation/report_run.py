@@ -38,10 +38,17 @@ def run_section(layout: RunLayout) -> list[str]:
     stages = [s for s in STAGE_ORDER if s in times] + [s for s in times if s not in STAGE_ORDER]
     totals = {s: times[s].get("total_seconds", times[s]["seconds"]) for s in stages}
     reruns = any(totals[s] != times[s]["seconds"] for s in stages)  # a stage resumed or rebuilt: show its sum too
-    cells = [(s, duration(times[s]["seconds"]), *([duration(totals[s])] if reruns else []), times[s]["finished"]) for s in stages]
+    cells = [
+        (s, duration(times[s]["seconds"]), *([duration(totals[s])] if reruns else []), times[s]["finished"])
+        for s in stages
+    ]
     cells.append(("all stages", duration(sum(times[s]["seconds"] for s in stages)), *([""] if reruns else []), ""))
     header = ("stage", "wall time", *(["all calls"] if reruns else []), "finished")
-    note = "Wall time of each stage's last call" + ("; all calls: summed over every call of the stage" if reruns else "") + "."
+    note = (
+        "Wall time of each stage's last call"
+        + ("; all calls: summed over every call of the stage" if reruns else "")
+        + "."
+    )
     return lines + [note, ""] + markdown_table(header, cells) + [""]
 
 
@@ -52,7 +59,7 @@ def _stage_times(data: Any) -> dict[str, dict[str, Any]]:
         raise ValueError(f"expected a JSON object of stages, got {type(data).__name__}")
     for stage, entry in data.items():
         if not isinstance(entry, dict) or not isinstance(entry.get("finished"), str):
-            raise ValueError(f"stage {stage!r}: expected {{\"seconds\": ..., \"finished\": \"...\"}}, got {str(entry)[:80]}")
+            raise ValueError(f'stage {stage!r}: expected {{"seconds": ..., "finished": "..."}}, got {str(entry)[:80]}')
         for key in ("seconds", *(("total_seconds",) if "total_seconds" in entry else ())):
             value = entry.get(key)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
@@ -79,11 +86,22 @@ def groundtruth_section(layout: RunLayout) -> list[str]:
     cells = []
     for key, name in (("own_seeds", "its own (training) seeds"), ("unseen_seeds", "unseen seeds")):
         s = m[key]
-        cells.append((name, f"{s['successes']}/{s['episodes']}", pct(s["success_rate"]),
-                      f"{pct(s['success_ci_low'])}-{pct(s['success_ci_high'])}", f"{s['mean_reward']:.1f}", f"{s['mean_steps']:.0f}"))
-    return (["## Ground-truth policy pi*", ""]
-            + markdown_table(("seeds", "successes", "success", "95% CI", "mean reward", "mean steps"), cells)
-            + ["", f"Expert queries spent on pi*: {m.get('expert_queries', 0)}.", ""] + _selection_lines(m))
+        cells.append(
+            (
+                name,
+                f"{s['successes']}/{s['episodes']}",
+                pct(s["success_rate"]),
+                f"{pct(s['success_ci_low'])}-{pct(s['success_ci_high'])}",
+                f"{s['mean_reward']:.1f}",
+                f"{s['mean_steps']:.0f}",
+            )
+        )
+    return (
+        ["## Ground-truth policy pi*", ""]
+        + markdown_table(("seeds", "successes", "success", "95% CI", "mean reward", "mean steps"), cells)
+        + ["", f"Expert queries spent on pi*: {m.get('expert_queries', 0)}.", ""]
+        + _selection_lines(m)
+    )
 
 
 def _selection_lines(metrics: dict) -> list[str]:
@@ -92,8 +110,11 @@ def _selection_lines(metrics: dict) -> list[str]:
     if not choice:
         return []
     checks = ", ".join(f"epoch {c['epoch']}: {c['successes']}" for c in choice["history"])
-    return [f"pi* is epoch {choice['epoch']} of its BC fit, chosen on {choice['episodes']} held-out seeds of its own "
-            f"(groundtruth.select_seeds), where it succeeded {choice['successes']} times; every check: {checks}.", ""]
+    return [
+        f"pi* is epoch {choice['epoch']} of its BC fit, chosen on {choice['episodes']} held-out seeds of its own "
+        f"(groundtruth.select_seeds), where it succeeded {choice['successes']} times; every check: {checks}.",
+        "",
+    ]
 
 
 def pairs_section(layout: RunLayout) -> list[str]:
@@ -102,9 +123,16 @@ def pairs_section(layout: RunLayout) -> list[str]:
     if not layout.pairs_summary.is_file():
         return []
     s = read_json(layout.pairs_summary, "the pairs summary")
-    cells = [(name.replace("_", " ").replace("/", ", "), count, pct(s["shares"][name])) for name, count in s["outcomes"].items()]
-    return (["## Pairs (w_BC, w_DA)", "", f"{s['seeds']} seeds, {s['kept']} pairs kept.", ""]
-            + markdown_table(("outcome", "seeds", "share"), cells) + [""] + _split_lines(layout, s["kept"]))
+    cells = [
+        (name.replace("_", " ").replace("/", ", "), count, pct(s["shares"][name]))
+        for name, count in s["outcomes"].items()
+    ]
+    return (
+        ["## Pairs (w_BC, w_DA)", "", f"{s['seeds']} seeds, {s['kept']} pairs kept.", ""]
+        + markdown_table(("outcome", "seeds", "share"), cells)
+        + [""]
+        + _split_lines(layout, s["kept"])
+    )
 
 
 def _split_lines(layout: RunLayout, kept: int) -> list[str]:
@@ -118,8 +146,11 @@ def _split_lines(layout: RunLayout, kept: int) -> list[str]:
     settings = f"pairs.val_fraction {fraction:g}, split_seed {seed}"
     if kept - val < 1:
         return [f"Train/validation split: {kept} kept pairs are too few for a training set ({settings}).", ""]
-    return [f"Train/validation split: the mappers train on {kept - val} of the {kept} kept pairs and validate on {val} "
-            f"({settings}: a seeded permutation of the kept seeds).", ""]
+    return [
+        f"Train/validation split: the mappers train on {kept - val} of the {kept} kept pairs and validate on {val} "
+        f"({settings}: a seeded permutation of the kept seeds).",
+        "",
+    ]
 
 
 def mappers_section(layout: RunLayout) -> list[str]:
@@ -135,22 +166,41 @@ def mappers_section(layout: RunLayout) -> list[str]:
                 finals[kind], epochs[kind] = mapped[-1], len({r["epoch"] for r in rows})
     if not finals:
         return []
-    lines = ["## Mappers", "", "### Weight-space error after training (MSE of f(w_BC) against w_DA, original units)", ""]
+    lines = [
+        "## Mappers",
+        "",
+        "### Weight-space error after training (MSE of f(w_BC) against w_DA, original units)",
+        "",
+    ]
     base = finals.get("mean-da")
     cells = []
     for kind, r in finals.items():
         ratio = f"{r['val_mse_weights'] / base['val_mse_weights']:.2f}" if base and base["val_mse_weights"] else "-"
         cells.append((method_label(kind), f"{r['train_mse_weights']:.4g}", f"{r['val_mse_weights']:.4g}", ratio))
     lines += markdown_table(("mapper", "train MSE", "validation MSE", "validation MSE / mean-DA's"), cells)
-    lines += ["", "A ratio near or above 1 means the mapper predicts an unseen seed's w_DA no better than the "
-              "training pairs' mean w_DA, whatever its training error.", ""]
+    lines += [
+        "",
+        "A ratio near or above 1 means the mapper predicts an unseen seed's w_DA no better than the "
+        "training pairs' mean w_DA, whatever its training error.",
+        "",
+    ]
     figures = []
     for kind in (k for k in finals if epochs[k] > 1):
-        figures += figure_lines(layout.figures, f"curves_{kind}.png", f"{method_label(kind)} learning curves",
-                                lambda path, kind=kind: plot_curves(layout.mapper_curves(kind), path)) + [""]
+        figures += figure_lines(
+            layout.figures,
+            f"curves_{kind}.png",
+            f"{method_label(kind)} learning curves",
+            lambda path, kind=kind: plot_curves(layout.mapper_curves(kind), path),
+        ) + [""]
     single = [k for k in finals if epochs[k] == 1]
-    return lines + ["### Learning curves (Fig. 8)", "", *figures] + _no_curve_lines(
-        [method_label(k) for k in single if get_kind(k).learned], [method_label(k) for k in single if not get_kind(k).learned])
+    return (
+        lines
+        + ["### Learning curves (Fig. 8)", "", *figures]
+        + _no_curve_lines(
+            [method_label(k) for k in single if get_kind(k).learned],
+            [method_label(k) for k in single if not get_kind(k).learned],
+        )
+    )
 
 
 def _no_curve_lines(closed: list[str], constant: list[str]) -> list[str]:
@@ -160,4 +210,8 @@ def _no_curve_lines(closed: list[str], constant: list[str]) -> list[str]:
         parts.append(f"{', '.join(closed)} {'is' if len(closed) == 1 else 'are'} fitted in closed form")
     if constant:
         parts.append(f"{', '.join(constant)} {'is a constant' if len(constant) == 1 else 'are constants'}")
-    return [f"{'; '.join(parts)}: one point each, so no learning curve (their errors are in the table above).", ""] if parts else []
+    return (
+        [f"{'; '.join(parts)}: one point each, so no learning curve (their errors are in the table above).", ""]
+        if parts
+        else []
+    )

@@ -12,12 +12,21 @@ from metadagger.mapping.registry import get_kind, kind_names
 from metadagger.utils.plotting import draw_figure
 
 #: Labels of the methods that are not mapper kinds.
-PROTOCOL_LABELS = {"bc": "BC", "bc-refit": "BC refitted as DAgger, no new label (control)",
-                   "dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger",
-                   "dagger-bc-init": "DAgger-BC (MDI protocol)", "dagger-xavier": "DAgger from Xavier (MDI protocol)",
-                   "dagger-random": "DAgger, random gate", "dagger-ensemble": "DAgger, ensemble gate",
-                   "dagger-safe": "DAgger, SafeDAgger gate", "dagger-novelty": "DAgger, novelty gate",
-                   "dagger-thrifty": "DAgger, ThriftyDAgger gate", "dagger-conformal": "DAgger, conformal gate"}
+PROTOCOL_LABELS = {
+    "bc": "BC",
+    "bc-refit": "BC refitted as DAgger, no new label (control)",
+    "dagger-mdi": "DAgger-MDI",
+    "dagger-bc": "DAgger-BC",
+    "dagger": "DAgger",
+    "dagger-bc-init": "DAgger-BC (MDI protocol)",
+    "dagger-xavier": "DAgger from Xavier (MDI protocol)",
+    "dagger-random": "DAgger, random gate",
+    "dagger-ensemble": "DAgger, ensemble gate",
+    "dagger-safe": "DAgger, SafeDAgger gate",
+    "dagger-novelty": "DAgger, novelty gate",
+    "dagger-thrifty": "DAgger, ThriftyDAgger gate",
+    "dagger-conformal": "DAgger, conformal gate",
+}
 
 
 def method_label(method: str) -> str:
@@ -57,7 +66,10 @@ def pct(x: float) -> str:
 def rate(rows: Iterable[dict[str, Any]], key: str = "success") -> str:
     """``share (successes/n; low-high)`` of a boolean column, with its 95% Wilson interval."""
     s = summarize({"success": r[key], "reward": 0.0, "steps": 0} for r in rows)
-    return f"{pct(s['success_rate'])} ({s['successes']}/{s['episodes']}; {pct(s['success_ci_low'])}-{pct(s['success_ci_high'])})"
+    return (
+        f"{pct(s['success_rate'])} ({s['successes']}/{s['episodes']}; "
+        f"{pct(s['success_ci_low'])}-{pct(s['success_ci_high'])})"
+    )
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:

@@ -52,8 +52,9 @@ def require_tensorboard() -> type:
     try:
         from torch.utils.tensorboard import SummaryWriter
     except ImportError as exc:
-        raise UserError(f"log: tensorboard needs the tensorboard package ({exc}); install it with `{INSTALL}` "
-                        "or set log: none") from None
+        raise UserError(
+            f"log: tensorboard needs the tensorboard package ({exc}); install it with `{INSTALL}` or set log: none"
+        ) from None
     return SummaryWriter
 
 
@@ -71,11 +72,19 @@ def groundtruth_scalars(layout: RunLayout) -> list[Scalar]:
     metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics")
     rounds = metrics["rounds"]
     fits = [metrics.get("bc_epoch_losses"), *(r.get("dagger/epoch_losses") for r in rounds)]
-    out = [("loss", loss, k * len(losses) + epoch) for k, losses in enumerate(fits) if losses
-           for epoch, loss in enumerate(losses, 1)]
+    out = [
+        ("loss", loss, k * len(losses) + epoch)
+        for k, losses in enumerate(fits)
+        if losses
+        for epoch, loss in enumerate(losses, 1)
+    ]
     for record in rounds:
         out += [(key, value, record["dagger/round"]) for key, value in record.items() if key != "dagger/round"]
-    out += [(f"{name}/{key}", value, len(rounds)) for name in ("own_seeds", "unseen_seeds") for key, value in metrics[name].items()]
+    out += [
+        (f"{name}/{key}", value, len(rounds))
+        for name in ("own_seeds", "unseen_seeds")
+        for key, value in metrics[name].items()
+    ]
     choice = metrics.get("bc_selection")
     if choice:
         out += [("select/successes", check["successes"], check["epoch"]) for check in choice["history"]]
@@ -90,9 +99,15 @@ def pairs_scalars(layout: RunLayout, seeds: Iterable[int]) -> list[Scalar]:
     wanted = set(seeds)
     out = []
     for record in (r for r in PairStore(layout.pairs_dir).records() if r["seed"] in wanted):
-        out += [(f"{outcome}/{key}", record[outcome][key], record["seed"]) for outcome in ("bc", "da") for key in OUTCOME_KEYS]
+        out += [
+            (f"{outcome}/{key}", record[outcome][key], record["seed"])
+            for outcome in ("bc", "da")
+            for key in OUTCOME_KEYS
+        ]
         out.append(("kept", record["kept"], record["seed"]))
-    return out + [(f"summary/{tag}", value, 0) for tag, value in _leaves(read_json(layout.pairs_summary, "the pairs summary"))]
+    return out + [
+        (f"summary/{tag}", value, 0) for tag, value in _leaves(read_json(layout.pairs_summary, "the pairs summary"))
+    ]
 
 
 def mapper_scalars(layout: RunLayout, kind: str) -> list[Scalar]:
@@ -139,8 +154,14 @@ def benchmark_scalars(layout: RunLayout) -> list[Scalar]:
     summary = read_json(layout.benchmark_summary, "the benchmark summary")
     out = table_scalars(layout.benchmark_table)
     entries = sorted(summary["entries"], key=lambda e: (e["method"], e["mean_queries"]))
-    out += [(f"{e['method']}{_share_suffix(e.get('demo_fraction'))}/success_vs_queries", e["success_rate"],
-             round(e["mean_queries"])) for e in entries]
+    out += [
+        (
+            f"{e['method']}{_share_suffix(e.get('demo_fraction'))}/success_vs_queries",
+            e["success_rate"],
+            round(e["mean_queries"]),
+        )
+        for e in entries
+    ]
     return out + [(f"meta_training_queries/{what}", n, 0) for what, n in summary["meta_training_queries"].items()]
 
 
@@ -166,7 +187,11 @@ def write_tensorboard(layout: RunLayout, runs: Mapping[str, Sequence[Scalar]]) -
     folders = []
     for namespace, scalars in runs.items():
         # staged beside tb/, so a TensorBoard watching it never reads a half-written namespace
-        folders.append(atomic_folder(layout.tb_run(namespace), functools.partial(write, namespace, scalars), staging_in=layout.root))
+        folders.append(
+            atomic_folder(
+                layout.tb_run(namespace), functools.partial(write, namespace, scalars), staging_in=layout.root
+            )
+        )
     return folders
 
 

@@ -45,7 +45,11 @@ class Clip:
 def check_methods(methods: Sequence[str], layout: RunLayout) -> None:
     """Raise a :class:`UserError` for an empty list, a repeat, or a method that is neither in
     :data:`FIXED_METHODS` nor a mapper kind the run has trained."""
-    kinds = sorted(p.name for p in (layout.root / "mappers").iterdir() if p.is_dir()) if (layout.root / "mappers").is_dir() else []
+    kinds = (
+        sorted(p.name for p in (layout.root / "mappers").iterdir() if p.is_dir())
+        if (layout.root / "mappers").is_dir()
+        else []
+    )
     allowed = [*FIXED_METHODS, *kinds]
     if not methods:
         raise UserError(f"--methods is empty; give some of {', '.join(allowed)}")
@@ -53,12 +57,23 @@ def check_methods(methods: Sequence[str], layout: RunLayout) -> None:
         raise UserError(f"--methods lists a method twice: {','.join(methods)}; list each once")
     unknown = [m for m in methods if m not in allowed]
     if unknown:
-        raise UserError(f"--methods has {', '.join(unknown)}, which run {layout.root} cannot show; expected some of "
-                        f"{', '.join(allowed)} (a mapper kind needs its mapper in {layout.root / 'mappers'})")
+        raise UserError(
+            f"--methods has {', '.join(unknown)}, which run {layout.root} cannot show; expected some of "
+            f"{', '.join(allowed)} (a mapper kind needs its mapper in {layout.root / 'mappers'})"
+        )
 
 
-def seed_clips(task: Task, layout: RunLayout, seed: int, methods: Sequence[str], *, bc: BCConfig, dagger_bc: BCConfig,
-               rounds: int, early_stop: float | None) -> list[Clip]:
+def seed_clips(
+    task: Task,
+    layout: RunLayout,
+    seed: int,
+    methods: Sequence[str],
+    *,
+    bc: BCConfig,
+    dagger_bc: BCConfig,
+    rounds: int,
+    early_stop: float | None,
+) -> list[Clip]:
     """Each of ``methods`` rolled out on ``seed``, in order: ``expert`` (the demonstration),
     ``bc`` (w_BC), ``dagger`` (after ``rounds`` rounds) or a mapper kind (MDM from w_BC)."""
     with SeedLearner(task, str(layout.groundtruth), seed, head_init_seed=bc.head_init_seed(seed)) as learner:
@@ -73,11 +88,21 @@ def seed_clips(task: Task, layout: RunLayout, seed: int, methods: Sequence[str],
             if mapper.needs_context and context is None:
                 context = seed_context(learner.cache, data.obs, first.obs)
             key = MapperKey(MDM_PREFIX + kind, "", kind=kind)
-            clips[kind] = Clip(method_label(key.method), learner.roll(map_head(mapper, w_bc, context), early_stop=early_stop),
-                               len(data) if reads_demonstration(key) else 0)
+            clips[kind] = Clip(
+                method_label(key.method),
+                learner.roll(map_head(mapper, w_bc, context), early_stop=early_stop),
+                len(data) if reads_demonstration(key) else 0,
+            )
         if "dagger" in methods:
-            *_, last = dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=rounds, fit=seeded(dagger_bc, seed),
-                                     early_stop=early_stop)
+            *_, last = dagger_rounds(
+                learner,
+                start=w_bc,
+                first=first,
+                demo=demo,
+                rounds=rounds,
+                fit=seeded(dagger_bc, seed),
+                early_stop=early_stop,
+            )
             clips["dagger"] = Clip(f"DAgger, {rounds} rounds", last.rollout, last.queries)
     return [clips[m] for m in methods]
 
@@ -100,7 +125,9 @@ def panel(clip: Clip, t: int, scale: int) -> np.ndarray:
     traj = clip.trajectory
     done = t >= traj.steps
     obs = traj.final_obs if done else traj.obs[t]
-    image = Image.fromarray(learner_view(np.asarray(obs))).resize((obs.shape[1] * scale, obs.shape[0] * scale), Image.NEAREST)
+    image = Image.fromarray(learner_view(np.asarray(obs))).resize(
+        (obs.shape[1] * scale, obs.shape[0] * scale), Image.NEAREST
+    )
     canvas = Image.new("RGB", (image.width, image.height + BAND), (0, 0, 0))
     canvas.paste(image, (0, BAND))
     steps = min(t + 1, traj.steps)
@@ -122,8 +149,10 @@ def compose(clips: Sequence[Clip], *, scale: int = 3, gap: int = 4) -> list[np.n
         panels = [panel(c, t, scale) for c in clips]
         height = max(p.shape[0] for p in panels)
         spacer = np.zeros((height, gap, 3), dtype=np.uint8)
-        row = np.concatenate([part for p in panels for part in (np.pad(p, ((0, height - p.shape[0]), (0, 0), (0, 0))), spacer)][:-1],
-                             axis=1)
+        row = np.concatenate(
+            [part for p in panels for part in (np.pad(p, ((0, height - p.shape[0]), (0, 0), (0, 0))), spacer)][:-1],
+            axis=1,
+        )
         frames.append(np.pad(row, ((0, row.shape[0] % 2), (0, row.shape[1] % 2), (0, 0))))
     return frames
 
@@ -134,8 +163,10 @@ def require_imageio() -> tuple[Any, Any]:
         import imageio.v2 as imageio
         import imageio_ffmpeg
     except ImportError:
-        raise UserError("metadagger video needs imageio and imageio-ffmpeg; install them with "
-                        "`pip install -e '.[video]' -c constraints.txt` (or `bash scripts/setup.sh video`)") from None
+        raise UserError(
+            "metadagger video needs imageio and imageio-ffmpeg; install them with "
+            "`pip install -e '.[video]' -c constraints.txt` (or `bash scripts/setup.sh video`)"
+        ) from None
     return imageio, imageio_ffmpeg
 
 
@@ -146,8 +177,15 @@ def write_video(frames: Sequence[np.ndarray], mp4: Path, gif: Path, *, fps: int,
     height, width = frames[0].shape[:2]
 
     def encode(path: Path) -> None:
-        writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=fps, codec="libx264", pix_fmt_out="yuv420p",
-                                             macro_block_size=1, output_params=["-f", "mp4"])
+        writer = imageio_ffmpeg.write_frames(
+            str(path),
+            (width, height),
+            fps=fps,
+            codec="libx264",
+            pix_fmt_out="yuv420p",
+            macro_block_size=1,
+            output_params=["-f", "mp4"],
+        )
         writer.send(None)
         for frame in frames:
             writer.send(np.ascontiguousarray(frame))
@@ -155,5 +193,7 @@ def write_video(frames: Sequence[np.ndarray], mp4: Path, gif: Path, *, fps: int,
 
     atomic_write(mp4, encode)
     shown = list(frames[::gif_stride]) + ([frames[-1]] if (len(frames) - 1) % gif_stride else [])
-    atomic_write(gif, lambda path: imageio.mimwrite(path, shown, format="GIF", duration=1000 * gif_stride / fps, loop=0))
+    atomic_write(
+        gif, lambda path: imageio.mimwrite(path, shown, format="GIF", duration=1000 * gif_stride / fps, loop=0)
+    )
     return mp4, gif

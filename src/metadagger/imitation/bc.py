@@ -106,14 +106,22 @@ class BCConfig:
         if self.lr_schedule not in LR_SCHEDULES:
             raise UserError(f"BCConfig.lr_schedule must be one of {', '.join(LR_SCHEDULES)}, got {self.lr_schedule!r}")
         if self.lr_schedule != "constant" and self.head_only:
-            raise UserError("BCConfig.lr_schedule needs a whole-policy fit: head-only fits keep a constant rate; "
-                            "set lr_schedule=constant or head_only=false")
+            raise UserError(
+                "BCConfig.lr_schedule needs a whole-policy fit: head-only fits keep a constant rate; "
+                "set lr_schedule=constant or head_only=false"
+            )
         if not isinstance(self.batch_shards, int) or isinstance(self.batch_shards, bool) or self.batch_shards < 1:
             raise UserError(f"BCConfig.batch_shards must be an integer >= 1, got {self.batch_shards!r}")
         if self.batch_shards > 1 and self.head_only:
-            raise UserError("BCConfig.batch_shards needs a whole-policy fit: head-only steps are too small to split; set batch_shards=1 or head_only=false")
+            raise UserError(
+                "BCConfig.batch_shards needs a whole-policy fit: head-only steps are too small to split; set "
+                "batch_shards=1 or head_only=false"
+            )
         if self.augment_shift and self.head_only:
-            raise UserError("BCConfig.augment_shift needs a whole-policy fit: head-only fits use cached trunk features; set augment_shift=0 or head_only=false")
+            raise UserError(
+                "BCConfig.augment_shift needs a whole-policy fit: head-only fits use cached trunk features; set "
+                "augment_shift=0 or head_only=false"
+            )
 
 
 def random_shift(obs: torch.Tensor, max_shift: int, generator: torch.Generator) -> torch.Tensor:
@@ -208,8 +216,10 @@ class FeatureCache:
             where = list(missing.values())
             # no_grad rather than inference_mode: the cached tensors later feed a head that trains
             with torch.no_grad():
-                chunks = [self.policy.net.features(torch.from_numpy(_gather(images, where[s : s + self.batch_size])))
-                          for s in range(0, len(where), self.batch_size)]
+                chunks = [
+                    self.policy.net.features(torch.from_numpy(_gather(images, where[s : s + self.batch_size])))
+                    for s in range(0, len(where), self.batch_size)
+                ]
             start = len(self._store)
             self._store = torch.cat([self._store, *chunks])
             self._rows.update({key: start + j for j, key in enumerate(missing)})
@@ -236,10 +246,16 @@ def _check_data(policy: Policy, data: Dataset | Aggregate) -> None:
     if len(data) == 0:
         raise UserError("cannot fit on an empty dataset: collect at least one demonstration first")
     if list(data.image_shape) != list(arch["obs_shape"]):
-        raise UserError(f"dataset images are {data.image_shape} but the policy expects {tuple(arch['obs_shape'])}; use data from the policy's task")
+        raise UserError(
+            f"dataset images are {data.image_shape} but the policy expects {tuple(arch['obs_shape'])}; use data from "
+            "the policy's task"
+        )
     if data.discrete != policy.discrete or (not data.discrete and data.labels.shape[1] != arch["n_outputs"]):
         kind = "int64 class labels" if policy.discrete else f"float32 labels of width {arch['n_outputs']}"
-        raise UserError(f"dataset labels are {data.labels.dtype} {data.labels.shape[1:]} but the policy needs {kind}; use data from the policy's task")
+        raise UserError(
+            f"dataset labels are {data.labels.dtype} {data.labels.shape[1:]} but the policy needs {kind}; use data "
+            "from the policy's task"
+        )
 
 
 def fit_bc(
@@ -283,14 +299,19 @@ def fit_bc(
         inputs, model = cache.features_of(data), net.head
     else:
         if cache is not None:
-            raise UserError("a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache=")
+            raise UserError(
+                "a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache="
+            )
         inputs, model = torch.from_numpy(data.obs), net
     targets = torch.from_numpy(data.labels)
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise UserError("the policy has no trainable parameters left to fit; do not freeze the head")
-    head_adam = LinearHeadAdam(model, lr=config.lr, weight_decay=config.weight_decay, discrete=policy.discrete) \
-        if config.head_only and LinearHeadAdam.supports(model) else None
+    head_adam = (
+        LinearHeadAdam(model, lr=config.lr, weight_decay=config.weight_decay, discrete=policy.discrete)
+        if config.head_only and LinearHeadAdam.supports(model)
+        else None
+    )
     generator = torch.Generator().manual_seed(config.seed)
     losses: list[float] = []
     n = len(data)
@@ -303,8 +324,14 @@ def fit_bc(
         else:
             if config.batch_shards > 1:
                 # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
-                pool = stack.enter_context(ThreadPoolExecutor(config.batch_shards, thread_name_prefix="bc-shard",
-                                                              initializer=torch.set_num_threads, initargs=(torch.get_num_threads(),)))
+                pool = stack.enter_context(
+                    ThreadPoolExecutor(
+                        config.batch_shards,
+                        thread_name_prefix="bc-shard",
+                        initializer=torch.set_num_threads,
+                        initargs=(torch.get_num_threads(),),
+                    )
+                )
                 step = _sharded_step(model, params, optimizer, policy.discrete, pool, config.batch_shards)
             else:
                 step = _autograd_step(model, optimizer, policy.discrete)
@@ -318,6 +345,7 @@ def fit_bc(
                         x = random_shift(x, config.augment_shift, generator)
                     batch_losses.append(step(x, targets[batch]).item())
                 return batch_losses
+
         bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
         for epoch in bar:
             if optimizer is not None:
@@ -328,8 +356,13 @@ def fit_bc(
             for start, loss in zip(range(0, n, config.batch_size), epoch_losses(order), strict=True):
                 total += loss * min(config.batch_size, n - start)
             losses.append(total / n)
-            check_finite_loss(losses[-1], what=what, epoch=epoch + 1, epochs=config.epochs,
-                              fix=f"lower its learning rate (now {config.lr:g}) or check its data")
+            check_finite_loss(
+                losses[-1],
+                what=what,
+                epoch=epoch + 1,
+                epochs=config.epochs,
+                fix=f"lower its learning rate (now {config.lr:g}) or check its data",
+            )
             bar.set_postfix(loss=f"{losses[-1]:.4f}")
             if on_epoch is not None:
                 if head_adam is not None:
@@ -338,13 +371,16 @@ def fit_bc(
     if head_adam is not None:
         head_adam.write_back()
     if not bool(torch.isfinite(parameters_to_vector(params)).all()):
-        raise DivergedError(f"{what} diverged: its weights are not finite after {config.epochs} epochs; "
-                            f"lower its learning rate (now {config.lr:g}) or check its data")
+        raise DivergedError(
+            f"{what} diverged: its weights are not finite after {config.epochs} epochs; "
+            f"lower its learning rate (now {config.lr:g}) or check its data"
+        )
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
 
 
-def _autograd_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer,
-                   discrete: bool) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+def _autograd_step(
+    model: torch.nn.Module, optimizer: torch.optim.Optimizer, discrete: bool
+) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
     """A training step of ``model`` by autograd and ``optimizer``: returns the batch loss."""
     loss_fn = F.cross_entropy if discrete else F.mse_loss
 
@@ -358,8 +394,14 @@ def _autograd_step(model: torch.nn.Module, optimizer: torch.optim.Optimizer,
     return step
 
 
-def _sharded_step(model: torch.nn.Module, params: list[torch.nn.Parameter], optimizer: torch.optim.Optimizer,
-                  discrete: bool, pool: ThreadPoolExecutor, shards: int) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+def _sharded_step(
+    model: torch.nn.Module,
+    params: list[torch.nn.Parameter],
+    optimizer: torch.optim.Optimizer,
+    discrete: bool,
+    pool: ThreadPoolExecutor,
+    shards: int,
+) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
     """:func:`_autograd_step` with the batch split into ``shards`` contiguous parts,
     whose summed losses are differentiated in ``pool``'s threads; the gradients are added in shard
     order and divided by the batch's count, so the step is the mean loss's, summed another way.

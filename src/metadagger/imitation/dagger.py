@@ -107,7 +107,9 @@ def run_dagger(
     queries = len(initial)
     history: list[dict[str, Any]] = []
     for round_idx in progress_bar(range(1, config.rounds + 1), desc="dagger", enabled=progress, leave=False):
-        trajectories = collect(task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory, workers=workers)
+        trajectories = collect(
+            task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory, workers=workers
+        )
         if on_rollouts is not None:
             on_rollouts(round_idx, trajectories)
         dataset = dataset.append(*(t.to_dataset() for t in trajectories))
@@ -116,8 +118,14 @@ def run_dagger(
             # a frozen trunk (e.g. pi*'s layers 1..n-1) is never re-initialised
             trunk_frozen = not any(p.requires_grad for p in policy.net.trunk.parameters())
             policy.net.init_weights(config.bc.seed, head_only=config.bc.head_only or trunk_frozen)
-        losses = fit_or_resume(policy, dataset, config.bc, _checkpoint(checkpoints, round_idx), cache=cache,
-                               what=f"DAgger round {round_idx}'s fit")
+        losses = fit_or_resume(
+            policy,
+            dataset,
+            config.bc,
+            _checkpoint(checkpoints, round_idx),
+            cache=cache,
+            what=f"DAgger round {round_idx}'s fit",
+        )
         metrics = {
             "dagger/round": round_idx,
             "dagger/success_rate": float(np.mean([t.success for t in trajectories])),

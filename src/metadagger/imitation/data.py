@@ -25,7 +25,8 @@ class Dataset:
     def __post_init__(self) -> None:
         if not isinstance(self.obs, np.ndarray) or self.obs.dtype != np.uint8 or self.obs.ndim != 4:
             raise ValueError(
-                f"obs must be a uint8 array of shape (N, H, W, C), got {getattr(self.obs, 'dtype', type(self.obs).__name__)} "
+                "obs must be a uint8 array of shape (N, H, W, C), got "
+                f"{getattr(self.obs, 'dtype', type(self.obs).__name__)} "
                 f"with shape {getattr(self.obs, 'shape', None)}"
             )
         labels = self.labels
@@ -87,10 +88,14 @@ class Aggregate:
             raise ValueError("an Aggregate needs at least one dataset")
         first = parts[0]
         for other in parts[1:]:
-            if other.obs.shape[1:] != first.obs.shape[1:] or other.labels.dtype != first.labels.dtype \
-                    or other.labels.shape[1:] != first.labels.shape[1:]:
+            if (
+                other.obs.shape[1:] != first.obs.shape[1:]
+                or other.labels.dtype != first.labels.dtype
+                or other.labels.shape[1:] != first.labels.shape[1:]
+            ):
                 raise ValueError(
-                    f"cannot concatenate obs {other.obs.shape[1:]} / labels {other.labels.dtype}{other.labels.shape[1:]} "
+                    f"cannot concatenate obs {other.obs.shape[1:]} / labels "
+                    f"{other.labels.dtype}{other.labels.shape[1:]} "
                     f"onto obs {first.obs.shape[1:]} / labels {first.labels.dtype}{first.labels.shape[1:]}"
                 )
         self.parts: tuple[Dataset, ...] = parts

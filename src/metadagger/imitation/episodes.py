@@ -25,5 +25,9 @@ def evaluate_policy(
 
 def episode_row(trajectory: Trajectory) -> dict:
     """An episode's evaluation row: seed, success, reward, steps."""
-    return {"seed": trajectory.seed, "success": bool(trajectory.success), "reward": float(trajectory.reward),
-            "steps": int(trajectory.steps)}
+    return {
+        "seed": trajectory.seed,
+        "success": bool(trajectory.success),
+        "reward": float(trajectory.reward),
+        "steps": int(trajectory.steps),
+    }

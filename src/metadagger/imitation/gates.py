@@ -38,8 +38,8 @@ label + 1.
 from __future__ import annotations
 
 import dataclasses
-from abc import ABC, abstractmethod
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -65,16 +65,25 @@ class Labelled:
 
     def __post_init__(self) -> None:
         if self.features.dtype != torch.float32 or self.features.ndim != 2 or len(self.features) == 0:
-            raise UserError(f"Labelled.features must be float32 [M, F] with M >= 1, got {self.features.dtype} {tuple(self.features.shape)}")
+            raise UserError(
+                f"Labelled.features must be float32 [M, F] with M >= 1, got {self.features.dtype} "
+                f"{tuple(self.features.shape)}"
+            )
         m = len(self.features)
         if self.labels.dtype == torch.int64:
             if tuple(self.labels.shape) != (m,):
-                raise UserError(f"Labelled.labels of class indices must be [M] = ({m},), got {tuple(self.labels.shape)}")
+                raise UserError(
+                    f"Labelled.labels of class indices must be [M] = ({m},), got {tuple(self.labels.shape)}"
+                )
         elif self.labels.dtype != torch.float32 or self.labels.ndim != 2 or len(self.labels) != m:
-            raise UserError(f"Labelled.labels must be int64 [M] or float32 [M, d] with M = {m}, got {self.labels.dtype} {tuple(self.labels.shape)}")
+            raise UserError(
+                f"Labelled.labels must be int64 [M] or float32 [M, d] with M = {m}, got {self.labels.dtype} "
+                f"{tuple(self.labels.shape)}"
+            )
         if self.learner_actions.dtype != self.labels.dtype or self.learner_actions.shape != self.labels.shape:
             raise UserError(
-                f"Labelled.learner_actions must be laid out as the labels ({self.labels.dtype} {tuple(self.labels.shape)}), "
+                f"Labelled.learner_actions must be laid out as the labels ({self.labels.dtype} "
+                f"{tuple(self.labels.shape)}), "
                 f"got {self.learner_actions.dtype} {tuple(self.learner_actions.shape)}"
             )
 
@@ -110,9 +119,14 @@ class GateMemory:
 
 def _check_round(features: Tensor, learner_actions: Tensor, labelled: Labelled) -> None:
     if features.dtype != torch.float32 or features.ndim != 2 or len(features) == 0:
-        raise UserError(f"a gate needs float32 features [N, F] with N >= 1, got {features.dtype} {tuple(features.shape)}")
+        raise UserError(
+            f"a gate needs float32 features [N, F] with N >= 1, got {features.dtype} {tuple(features.shape)}"
+        )
     if features.shape[1] != labelled.features.shape[1]:
-        raise UserError(f"this round's features have width {features.shape[1]} but the labelled ones {labelled.features.shape[1]}; use one trunk for both")
+        raise UserError(
+            f"this round's features have width {features.shape[1]} but the labelled ones "
+            f"{labelled.features.shape[1]}; use one trunk for both"
+        )
     expected = (len(features),) + tuple(labelled.labels.shape[1:])
     if learner_actions.dtype != labelled.labels.dtype or tuple(learner_actions.shape) != expected:
         raise UserError(
@@ -182,8 +196,15 @@ class Gate(ABC):
     setting: ClassVar[str]
     """The field set by the sweep value of :func:`make_gate`."""
 
-    def select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, *, generator: torch.Generator,
-               memory: GateMemory | None = None) -> Tensor:
+    def select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        *,
+        generator: torch.Generator,
+        memory: GateMemory | None = None,
+    ) -> Tensor:
         """The states of this round to label.
 
         Args:
@@ -201,8 +222,14 @@ class Gate(ABC):
         return self._select(features, learner_actions, labelled, generator, GateMemory() if memory is None else memory)
 
     @abstractmethod
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
-                memory: GateMemory) -> Tensor: ...
+    def _select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+    ) -> Tensor: ...
 
 
 @dataclass(frozen=True)
@@ -217,8 +244,14 @@ class RandomGate(Gate):
         if not 0.0 <= self.p <= 1.0:
             raise UserError(f"RandomGate.p must be in [0, 1], got {self.p!r}")
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
-                memory: GateMemory) -> Tensor:
+    def _select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+    ) -> Tensor:
         return torch.rand(len(features), generator=generator) < self.p
 
 
@@ -228,12 +261,20 @@ class ScoreGate(Gate):
     setting: ClassVar[str] = "quantile"
     quantile: float
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
-                memory: GateMemory) -> Tensor:
+    def _select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+    ) -> Tensor:
         return above_quantile(self.scores(features, learner_actions, labelled, generator), self.quantile)
 
     @abstractmethod
-    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+    def scores(
+        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
+    ) -> Tensor:
         """One score per state [N]; higher means more worth an expert query."""
 
 
@@ -262,7 +303,9 @@ class EnsembleGate(ScoreGate):
         _check_count("EnsembleGate.K", self.K, 2)
         _check_ridge("EnsembleGate", self.ridge)
 
-    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+    def scores(
+        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
+    ) -> Tensor:
         """Disagreement of the ``K`` bootstrap heads at each state [N]."""
         outputs = bootstrap_outputs(features, labelled, self.K, self.ridge, generator)
         variance = outputs.var(dim=0, unbiased=False).sum(dim=1)
@@ -274,7 +317,9 @@ class EnsembleGate(ScoreGate):
         return torch.unique(torch.stack([entropy, variance], dim=1), dim=0, return_inverse=True)[1].double()
 
 
-def bootstrap_outputs(features: Tensor, labelled: Labelled, heads: int, ridge: float, generator: torch.Generator) -> Tensor:
+def bootstrap_outputs(
+    features: Tensor, labelled: Labelled, heads: int, ridge: float, generator: torch.Generator
+) -> Tensor:
     """The outputs [K, N, T] at ``features`` of ``heads`` ridge heads, each fitted on the labelled
     rows resampled with replacement, of one-hot class targets or of the action vectors."""
     targets = labelled.labels
@@ -311,13 +356,21 @@ class SafeGate(ScoreGate):
         _check_quantile("SafeGate", self.quantile)
         _check_ridge("SafeGate", self.ridge)
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
-                memory: GateMemory) -> Tensor:
+    def _select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+    ) -> Tensor:
         if len(_mismatch(labelled).unique()) < 2:
             return torch.ones(len(features), dtype=torch.bool)
         return super()._select(features, learner_actions, labelled, generator, memory)
 
-    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+    def scores(
+        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
+    ) -> Tensor:
         """Predicted mismatch of the learner's action at each state [N]."""
         weights = _ridge(labelled.features, _mismatch(labelled).double().unsqueeze(1), self.ridge)
         return (_with_bias(features) @ weights).squeeze(1)
@@ -345,7 +398,9 @@ class NoveltyGate(ScoreGate):
         _check_quantile("NoveltyGate", self.quantile)
         _check_count("NoveltyGate.k", self.k, 1)
 
-    def scores(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator) -> Tensor:
+    def scores(
+        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
+    ) -> Tensor:
         """Distance of each state to its ``k``-th nearest labelled state [N]."""
         return neighbour_distance(features, labelled, self.k, "NoveltyGate")
 
@@ -388,10 +443,18 @@ class ThriftyGate(Gate):
         _check_ridge("ThriftyGate", self.ridge)
         _check_ridge("ThriftyGate.risk", self.risk_ridge)
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
-                memory: GateMemory) -> Tensor:
+    def _select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+    ) -> Tensor:
         record = memory.notes.setdefault("thrifty", {"novelty": [], "risk": []})
-        novelty = bootstrap_outputs(features, labelled, self.K, self.ridge, generator).var(dim=0, unbiased=False).sum(dim=1)
+        novelty = (
+            bootstrap_outputs(features, labelled, self.K, self.ridge, generator).var(dim=0, unbiased=False).sum(dim=1)
+        )
         record["novelty"].append(novelty)
         mask = novelty > torch.quantile(torch.cat(record["novelty"]), 1.0 - self.rate)
         risk = self.risk(features, memory.episodes)
@@ -406,7 +469,9 @@ class ThriftyGate(Gate):
         if len({e.succeeded for e in episodes}) < 2:
             return None
         seen = torch.cat([e.features for e in episodes])
-        outcome = torch.cat([torch.full((len(e.features), 1), float(e.succeeded), dtype=torch.float64) for e in episodes])
+        outcome = torch.cat(
+            [torch.full((len(e.features), 1), float(e.succeeded), dtype=torch.float64) for e in episodes]
+        )
         return 1.0 - (_with_bias(features) @ _ridge(seen, outcome, self.risk_ridge)).squeeze(1)
 
 
@@ -439,16 +504,28 @@ class ConformalGate(Gate):
         _check_share("ConformalGate.alpha", self.alpha)
         _check_count("ConformalGate.k", self.k, 1)
 
-    def _select(self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator,
-                memory: GateMemory) -> Tensor:
+    def _select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+    ) -> Tensor:
         scores = neighbour_distance(features, labelled, self.k, "ConformalGate")
         if "conformal" not in memory.notes:
             memory.notes["conformal"] = conformal_threshold(scores, self.alpha)
         return scores.double() > memory.notes["conformal"]
 
 
-GATES: dict[str, type[Gate]] = {"random": RandomGate, "ensemble": EnsembleGate, "safe": SafeGate, "novelty": NoveltyGate,
-                                "thrifty": ThriftyGate, "conformal": ConformalGate}
+GATES: dict[str, type[Gate]] = {
+    "random": RandomGate,
+    "ensemble": EnsembleGate,
+    "safe": SafeGate,
+    "novelty": NoveltyGate,
+    "thrifty": ThriftyGate,
+    "conformal": ConformalGate,
+}
 """Every gate by name."""
 
 
@@ -472,5 +549,7 @@ def make_gate(name: str, setting: float, **options: Any) -> Gate:
     allowed = [f.name for f in dataclasses.fields(cls) if f.name != cls.setting]
     unknown = sorted(set(options) - set(allowed))
     if unknown:
-        raise UserError(f"unknown option(s) {', '.join(unknown)} for gate {name!r}: expected {', '.join(allowed) or 'none'}")
+        raise UserError(
+            f"unknown option(s) {', '.join(unknown)} for gate {name!r}: expected {', '.join(allowed) or 'none'}"
+        )
     return cls(**{cls.setting: setting}, **options)

@@ -20,9 +20,21 @@ import torch
 from torch import nn
 
 
-def _adam_steps(params: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor, exp_avg_sq: torch.Tensor,
-                inputs: torch.Tensor, targets: torch.Tensor, order: torch.Tensor, batch_size: int, out_dim: int,
-                lr: float, weight_decay: float, discrete: bool, step_t: torch.Tensor) -> torch.Tensor:
+def _adam_steps(
+    params: torch.Tensor,
+    grad: torch.Tensor,
+    exp_avg: torch.Tensor,
+    exp_avg_sq: torch.Tensor,
+    inputs: torch.Tensor,
+    targets: torch.Tensor,
+    order: torch.Tensor,
+    batch_size: int,
+    out_dim: int,
+    lr: float,
+    weight_decay: float,
+    discrete: bool,
+    step_t: torch.Tensor,
+) -> torch.Tensor:
     """Adam steps on consecutive batches of ``order`` (rows of ``inputs`` and ``targets``), updating
     ``params`` (the head's weight, then its bias, flat), the moments and the step count ``step_t`` in
     place; returns each batch's loss before its step. Compiled by TorchScript (:func:`_compiled_adam_steps`)."""
@@ -55,8 +67,20 @@ def _adam_steps(params: torch.Tensor, grad: torch.Tensor, exp_avg: torch.Tensor,
         step_t.add_(1)
         # the functional form: TorchScript drops the in-place one, whose only effect is on its lists' tensors
         new_params, _, new_exp_avg, new_exp_avg_sq, _ = torch.ops.aten._fused_adam(
-            [params], [grad], [exp_avg], [exp_avg_sq], [], [step_t], lr=lr, beta1=beta1, beta2=beta2,
-            weight_decay=weight_decay, eps=eps, amsgrad=False, maximize=False)
+            [params],
+            [grad],
+            [exp_avg],
+            [exp_avg_sq],
+            [],
+            [step_t],
+            lr=lr,
+            beta1=beta1,
+            beta2=beta2,
+            weight_decay=weight_decay,
+            eps=eps,
+            amsgrad=False,
+            maximize=False,
+        )
         params.copy_(new_params[0])
         exp_avg.copy_(new_exp_avg[0])
         exp_avg_sq.copy_(new_exp_avg_sq[0])
@@ -97,16 +121,35 @@ class LinearHeadAdam:
     @staticmethod
     def supports(head: nn.Module) -> bool:
         """Whether ``head`` is a float32 ``nn.Linear`` with both parameters trainable."""
-        return (isinstance(head, nn.Linear) and head.bias is not None and head.weight.dtype == torch.float32
-                and head.weight.requires_grad and head.bias.requires_grad)
+        return (
+            isinstance(head, nn.Linear)
+            and head.bias is not None
+            and head.weight.dtype == torch.float32
+            and head.weight.requires_grad
+            and head.bias.requires_grad
+        )
 
     @torch.no_grad()
-    def steps(self, features: torch.Tensor, targets: torch.Tensor, order: torch.Tensor, batch_size: int) -> torch.Tensor:
+    def steps(
+        self, features: torch.Tensor, targets: torch.Tensor, order: torch.Tensor, batch_size: int
+    ) -> torch.Tensor:
         """One Adam step per batch of ``batch_size`` consecutive rows of ``order`` (the last batch
         may be smaller); returns each batch's loss before its step."""
-        losses = _compiled_adam_steps()(self._params, self._grad, self._exp_avg, self._exp_avg_sq, features, targets,
-                                        order, batch_size, self.head.out_features, self.lr, self.weight_decay,
-                                        self.discrete, self._step)
+        losses = _compiled_adam_steps()(
+            self._params,
+            self._grad,
+            self._exp_avg,
+            self._exp_avg_sq,
+            features,
+            targets,
+            order,
+            batch_size,
+            self.head.out_features,
+            self.lr,
+            self.weight_decay,
+            self.discrete,
+            self._step,
+        )
         return losses
 
     @torch.no_grad()

@@ -63,11 +63,15 @@ def check_new_dataset_name(name: str) -> None:
     try:
         parse_dataset_id(name)
     except (ValueError, TypeError):  # TypeError: Minari 0.5 fails so on a name without -v<version>
-        raise UserError(f"--name {name!r} is not a Minari dataset id; expected (namespace/)name-v<version> with a "
-                        "namespace of 2 or more characters, e.g. metadagger/carracing-demos-v0") from None
+        raise UserError(
+            f"--name {name!r} is not a Minari dataset id; expected (namespace/)name-v<version> with a "
+            "namespace of 2 or more characters, e.g. metadagger/carracing-demos-v0"
+        ) from None
     if (datasets_root() / name).exists():
-        raise UserError(f"a Minari dataset named {name!r} already exists in {datasets_root()}; pick another --name "
-                        f"(or bump its version) or delete it with `minari delete {name}`")
+        raise UserError(
+            f"a Minari dataset named {name!r} already exists in {datasets_root()}; pick another --name "
+            f"(or bump its version) or delete it with `minari delete {name}`"
+        )
 
 
 def episode_buffer(episode: RecordedEpisode, index: int) -> Any:
@@ -88,7 +92,8 @@ def episode_buffer(episode: RecordedEpisode, index: int) -> Any:
     }
     last = steps - 1
     return EpisodeBuffer(
-        id=index, seed=traj.seed,
+        id=index,
+        seed=traj.seed,
         observations=np.concatenate([traj.obs, traj.final_obs[None]]),
         actions=traj.learner_actions,
         rewards=[float(r) for r in traj.step_rewards],
@@ -98,8 +103,15 @@ def episode_buffer(episode: RecordedEpisode, index: int) -> Any:
     )
 
 
-def write_dataset(name: str, chunks: Iterable[list[RecordedEpisode]], *, observation_space: gym.Space,
-                  action_space: gym.Space, description: str, algorithm: str) -> Path:
+def write_dataset(
+    name: str,
+    chunks: Iterable[list[RecordedEpisode]],
+    *,
+    observation_space: gym.Space,
+    action_space: gym.Space,
+    description: str,
+    algorithm: str,
+) -> Path:
     """Write the episodes of ``chunks`` (in order) as the Minari dataset ``name``.
 
     The dataset is built in a staging folder beside the datasets and renamed into place when the
@@ -119,10 +131,22 @@ def write_dataset(name: str, chunks: Iterable[list[RecordedEpisode]], *, observa
         create_namespace(namespace)
 
     def write(folder: Path) -> None:
-        storage = MinariStorage.new(folder / "data", observation_space=observation_space,
-                                    action_space=action_space, data_format="hdf5", jpeg_encoding=False)
-        storage.update_metadata({"dataset_id": name, "algorithm_name": algorithm, "description": description,
-                                 "author": {"metadagger"}, "minari_version": minari.__version__})
+        storage = MinariStorage.new(
+            folder / "data",
+            observation_space=observation_space,
+            action_space=action_space,
+            data_format="hdf5",
+            jpeg_encoding=False,
+        )
+        storage.update_metadata(
+            {
+                "dataset_id": name,
+                "algorithm_name": algorithm,
+                "description": description,
+                "author": {"metadagger"},
+                "minari_version": minari.__version__,
+            }
+        )
         index = 0
         for chunk in chunks:
             storage.update_episodes([episode_buffer(e, index + i) for i, e in enumerate(chunk)])
@@ -147,8 +171,10 @@ def _episodes(dataset: Any, name: str) -> Iterator[Any]:
         yield from dataset.iterate_episodes()
     except Exception as err:  # h5py and pyarrow raise several types for damaged files
         reason = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise UserError(f"Minari dataset {name!r} is damaged: its data in {dataset.storage.data_path} cannot be read ({reason}); "
-                        f"download or export it again (delete this copy first with `minari delete {name}`)") from None
+        raise UserError(
+            f"Minari dataset {name!r} is damaged: its data in {dataset.storage.data_path} cannot be read ({reason}); "
+            f"download or export it again (delete this copy first with `minari delete {name}`)"
+        ) from None
 
 
 def read_demonstrations(name: str, *, observation_space: gym.Space, action_space: gym.Space) -> Dataset:
@@ -162,13 +188,19 @@ def read_demonstrations(name: str, *, observation_space: gym.Space, action_space
         dataset = minari.load_dataset(name)
     except (FileNotFoundError, ValueError) as err:
         reason = str(err).split(". Use download=True")[0]  # the library's hint names an argument the CLI has not got
-        raise UserError(f"cannot load Minari dataset {name!r} from {datasets_root()} ({reason}); list the local ones with "
-                        "`minari list local`, download it with `minari download NAME`, or set MINARI_DATASETS_PATH") from None
-    for what, theirs, ours in (("observation", dataset.observation_space, observation_space),
-                               ("action", dataset.action_space, action_space)):
+        raise UserError(
+            f"cannot load Minari dataset {name!r} from {datasets_root()} ({reason}); list the local ones with "
+            "`minari list local`, download it with `minari download NAME`, or set MINARI_DATASETS_PATH"
+        ) from None
+    for what, theirs, ours in (
+        ("observation", dataset.observation_space, observation_space),
+        ("action", dataset.action_space, action_space),
+    ):
         if not _same_space(theirs, ours):
-            raise UserError(f"Minari dataset {name!r} has {what} space {theirs}, but the task's learner has {ours}; "
-                            "use a dataset of a task with the same spaces")
+            raise UserError(
+                f"Minari dataset {name!r} has {what} space {theirs}, but the task's learner has {ours}; "
+                "use a dataset of a task with the same spaces"
+            )
     discrete = isinstance(action_space, gym.spaces.Discrete)
     obs, labels = [], []
     for episode in _episodes(dataset, name):

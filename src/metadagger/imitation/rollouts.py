@@ -155,8 +155,14 @@ class _Chunk:
 
 
 def _collect_chunk(chunk: _Chunk) -> tuple[int, list[Any]]:
-    return chunk.start, collect(chunk.task, chunk.seeds, policy=chunk.policy, early_stop_factory=chunk.early_stop_factory,
-                                max_steps=chunk.max_steps, each=chunk.each)
+    return chunk.start, collect(
+        chunk.task,
+        chunk.seeds,
+        policy=chunk.policy,
+        early_stop_factory=chunk.early_stop_factory,
+        max_steps=chunk.max_steps,
+        each=chunk.each,
+    )
 
 
 def collect(
@@ -194,13 +200,24 @@ def collect(
     seeds = list(seeds)
     desc = desc or f"{task.name} rollouts"
     if workers > 1 and len(seeds) > 1:
-        return _collect_in_pool(task, seeds, policy=policy, desc=desc, progress=progress, early_stop_factory=early_stop_factory,
-                                max_steps=max_steps, workers=workers, each=each)
+        return _collect_in_pool(
+            task,
+            seeds,
+            policy=policy,
+            desc=desc,
+            progress=progress,
+            early_stop_factory=early_stop_factory,
+            max_steps=max_steps,
+            workers=workers,
+            each=each,
+        )
     env = task.make_env()
     early_stop = early_stop_factory() if early_stop_factory is not None else None
     try:
-        episodes = (rollout(env, seed=seed, policy=policy, max_steps=max_steps, early_stop=early_stop)
-                    for seed in progress_bar(seeds, desc=desc, enabled=progress, leave=False))
+        episodes = (
+            rollout(env, seed=seed, policy=policy, max_steps=max_steps, early_stop=early_stop)
+            for seed in progress_bar(seeds, desc=desc, enabled=progress, leave=False)
+        )
         return [episode if each is None else each(episode) for episode in episodes]
     finally:
         env.close()
@@ -211,16 +228,32 @@ def collect(
 _CHUNKS_PER_WORKER = 4
 
 
-def _collect_in_pool(task: Task, seeds: list[int], *, policy: Policy | None, desc: str, progress: bool,
-                     early_stop_factory: Callable[[], EarlyStop] | None, max_steps: int | None,
-                     workers: int, each: Callable[[Trajectory], Any] | None) -> list[Any]:
+def _collect_in_pool(
+    task: Task,
+    seeds: list[int],
+    *,
+    policy: Policy | None,
+    desc: str,
+    progress: bool,
+    early_stop_factory: Callable[[], EarlyStop] | None,
+    max_steps: int | None,
+    workers: int,
+    each: Callable[[Trajectory], Any] | None,
+) -> list[Any]:
     size = -(-len(seeds) // min(len(seeds), workers * _CHUNKS_PER_WORKER))
-    chunks = [_Chunk(task, start, seeds[start : start + size], policy, early_stop_factory, max_steps, each)
-              for start in range(0, len(seeds), size)]
+    chunks = [
+        _Chunk(task, start, seeds[start : start + size], policy, early_stop_factory, max_steps, each)
+        for start in range(0, len(seeds), size)
+    ]
     results: list[Any] = []
     with make_executor("local", workers=min(workers, len(chunks))) as executor:
         done = in_order(executor.imap_unordered(_collect_chunk, chunks), [c.start for c in chunks], key=lambda r: r[0])
-        for _, chunk in progress_bar(done, desc=f"{desc} ({len(seeds)} seeds in {len(chunks)} chunks)", enabled=progress,
-                                     leave=False, total=len(chunks)):
+        for _, chunk in progress_bar(
+            done,
+            desc=f"{desc} ({len(seeds)} seeds in {len(chunks)} chunks)",
+            enabled=progress,
+            leave=False,
+            total=len(chunks),
+        ):
             results.extend(chunk)
     return results

@@ -35,8 +35,17 @@ class EpochSelector:
         progress: print a line after each check.
     """
 
-    def __init__(self, task: Task, policy: Policy, seeds: Sequence[int], *, every: int, epochs: int,
-                 workers: int = 1, progress: bool = False) -> None:
+    def __init__(
+        self,
+        task: Task,
+        policy: Policy,
+        seeds: Sequence[int],
+        *,
+        every: int,
+        epochs: int,
+        workers: int = 1,
+        progress: bool = False,
+    ) -> None:
         if not seeds:
             raise UserError("an EpochSelector needs at least one held-out seed")
         if every < 1:
@@ -54,8 +63,10 @@ class EpochSelector:
         self.history.append({"epoch": epoch, "successes": wins, "episodes": len(rows)})
         if self._best is None or wins >= self._best[0]:
             self._best = (wins, epoch, copy.deepcopy(self.policy.net.state_dict()))
-        note(f"epoch {epoch}: {wins}/{len(rows)} held-out seeds (best: epoch {self._best[1]}, {self._best[0]})",
-             enabled=self.progress)
+        note(
+            f"epoch {epoch}: {wins}/{len(rows)} held-out seeds (best: epoch {self._best[1]}, {self._best[0]})",
+            enabled=self.progress,
+        )
 
     @property
     def choice(self) -> dict[str, Any]:

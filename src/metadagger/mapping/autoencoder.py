@@ -43,7 +43,9 @@ class Autoencoder(nn.Module):
         self.dim = dim
         self.latent = latent
         self.encoder = mlp(dim, hidden, latent, batchnorm=batchnorm, dropout=dropout, generator=generator)
-        self.decoder = mlp(latent, tuple(reversed(hidden)), dim, batchnorm=batchnorm, dropout=dropout, generator=generator)
+        self.decoder = mlp(
+            latent, tuple(reversed(hidden)), dim, batchnorm=batchnorm, dropout=dropout, generator=generator
+        )
 
     def encode(self, w: torch.Tensor) -> torch.Tensor:
         """Latent codes ``[N, latent]`` of weight vectors ``[N, dim]``."""

@@ -21,7 +21,9 @@ def init_linear(layer: nn.Linear, generator: torch.Generator | None = None) -> N
     nn.init.zeros_(layer.bias)
 
 
-def block(in_dim: int, out_dim: int, *, batchnorm: bool, dropout: float, generator: torch.Generator | None = None) -> nn.Sequential:
+def block(
+    in_dim: int, out_dim: int, *, batchnorm: bool, dropout: float, generator: torch.Generator | None = None
+) -> nn.Sequential:
     """One hidden block of Fig. 6: ``Linear -> [BatchNorm1d] -> LeakyReLU -> [Dropout]``.
 
     Args:

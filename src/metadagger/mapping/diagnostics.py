@@ -23,7 +23,9 @@ __all__ = ["canonical_heads", "function_error", "head_outputs", "memorisation", 
 
 def _split(heads: torch.Tensor, outputs: int) -> tuple[torch.Tensor, torch.Tensor]:
     if heads.shape[-1] % outputs or heads.shape[-1] <= outputs:
-        raise ValueError(f"a head of length {heads.shape[-1]} is not a layer with {outputs} outputs (weights then biases)")
+        raise ValueError(
+            f"a head of length {heads.shape[-1]} is not a layer with {outputs} outputs (weights then biases)"
+        )
     features = heads.shape[-1] // outputs - 1
     weight = heads[..., : outputs * features].reshape(*heads.shape[:-1], outputs, features)
     return weight, heads[..., outputs * features :]
@@ -51,8 +53,9 @@ def head_outputs(head: torch.Tensor, features: torch.Tensor, outputs: int) -> to
     return features @ weight.T + bias
 
 
-def function_error(predicted: torch.Tensor, truth: torch.Tensor, features: torch.Tensor, *, outputs: int,
-                   discrete: bool) -> float:
+def function_error(
+    predicted: torch.Tensor, truth: torch.Tensor, features: torch.Tensor, *, outputs: int, discrete: bool
+) -> float:
     """On ``features`` ``[S, F]``: the share of states where two heads choose different classes
     (``discrete``), or the mean squared difference of their actions."""
     a, b = head_outputs(predicted, features, outputs), head_outputs(truth, features, outputs)
@@ -69,11 +72,15 @@ def memorisation(predicted: torch.Tensor, truth: torch.Tensor, train_targets: to
     return nearest / own.clamp_min(1e-12)
 
 
-def pairwise_spread(heads: torch.Tensor, features: torch.Tensor, *, outputs: int, discrete: bool) -> tuple[float, float]:
+def pairwise_spread(
+    heads: torch.Tensor, features: torch.Tensor, *, outputs: int, discrete: bool
+) -> tuple[float, float]:
     """Mean over pairs of ``heads`` ``[M, d]`` (M >= 2) of their weight-space and function-space errors."""
     if len(heads) < 2:
         raise ValueError(f"a spread needs at least 2 heads, got {len(heads)}")
     pairs = list(itertools.combinations(range(len(heads)), 2))
-    weight = sum(float(weight_error(heads[i : i + 1], heads[j : j + 1], outputs=outputs, discrete=discrete)) for i, j in pairs)
+    weight = sum(
+        float(weight_error(heads[i : i + 1], heads[j : j + 1], outputs=outputs, discrete=discrete)) for i, j in pairs
+    )
     function = sum(function_error(heads[i], heads[j], features, outputs=outputs, discrete=discrete) for i, j in pairs)
     return weight / len(pairs), function / len(pairs)

@@ -55,7 +55,9 @@ class Standardizer:
 
     def __init__(self, *, mean: torch.Tensor, std: torch.Tensor) -> None:
         if mean.ndim != 1 or mean.shape != std.shape:
-            raise ValueError(f"mean and std must be 1-D of one length, got shapes {tuple(mean.shape)} and {tuple(std.shape)}")
+            raise ValueError(
+                f"mean and std must be 1-D of one length, got shapes {tuple(mean.shape)} and {tuple(std.shape)}"
+            )
         if not bool((std > 0).all()):
             raise ValueError("std must be > 0 everywhere")
         self.mean = mean.to(torch.float32)
@@ -79,8 +81,9 @@ class Standardizer:
         return z * self.std + self.mean
 
 
-def build_networks(kind: str, dim: int, *, context_dim: int = 0, generator: torch.Generator | None = None,
-                   **arch: Any) -> dict[str, nn.Module]:
+def build_networks(
+    kind: str, dim: int, *, context_dim: int = 0, generator: torch.Generator | None = None, **arch: Any
+) -> dict[str, nn.Module]:
     """The untrained networks of a learned kind (``arch``: the :data:`ARCH_FIELDS`; ``context_dim``:
     the context's length, for a kind with a context); none for a control."""
     spec = get_kind(kind)
@@ -123,7 +126,9 @@ class Mapper:
         self.dim = int(dim)
         self.context_dim = int(context_dim)
         if spec.context != (self.context_dim > 0):
-            raise ValueError(f"a {kind} mapper needs context_dim {'> 0' if spec.context else '= 0'}, got {self.context_dim}")
+            raise ValueError(
+                f"a {kind} mapper needs context_dim {'> 0' if spec.context else '= 0'}, got {self.context_dim}"
+            )
         self.networks = dict(networks or {})
         self.scalers = dict(scalers or {})
         self.constant = constant
@@ -150,8 +155,14 @@ class Mapper:
         return cls.control("pistar-head", pistar_head=_as_float32(head), config=config)
 
     @classmethod
-    def control(cls, kind: str, *, w_da_train: torch.Tensor | None = None, pistar_head: torch.Tensor | None = None,
-                config: Mapping[str, Any] | None = None) -> Mapper:
+    def control(
+        cls,
+        kind: str,
+        *,
+        w_da_train: torch.Tensor | None = None,
+        pistar_head: torch.Tensor | None = None,
+        config: Mapping[str, Any] | None = None,
+    ) -> Mapper:
         """The control ``kind``, its constant computed from the training w_DA rows or pi*'s head."""
         spec = get_kind(kind)
         if spec.constant is None:
@@ -176,16 +187,21 @@ class Mapper:
         w = _as_float32(w_bc)
         if w.ndim != 1:
             raise UserError(
-                f"mapper input must be a 1-D head vector, got shape {tuple(w.shape)}; pass policy.head_vector() (map_batch takes [N, {self.dim}])"
+                f"mapper input must be a 1-D head vector, got shape {tuple(w.shape)}; pass policy.head_vector() "
+                f"(map_batch takes [N, {self.dim}])"
             )
         return self.map_batch(w[None], None if context is None else _as_float32(context)[None])[0]
 
-    def map_batch(self, w_bc: np.ndarray | torch.Tensor, context: np.ndarray | torch.Tensor | None = None) -> np.ndarray:
+    def map_batch(
+        self, w_bc: np.ndarray | torch.Tensor, context: np.ndarray | torch.Tensor | None = None
+    ) -> np.ndarray:
         """Map rows ``[N, d]`` of head vectors (and, for a kind with a context, the seeds' contexts
         ``[N, k]``; ignored by the others) to w_DA estimates ``[N, d]`` (float32, eval mode)."""
         w = _as_float32(w_bc)
         if w.ndim != 2:
-            raise UserError(f"map_batch takes a 2-D batch [N, {self.dim}], got shape {tuple(w.shape)}; use mapper(w) for one vector")
+            raise UserError(
+                f"map_batch takes a 2-D batch [N, {self.dim}], got shape {tuple(w.shape)}; use mapper(w) for one vector"
+            )
         if w.shape[1] != self.dim:
             raise UserError(
                 f"mapper input has the wrong length: got {w.shape[1]}, expected {self.dim}: "
@@ -194,11 +210,17 @@ class Mapper:
         if not self.needs_context:
             return self.map_tensor(w).numpy()
         if context is None:
-            raise UserError(f"the {self.kind} mapper needs the seed's context beside w_BC (metadagger.metal.method.seed_context), got none")
+            raise UserError(
+                f"the {self.kind} mapper needs the seed's context beside w_BC (metadagger.metal.method.seed_context), "
+                "got none"
+            )
         c = _as_float32(context)
         if tuple(c.shape) != (w.shape[0], self.context_dim):
-            raise UserError(f"the {self.kind} mapper's context has shape {tuple(c.shape)}, expected {(w.shape[0], self.context_dim)}: "
-                            "one context per head, of the pi* the mapper was trained for")
+            raise UserError(
+                f"the {self.kind} mapper's context has shape {tuple(c.shape)}, expected "
+                f"{(w.shape[0], self.context_dim)}: "
+                "one context per head, of the pi* the mapper was trained for"
+            )
         return self.map_tensor(w, c).numpy()
 
     def map_tensor(self, w: torch.Tensor, context: torch.Tensor | None = None) -> torch.Tensor:
@@ -252,7 +274,9 @@ def load_mapper(path: str | Path) -> Mapper:
     tensors = load_tensors(path, what="mapper", masks=MASKED_TENSORS)
     meta = read_metadata(path, what="mapper")
     if meta.get("format") != _FORMAT:
-        raise CheckpointError(f"{path} is not a mapper file (no {_FORMAT!r} metadata); pass a mapper.safetensors written by train-mapper")
+        raise CheckpointError(
+            f"{path} is not a mapper file (no {_FORMAT!r} metadata); pass a mapper.safetensors written by train-mapper"
+        )
     try:
         kind = meta["kind"]
         dim = int(meta["dim"])
@@ -264,9 +288,13 @@ def load_mapper(path: str | Path) -> Mapper:
             return Mapper(kind=kind, dim=dim, constant=tensors["constant"], config=config, stamp=stamp)
         # A throwaway generator: rebuilding must not consume the caller's global torch RNG.
         arch = {field: config[field] for field in ARCH_FIELDS}
-        networks = build_networks(kind, dim, context_dim=context_dim, **arch, generator=torch.Generator().manual_seed(0))
-        mismatch = tensor_mismatch({k: v for k, v in tensors.items() if k.startswith("networks.")},
-                                   {f"networks.{name}.{k}": v for name, net in networks.items() for k, v in net.state_dict().items()})
+        networks = build_networks(
+            kind, dim, context_dim=context_dim, **arch, generator=torch.Generator().manual_seed(0)
+        )
+        mismatch = tensor_mismatch(
+            {k: v for k, v in tensors.items() if k.startswith("networks.")},
+            {f"networks.{name}.{k}": v for name, net in networks.items() for k, v in net.state_dict().items()},
+        )
         if mismatch:
             raise ValueError(mismatch)
         for name, net in networks.items():
@@ -276,11 +304,15 @@ def load_mapper(path: str | Path) -> Mapper:
             name: Standardizer(mean=tensors[f"scalers.{name}.mean"], std=tensors[f"scalers.{name}.std"])
             for name in spec.scaler_names
         }
-        return Mapper(kind=kind, dim=dim, networks=networks, scalers=scalers, config=config, stamp=stamp, context_dim=context_dim)
+        return Mapper(
+            kind=kind, dim=dim, networks=networks, scalers=scalers, config=config, stamp=stamp, context_dim=context_dim
+        )
     except UserError as exc:
         raise CheckpointError(f"mapper file {path}: {exc}; delete it and re-run train-mapper") from None
     except (KeyError, ValueError, TypeError, RuntimeError) as exc:
-        raise CheckpointError(f"mapper file {path} does not match its own metadata ({exc}); delete it and re-run train-mapper") from None
+        raise CheckpointError(
+            f"mapper file {path} does not match its own metadata ({exc}); delete it and re-run train-mapper"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -298,8 +330,10 @@ def cached_mapper(file: MapperFile) -> Mapper:
     runs is a :class:`UserError`, never results under the old mapper's name."""
     mapper = load_mapper(file.path)
     if file_fingerprint(file.path) != file.fingerprint:
-        raise UserError(f"mapper file {file.path} changed while this stage ran (another process rewrote it); "
-                        "run the stage again once that process is done")
+        raise UserError(
+            f"mapper file {file.path} changed while this stage ran (another process rewrote it); "
+            "run the stage again once that process is done"
+        )
     return mapper
 
 

@@ -51,7 +51,11 @@ def _kmeans(y: torch.Tensor, k: int) -> torch.Tensor:
         centres = y[torch.randint(len(y), (1,), generator=generator)]
         while len(centres) < k:  # k-means++: the next centre far from the chosen ones
             distance = torch.cdist(y, centres).min(dim=1).values.pow(2)
-            pick = torch.multinomial(distance / distance.sum(), 1, generator=generator) if distance.sum() > 0 else torch.zeros(1, dtype=torch.long)
+            pick = (
+                torch.multinomial(distance / distance.sum(), 1, generator=generator)
+                if distance.sum() > 0
+                else torch.zeros(1, dtype=torch.long)
+            )
             centres = torch.cat([centres, y[pick]])
         for _ in range(ITERATIONS):
             labels = torch.cdist(y, centres).argmin(dim=1)
@@ -90,7 +94,9 @@ def fit_modes(core: nn.Module, x: torch.Tensor, y: torch.Tensor) -> dict[str, fl
     for held in fold_masks(n):
         fits = {k: _Classifier(x64[~held], y64[~held], k) for k in range(1, min(MAX_GROUPS, int((~held).sum())) + 1)}
         for i, (k, relative) in enumerate(grid):
-            errors[i] += (fits[k].predict(x64[held], relative * scale) - y64[held]).pow(2).sum() if k in fits else float("inf")
+            errors[i] += (
+                (fits[k].predict(x64[held], relative * scale) - y64[held]).pow(2).sum() if k in fits else float("inf")
+            )
     errors /= n * x.shape[1]
     k, relative = grid[int(torch.argmin(errors))]
     fit = _Classifier(x64, y64, k)

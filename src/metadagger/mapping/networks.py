@@ -14,8 +14,15 @@ from metadagger.mapping.autoencoder import Autoencoder
 from metadagger.mapping.blocks import mlp
 
 
-def build_dm(dim: int, *, hidden: Sequence[int], batchnorm: bool, dropout: float, generator: torch.Generator | None = None,
-             **_: object) -> dict[str, nn.Module]:
+def build_dm(
+    dim: int,
+    *,
+    hidden: Sequence[int],
+    batchnorm: bool,
+    dropout: float,
+    generator: torch.Generator | None = None,
+    **_: object,
+) -> dict[str, nn.Module]:
     """DM (3.3.1): one MLP from standardised w_BC to standardised w_DA."""
     return {"dm": mlp(dim, hidden, dim, batchnorm=batchnorm, dropout=dropout, generator=generator)}
 
@@ -30,12 +37,23 @@ def build_tam(dim: int, **arch: object) -> dict[str, nn.Module]:
     return _autoencoders_and_h(("sigma_bc", "sigma_da"), dim, **arch)
 
 
-def _autoencoders_and_h(names: tuple[str, ...], dim: int, *, hidden: Sequence[int], latent: int, ae_hidden: Sequence[int],
-                        batchnorm: bool, dropout: float, ae_dropout: float,
-                        generator: torch.Generator | None = None) -> dict[str, nn.Module]:
+def _autoencoders_and_h(
+    names: tuple[str, ...],
+    dim: int,
+    *,
+    hidden: Sequence[int],
+    latent: int,
+    ae_hidden: Sequence[int],
+    batchnorm: bool,
+    dropout: float,
+    ae_dropout: float,
+    generator: torch.Generator | None = None,
+) -> dict[str, nn.Module]:
     # autoencoders before h, so one generator gives the same weights every time
     nets: dict[str, nn.Module] = {
-        name: Autoencoder(dim=dim, hidden=ae_hidden, latent=latent, batchnorm=batchnorm, dropout=ae_dropout, generator=generator)
+        name: Autoencoder(
+            dim=dim, hidden=ae_hidden, latent=latent, batchnorm=batchnorm, dropout=ae_dropout, generator=generator
+        )
         for name in names
     }
     nets["h"] = mlp(latent, hidden, latent, batchnorm=batchnorm, dropout=dropout, generator=generator)

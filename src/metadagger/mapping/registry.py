@@ -89,7 +89,9 @@ class MapperKind:
         """The names of the kind's standardisers (none for a control)."""
         if self.route is None:
             return ()
-        return tuple(dict.fromkeys((self.route.in_scaler, self.route.out_scaler) + (("context",) if self.context else ())))
+        return tuple(
+            dict.fromkeys((self.route.in_scaler, self.route.out_scaler) + (("context",) if self.context else ()))
+        )
 
 
 _KINDS: dict[str, MapperKind] = {}
@@ -145,23 +147,78 @@ def _pistar_head(w_da_train: torch.Tensor, pistar_head: torch.Tensor | None) -> 
     if pistar_head is None:
         raise UserError("the pistar-head control needs pistar_head=pi*'s head vector (policy.head_vector())")
     if pistar_head.ndim != 1 or pistar_head.numel() == 0:
-        raise UserError(f"pistar_head must be a non-empty 1-D head vector, got shape {tuple(pistar_head.shape)}; pass pi*'s policy.head_vector()")
+        raise UserError(
+            f"pistar_head must be a non-empty 1-D head vector, got shape {tuple(pistar_head.shape)}; pass pi*'s "
+            "policy.head_vector()"
+        )
     return pistar_head.clone()
 
 
-register_kind(MapperKind("dm", "DM", "direct mapping: one MLP from w_BC to w_DA (3.3.1)",
-                         route=Route("bc", None, "dm", None, "da"), build=networks.build_dm, paper_epochs=500))
-register_kind(MapperKind("sam", "SAM", "single autoencoder of w_BC and w_DA, h between its codes (3.3.2)",
-                         route=Route("all", "sigma_all", "h", "sigma_all", "all"), build=networks.build_sam, paper_epochs=1000))
-register_kind(MapperKind("tam", "TAM", "twin autoencoders of w_BC and of w_DA, h between their codes (3.3.2)",
-                         route=Route("bc", "sigma_bc", "h", "sigma_da", "da"), build=networks.build_tam, paper_epochs=1000))
-register_kind(MapperKind("ridge", "Ridge", "ridge regression of the update w_DA - w_BC on w_BC, λ by cross-validation",
-                         route=Route("all", None, "ridge", None, "all"), build=ridge.build_ridge, closed_form=ridge.fit_ridge))
-register_kind(MapperKind("modes", "Modes", "the mean w_DA of the training pairs' group (k-means) that a ridge classifier of w_BC picks; K and λ by cross-validation",
-                         route=Route("bc", None, "modes", None, "da"), build=modes.build_modes, closed_form=modes.fit_modes))
-register_kind(MapperKind("conditioned", "Conditioned", "ridge regression of the update on w_BC and the seed's context "
-                         "(demonstration and BC-rollout features; no further expert label), λ and the context's weight by cross-validation",
-                         route=Route("all", None, "ridge", None, "all"), build=ridge.build_ridge, closed_form=ridge.fit_ridge,
-                         context=True))
-register_kind(MapperKind("mean-da", "mean-DA (control)", "control: always the training pairs' mean w_DA", constant=_mean_da))
+register_kind(
+    MapperKind(
+        "dm",
+        "DM",
+        "direct mapping: one MLP from w_BC to w_DA (3.3.1)",
+        route=Route("bc", None, "dm", None, "da"),
+        build=networks.build_dm,
+        paper_epochs=500,
+    )
+)
+register_kind(
+    MapperKind(
+        "sam",
+        "SAM",
+        "single autoencoder of w_BC and w_DA, h between its codes (3.3.2)",
+        route=Route("all", "sigma_all", "h", "sigma_all", "all"),
+        build=networks.build_sam,
+        paper_epochs=1000,
+    )
+)
+register_kind(
+    MapperKind(
+        "tam",
+        "TAM",
+        "twin autoencoders of w_BC and of w_DA, h between their codes (3.3.2)",
+        route=Route("bc", "sigma_bc", "h", "sigma_da", "da"),
+        build=networks.build_tam,
+        paper_epochs=1000,
+    )
+)
+register_kind(
+    MapperKind(
+        "ridge",
+        "Ridge",
+        "ridge regression of the update w_DA - w_BC on w_BC, λ by cross-validation",
+        route=Route("all", None, "ridge", None, "all"),
+        build=ridge.build_ridge,
+        closed_form=ridge.fit_ridge,
+    )
+)
+register_kind(
+    MapperKind(
+        "modes",
+        "Modes",
+        "the mean w_DA of the training pairs' group (k-means) that a ridge classifier of w_BC picks; K and λ by "
+        "cross-validation",
+        route=Route("bc", None, "modes", None, "da"),
+        build=modes.build_modes,
+        closed_form=modes.fit_modes,
+    )
+)
+register_kind(
+    MapperKind(
+        "conditioned",
+        "Conditioned",
+        "ridge regression of the update on w_BC and the seed's context "
+        "(demonstration and BC-rollout features; no further expert label), λ and the context's weight by "
+        "cross-validation",
+        route=Route("all", None, "ridge", None, "all"),
+        build=ridge.build_ridge,
+        closed_form=ridge.fit_ridge,
+        context=True,
+    )
+)
+register_kind(
+    MapperKind("mean-da", "mean-DA (control)", "control: always the training pairs' mean w_DA", constant=_mean_da)
+)
 register_kind(MapperKind("pistar-head", "pi*-head (control)", "control: always pi*'s own head", constant=_pistar_head))

@@ -31,7 +31,9 @@ FOLDS = 5
 CONTEXT_WEIGHTS = (0.0, 0.25, 1.0, 4.0)
 
 
-def build_ridge(dim: int, *, context_dim: int = 0, generator: torch.Generator | None = None, **_: object) -> dict[str, nn.Module]:
+def build_ridge(
+    dim: int, *, context_dim: int = 0, generator: torch.Generator | None = None, **_: object
+) -> dict[str, nn.Module]:
     """The one affine map from standardised w_BC (and, with ``context_dim``, the standardised
     context) to standardised w_DA, set by :func:`fit_ridge`."""
     return {"ridge": nn.Linear(dim + context_dim, dim)}

@@ -2,8 +2,9 @@
 
 :func:`train_mapper` fits the autoencoder(s) first, then the latent regression h on the frozen
 encoders' codes (SAM, TAM), or the single MLP (DM): Adam, MSE in standardised space, manual
-batching from one seeded generator. It writes ``curves.csv`` (drawn as paper Fig. 8 by :mod:`metadagger.evaluation.curves`)
-and, last, ``mapper.safetensors``; an existing mapper file means the work is done and is loaded.
+batching from one seeded generator. It writes ``curves.csv`` (drawn as paper Fig. 8 by
+:mod:`metadagger.evaluation.curves`) and, last, ``mapper.safetensors``; an existing mapper file
+means the work is done and is loaded.
 """
 
 from __future__ import annotations
@@ -38,8 +39,17 @@ from metadagger.utils.kernels import kernel_stamp
 from metadagger.utils.optim import adam
 from metadagger.utils.progress import note, progress_bar
 
-__all__ = ["CURVE_COLUMNS", "MapperConfig", "MapperJob", "evaluate_mapping", "fit_mapper", "fit_mapper_job", "paper_config", "train_mapper",
-           "train_mappers"]
+__all__ = [
+    "CURVE_COLUMNS",
+    "MapperConfig",
+    "MapperJob",
+    "evaluate_mapping",
+    "fit_mapper",
+    "fit_mapper_job",
+    "paper_config",
+    "train_mapper",
+    "train_mappers",
+]
 
 CURVE_COLUMNS = ("model", "epoch", "train_loss", "val_loss", "train_mse_weights", "val_mse_weights")
 """``curves.csv`` columns. ``*_loss``: the model's own MSE (standardised weights, or latent codes
@@ -171,7 +181,9 @@ class MapperJob:
         return f"mapper {self.label} ({len(self.split.train_seeds)} training pairs, {self.out_dir})"
 
 
-def train_mappers(jobs: Sequence[MapperJob], *, rebuild: bool = False, options: StageOptions = StageOptions()) -> list[Mapper]:
+def train_mappers(
+    jobs: Sequence[MapperJob], *, rebuild: bool = False, options: StageOptions = StageOptions()
+) -> list[Mapper]:
     """:func:`train_mapper` for every job, the ones to train in parallel, one job per worker.
 
     Each fit is a function of its job alone (one torch thread, its own seeded generators), so a
@@ -187,18 +199,26 @@ def train_mappers(jobs: Sequence[MapperJob], *, rebuild: bool = False, options: 
     pending = sorted((i for i, mapper in enumerate(mappers) if mapper is None), key=lambda i: -_fit_cost(jobs[i]))
     if len(pending) == 1 or (options.executor == "local" and options.workers == 1):
         for i in pending:  # in the driver, with the fit's own progress bars
-            mappers[i] = _save(jobs[i], *fit_mapper(jobs[i].split, jobs[i].config, pistar_head=jobs[i].pistar_head,
-                                                    progress=options.progress))
+            mappers[i] = _save(
+                jobs[i],
+                *fit_mapper(jobs[i].split, jobs[i].config, pistar_head=jobs[i].pistar_head, progress=options.progress),
+            )
     elif pending:
-        workers = min(options.workers or default_workers(), len(pending)) if options.executor == "local" else options.workers
+        workers = (
+            min(options.workers or default_workers(), len(pending)) if options.executor == "local" else options.workers
+        )
         started = time.monotonic()
         number = {jobs[i].out_dir: i for i in pending}
         with make_executor(options.executor, workers=workers, address=options.address) as pool:
-            for done, (out_dir, mapper, rows) in enumerate(pool.imap_unordered(fit_mapper_job, [jobs[i] for i in pending]), 1):
+            for done, (out_dir, mapper, rows) in enumerate(
+                pool.imap_unordered(fit_mapper_job, [jobs[i] for i in pending]), 1
+            ):
                 i = number[out_dir]
                 mappers[i] = _save(jobs[i], mapper, rows)
-                note(f"mappers: {jobs[i].label} trained ({done}/{len(pending)} in "
-                     f"{time.monotonic() - started:.0f}s)", enabled=options.progress)
+                note(
+                    f"mappers: {jobs[i].label} trained ({done}/{len(pending)} in {time.monotonic() - started:.0f}s)",
+                    enabled=options.progress,
+                )
     return [mapper for mapper in mappers if mapper is not None]
 
 
@@ -233,8 +253,10 @@ def _up_to_date(job: MapperJob, *, rebuild: bool) -> Mapper | None:
     if not changes:
         return existing
     if not rebuild:
-        raise UserError(f"{path} holds a mapper made from other inputs ({'; '.join(changes)}); "
-                        "pass --rebuild to retrain it, or run `metadagger reproduce`")
+        raise UserError(
+            f"{path} holds a mapper made from other inputs ({'; '.join(changes)}); "
+            "pass --rebuild to retrain it, or run `metadagger reproduce`"
+        )
     return None
 
 
@@ -267,18 +289,25 @@ def fit_mapper(
         UserError: too few training pairs, or a missing or mis-sized ``pistar_head``.
     """
     if get_kind(config.kind).learned and len(split.train_seeds) < 2:
-        raise UserError(f"a {config.kind} mapper needs at least 2 training pairs, got {len(split.train_seeds)}; collect more seeds or lower val_fraction")
+        raise UserError(
+            f"a {config.kind} mapper needs at least 2 training pairs, got {len(split.train_seeds)}; collect more "
+            "seeds or lower val_fraction"
+        )
     config_data = json.loads(json.dumps(dataclasses.asdict(config)))
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)  # Dropout draws from torch's global generator
         return _train(split, config, config_data, pistar_head, progress)
 
 
-def mapper_stamp(split: PairSplit, config: MapperConfig, pistar_head: np.ndarray | torch.Tensor | None = None) -> dict[str, Any]:
+def mapper_stamp(
+    split: PairSplit, config: MapperConfig, pistar_head: np.ndarray | torch.Tensor | None = None
+) -> dict[str, Any]:
     """What a mapper is made from: its config and a fingerprint of its training data (the split's
     seeds and tensors, and pi*'s head for the ``pistar-head`` control)."""
     parts: list[Any] = [list(split.train_seeds), list(split.val_seeds)]
-    parts += [t.contiguous().numpy().tobytes() for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val)]
+    parts += [
+        t.contiguous().numpy().tobytes() for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val)
+    ]
     if get_kind(config.kind).context and split.context_train is not None:
         parts += [t.contiguous().numpy().tobytes() for t in (split.context_train, split.context_val)]
     if pistar_head is not None and config.kind == "pistar-head":
@@ -289,12 +318,16 @@ def mapper_stamp(split: PairSplit, config: MapperConfig, pistar_head: np.ndarray
 def _train(
     split: PairSplit, config: MapperConfig, config_data: dict[str, Any], pistar_head: Any, progress: bool
 ) -> tuple[Mapper, list[dict[str, Any]]]:
-    bc_tr, da_tr, bc_va, da_va = (t.to(torch.float32) for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val))
+    bc_tr, da_tr, bc_va, da_va = (
+        t.to(torch.float32) for t in (split.w_bc_train, split.w_da_train, split.w_bc_val, split.w_da_val)
+    )
     dim = bc_tr.shape[1]
     spec = get_kind(config.kind)
     if spec.context and split.context_train is None:
-        raise UserError(f"the {config.kind} mapper needs each pair's context, but these pairs were stored without one; "
-                        "collect them again with `metadagger pairs --rebuild` (or `metadagger reproduce --rebuild`)")
+        raise UserError(
+            f"the {config.kind} mapper needs each pair's context, but these pairs were stored without one; "
+            "collect them again with `metadagger pairs --rebuild` (or `metadagger reproduce --rebuild`)"
+        )
     ctx_tr, ctx_va = (split.context_train, split.context_val) if spec.context else (None, None)
 
     def weight_mse(mapper: Mapper) -> tuple[float, float]:
@@ -304,14 +337,17 @@ def _train(
         head = None if pistar_head is None else torch.as_tensor(pistar_head, dtype=torch.float32)
         mapper = Mapper.control(config.kind, w_da_train=da_tr, pistar_head=head, config=config_data)
         if mapper.dim != dim:
-            raise UserError(f"pistar_head has length {mapper.dim}, expected {dim}: the head of the policy the pairs came from")
+            raise UserError(
+                f"pistar_head has length {mapper.dim}, expected {dim}: the head of the policy the pairs came from"
+            )
         train_w, val_w = weight_mse(mapper)
         return mapper, [_row(config.kind, 0, math.nan, math.nan, train_w, val_w)]
 
     generator = torch.Generator().manual_seed(config.seed)
     context_dim = 0 if ctx_tr is None else ctx_tr.shape[1]
-    networks = build_networks(config.kind, dim, context_dim=context_dim, **{f: getattr(config, f) for f in ARCH_FIELDS},
-                              generator=generator)
+    networks = build_networks(
+        config.kind, dim, context_dim=context_dim, **{f: getattr(config, f) for f in ARCH_FIELDS}, generator=generator
+    )
     route = spec.route
     scalers = (
         {"all": Standardizer.fit(torch.cat([bc_tr, da_tr]))}
@@ -320,26 +356,48 @@ def _train(
     )
     if ctx_tr is not None:
         scalers["context"] = Standardizer.fit(ctx_tr)
-    mapper = Mapper(kind=config.kind, dim=dim, networks=networks, scalers=scalers, config=config_data, context_dim=context_dim)
+    mapper = Mapper(
+        kind=config.kind, dim=dim, networks=networks, scalers=scalers, config=config_data, context_dim=context_dim
+    )
     x_tr, x_va = scalers[route.in_scaler].transform(bc_tr), scalers[route.in_scaler].transform(bc_va)
     if ctx_tr is not None:  # the core reads [w_BC, context], both standardised (Mapper.map_tensor)
         x_tr = torch.cat([x_tr, scalers["context"].transform(ctx_tr)], dim=1)
         x_va = torch.cat([x_va, scalers["context"].transform(ctx_va)], dim=1)
     y_tr, y_va = scalers[route.out_scaler].transform(da_tr), scalers[route.out_scaler].transform(da_va)
-    fit = dict(lr=config.lr, batch_size=config.batch_size, generator=generator, progress=progress, owner=f"the {config.kind} mapper")
+    fit = dict(
+        lr=config.lr,
+        batch_size=config.batch_size,
+        generator=generator,
+        progress=progress,
+        owner=f"the {config.kind} mapper",
+    )
     rows: list[dict[str, Any]] = []
     if spec.closed_form is not None:
         mapper.config["fit"] = spec.closed_form(networks[route.core], x_tr, y_tr)
-        _check_weights(networks[route.core], f"the {config.kind} mapper's closed-form fit", "check the pairs (metadagger pairs --rebuild)")
+        _check_weights(
+            networks[route.core],
+            f"the {config.kind} mapper's closed-form fit",
+            "check the pairs (metadagger pairs --rebuild)",
+        )
         networks[route.core].eval()
         with torch.no_grad():
             losses = _mse(networks[route.core](x_tr), y_tr), _mse(networks[route.core](x_va), y_va)
         return mapper, [_row(route.core, 0, *losses, *weight_mse(mapper))]
     data = (x_tr, y_tr, x_va, y_va)
     if route.encoder is not None:
-        data = _fit_autoencoders(networks, route, data, rows, epochs=config.ae_epochs, weight_decay=config.ae_weight_decay, **fit)
+        data = _fit_autoencoders(
+            networks, route, data, rows, epochs=config.ae_epochs, weight_decay=config.ae_weight_decay, **fit
+        )
     after_epoch = functools.partial(weight_mse, mapper)
-    rows += _fit(networks[route.core], route.core, *data, epochs=config.epochs, weight_decay=config.weight_decay, after_epoch=after_epoch, **fit)
+    rows += _fit(
+        networks[route.core],
+        route.core,
+        *data,
+        epochs=config.epochs,
+        weight_decay=config.weight_decay,
+        after_epoch=after_epoch,
+        **fit,
+    )
     return mapper, rows
 
 
@@ -399,9 +457,16 @@ def _fit(
             val_loss = _mse(net(x_va), y_va) if len(x_va) else math.nan
         weights = after_epoch() if after_epoch else (math.nan, math.nan)
         rows.append(_row(name, epoch, float(total) / len(x_tr), val_loss, *weights))
-        check_finite_loss(rows[-1]["train_loss"], what=f"{owner}'s network {name}", epoch=epoch, epochs=epochs,
-                          fix=f"lower its learning rate (now {lr:g})")
-        bar.set_postfix(train=f"{rows[-1]['train_loss']:.4g}", val=f"{val_loss:.4g}", refresh=False)  # tqdm throttles redraws
+        check_finite_loss(
+            rows[-1]["train_loss"],
+            what=f"{owner}'s network {name}",
+            epoch=epoch,
+            epochs=epochs,
+            fix=f"lower its learning rate (now {lr:g})",
+        )
+        bar.set_postfix(
+            train=f"{rows[-1]['train_loss']:.4g}", val=f"{val_loss:.4g}", refresh=False
+        )  # tqdm throttles redraws
     _check_weights(net, f"{owner}'s network {name}", f"lower its learning rate (now {lr:g})")
     return rows
 
@@ -433,7 +498,12 @@ def _write_curves(path: Path, rows: list[dict[str, Any]]) -> None:
     writer = csv.DictWriter(buffer, fieldnames=CURVE_COLUMNS, lineterminator="\n")
     writer.writeheader()
     for row in rows:
-        writer.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else format(v, ".9g") if isinstance(v, float) else v) for k, v in row.items()})
+        writer.writerow(
+            {
+                k: ("" if isinstance(v, float) and math.isnan(v) else format(v, ".9g") if isinstance(v, float) else v)
+                for k, v in row.items()
+            }
+        )
     write_text(path, buffer.getvalue())
 
 
@@ -464,7 +534,9 @@ def evaluate_mapping(
     bc = torch.as_tensor(np.asarray(w_bc, dtype=np.float32))
     da = torch.as_tensor(np.asarray(w_da, dtype=np.float32))
     if bc.ndim != 2 or bc.shape != da.shape or len(bc) == 0:
-        raise UserError(f"w_bc and w_da must be non-empty [N, d] of one shape, got {tuple(bc.shape)} and {tuple(da.shape)}")
+        raise UserError(
+            f"w_bc and w_da must be non-empty [N, d] of one shape, got {tuple(bc.shape)} and {tuple(da.shape)}"
+        )
     pred = torch.from_numpy(mapper.map_batch(bc, context))
     ref = da.mean(dim=0) if mean_da is None else torch.as_tensor(np.asarray(mean_da, dtype=np.float32))
     mse, baseline = _mse(pred, da), _mse(ref.expand_as(da), da)

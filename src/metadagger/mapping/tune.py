@@ -45,8 +45,16 @@ from metadagger.utils.executors import in_order, make_executor
 from metadagger.utils.io import write_text
 from metadagger.utils.yaml_config import build, dump_yaml, to_dict
 
-__all__ = ["TrialJob", "TuneResult", "check_tunable", "config_overrides", "score_trial", "search_space", "trial_config",
-           "tune_mapper"]
+__all__ = [
+    "TrialJob",
+    "TuneResult",
+    "check_tunable",
+    "config_overrides",
+    "score_trial",
+    "search_space",
+    "trial_config",
+    "tune_mapper",
+]
 
 STUDY_NAME = "mapper"
 """The study's name inside its database (one study per file)."""
@@ -70,7 +78,9 @@ def check_tunable(kind: str) -> None:
         why = "is fitted in closed form (its λ is cross-validated), so it has no hyperparameters to tune"
     else:
         why = "is a control (a constant head), so it has no hyperparameters to tune"
-    raise UserError(f"--kind {kind!r} {why}; tune one of {', '.join(trained_names())}, e.g. `metadagger tune --out RUN --kind sam`")
+    raise UserError(
+        f"--kind {kind!r} {why}; tune one of {', '.join(trained_names())}, e.g. `metadagger tune --out RUN --kind sam`"
+    )
 
 
 def search_space(kind: str, base: MapperConfig) -> dict[str, Any]:
@@ -84,7 +94,11 @@ def search_space(kind: str, base: MapperConfig) -> dict[str, Any]:
     """
     check_tunable(kind)
     distributions = _import_optuna().distributions
-    floats, ints, choices = distributions.FloatDistribution, distributions.IntDistribution, distributions.CategoricalDistribution
+    floats, ints, choices = (
+        distributions.FloatDistribution,
+        distributions.IntDistribution,
+        distributions.CategoricalDistribution,
+    )
     space = {
         "lr": floats(1e-5, 1e-2, log=True),
         "weight_decay": floats(1e-7, 1e-2, log=True),
@@ -173,8 +187,12 @@ def score_trial(job: TrialJob) -> dict[str, Any]:
         mapper, _ = fit_mapper(split, job.config, progress=False)
     except DivergedError as exc:
         return {"number": job.number, "diverged": str(exc)}
-    return {"number": job.number, **evaluate_mapping(mapper, split.w_bc_val, split.w_da_val, mean_da=split.w_da_train.mean(0),
-                                                   context=split.context_val)}
+    return {
+        "number": job.number,
+        **evaluate_mapping(
+            mapper, split.w_bc_val, split.w_da_val, mean_da=split.w_da_train.mean(0), context=split.context_val
+        ),
+    }
 
 
 @dataclass(frozen=True)
@@ -199,8 +217,17 @@ class TuneResult:
     summary: Path
 
 
-def tune_mapper(split: PairSplit, base: MapperConfig, *, study: str | Path, summary: str | Path, trials: int, seed: int = 0,
-                base_overrides: Mapping[str, Any] | None = None, options: StageOptions = StageOptions()) -> TuneResult:
+def tune_mapper(
+    split: PairSplit,
+    base: MapperConfig,
+    *,
+    study: str | Path,
+    summary: str | Path,
+    trials: int,
+    seed: int = 0,
+    base_overrides: Mapping[str, Any] | None = None,
+    options: StageOptions = StageOptions(),
+) -> TuneResult:
     """Run (or resume) the study of ``base.kind`` until it holds ``trials`` completed trials.
 
     Args:
@@ -225,21 +252,33 @@ def tune_mapper(split: PairSplit, base: MapperConfig, *, study: str | Path, summ
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
             raise UserError(f"{name} must be an integer >= {low}, got {value!r}")
     if not split.val_seeds:
-        raise UserError("tuning scores trials on the validation pairs, but the split has none; set pairs.val_fraction above 0 "
-                        "(e.g. --set pairs.val_fraction=0.2)")
+        raise UserError(
+            "tuning scores trials on the validation pairs, but the split has none; set pairs.val_fraction above 0 "
+            "(e.g. --set pairs.val_fraction=0.2)"
+        )
     optuna = _import_optuna()
     study_path, summary_path = Path(study), Path(summary)
     if options.rebuild:
-        for path in (summary_path, *(study_path.with_name(study_path.name + s) for s in ("", "-journal", "-wal", "-shm"))):
+        for path in (
+            summary_path,
+            *(study_path.with_name(study_path.name + s) for s in ("", "-journal", "-wal", "-shm")),
+        ):
             path.unlink(missing_ok=True)
     study_path.parent.mkdir(parents=True, exist_ok=True)
     stamp = {"kind": base.kind, "seed": seed, "pairs_fingerprint": mapper_stamp(split, base)["pairs_fingerprint"]}
     with _quiet(optuna):
         storage = _storage(optuna, study_path)
         space = _open_study(optuna, storage, study_path, base, stamp)
-        made_from = {**stamp, "base": _base_stamp(base, space), "train_pairs": len(split.train_seeds),
-                     "val_seeds": list(split.val_seeds), "space": {name: _describe(d) for name, d in space.items()}}
-        context = _Context(optuna, storage, space, base, split, dict(base_overrides or {}), made_from, study_path, summary_path)
+        made_from = {
+            **stamp,
+            "base": _base_stamp(base, space),
+            "train_pairs": len(split.train_seeds),
+            "val_seeds": list(split.val_seeds),
+            "space": {name: _describe(d) for name, d in space.items()},
+        }
+        context = _Context(
+            optuna, storage, space, base, split, dict(base_overrides or {}), made_from, study_path, summary_path
+        )
         ran = _run(context, trials=trials, seed=seed, options=options)
         return _write_summary(context, ran)
 
@@ -269,7 +308,9 @@ def _storage(optuna: Any, path: Path) -> Any:
         return optuna.storages.RDBStorage(f"sqlite:///{path.resolve()}")
     except DatabaseError as exc:
         reason = str(exc.orig or exc).splitlines()[0]
-        raise UserError(f"{path} is not an Optuna study ({reason}); pass --rebuild to delete it and start a new study") from None
+        raise UserError(
+            f"{path} is not an Optuna study ({reason}); pass --rebuild to delete it and start a new study"
+        ) from None
 
 
 def _open_study(optuna: Any, storage: Any, path: Path, base: MapperConfig, stamp: dict[str, Any]) -> dict[str, Any]:
@@ -287,8 +328,10 @@ def _open_study(optuna: Any, storage: Any, path: Path, base: MapperConfig, stamp
     space = {name: optuna.distributions.json_to_distribution(json.dumps(data)) for name, data in attrs["space"].items()}
     changes = describe_changes(attrs["stamp"], {**stamp, "base": _base_stamp(base, space)})
     if changes:
-        raise UserError(f"{path} holds a study made from other inputs ({'; '.join(changes)}); pass --rebuild to delete it "
-                        "and start a new study, or restore those inputs to resume it")
+        raise UserError(
+            f"{path} holds a study made from other inputs ({'; '.join(changes)}); pass --rebuild to delete it "
+            "and start a new study, or restore those inputs to resume it"
+        )
     return space
 
 
@@ -341,14 +384,22 @@ def _run(context: _Context, *, trials: int, seed: int, options: StageOptions) ->
                 ran += 1
                 if "diverged" in result:  # a failed trial: the study goes on without it
                     if options.progress:
-                        print(f"tune/{context.base.kind}: trial {trial.number} diverged ({done + told}/{trials}): "
-                              f"{result['diverged']}", file=sys.stderr, flush=True)
+                        print(
+                            f"tune/{context.base.kind}: trial {trial.number} diverged ({done + told}/{trials}): "
+                            f"{result['diverged']}",
+                            file=sys.stderr,
+                            flush=True,
+                        )
                     continue
                 summary = _write_summary(context, ran)
                 if options.progress:
-                    print(f"tune/{summary.kind}: trial {trial.number}: {value:.6g} ({done + told}/{trials}, "
-                          f"{time.monotonic() - started:.0f}s); best {summary.best_value:.6g} (trial {summary.best_trial})",
-                          file=sys.stderr, flush=True)  # a line per trial: trials take minutes
+                    print(
+                        f"tune/{summary.kind}: trial {trial.number}: {value:.6g} ({done + told}/{trials}, "
+                        f"{time.monotonic() - started:.0f}s); best {summary.best_value:.6g} (trial "
+                        f"{summary.best_trial})",
+                        file=sys.stderr,
+                        flush=True,
+                    )  # a line per trial: trials take minutes
     return ran
 
 
@@ -388,26 +439,48 @@ def _write_summary(context: _Context, ran: int) -> TuneResult:
     study = context.load()
     complete = study.get_trials(deepcopy=False, states=(context.optuna.trial.TrialState.COMPLETE,))
     if not complete:
-        raise UserError(f"every trial of the {context.base.kind} study so far diverged (the first: "
-                        f"{study.trials[0].user_attrs.get('diverged', 'no message')}); narrow the search space to smaller learning rates")
+        raise UserError(
+            f"every trial of the {context.base.kind} study so far diverged (the first: "
+            f"{study.trials[0].user_attrs.get('diverged', 'no message')}); narrow the search space to smaller "
+            "learning rates"
+        )
     best = study.best_trial
     baseline = next((t for t in complete if t.user_attrs.get("baseline")), None)
     kind = context.base.kind
     overrides = to_dict({**context.base_overrides, **config_overrides(best.params)})
     flow = yaml.safe_dump(overrides, default_flow_style=True, sort_keys=False, width=math.inf).strip()
-    result = TuneResult(kind=kind, completed=len(complete), ran=ran, best_trial=best.number, best_value=best.value,
-                        baseline_value=None if baseline is None else baseline.value, overrides=overrides,
-                        set_item=f"mappers.{kind}={flow}", study=context.study_path, summary=context.summary_path)
-    write_text(context.summary_path, dump_yaml({
-        "kind": kind,
-        "study": str(context.study_path),
-        "completed_trials": result.completed,
-        "best": {"trial": best.number, "value": best.value, **{m: best.user_attrs[m] for m in _METRICS}, "params": best.params},
-        "baseline": None if baseline is None else {"trial": baseline.number, "value": baseline.value},
-        "overrides": overrides,
-        "set": result.set_item,
-        "made_from": context.made_from,
-    }))
+    result = TuneResult(
+        kind=kind,
+        completed=len(complete),
+        ran=ran,
+        best_trial=best.number,
+        best_value=best.value,
+        baseline_value=None if baseline is None else baseline.value,
+        overrides=overrides,
+        set_item=f"mappers.{kind}={flow}",
+        study=context.study_path,
+        summary=context.summary_path,
+    )
+    write_text(
+        context.summary_path,
+        dump_yaml(
+            {
+                "kind": kind,
+                "study": str(context.study_path),
+                "completed_trials": result.completed,
+                "best": {
+                    "trial": best.number,
+                    "value": best.value,
+                    **{m: best.user_attrs[m] for m in _METRICS},
+                    "params": best.params,
+                },
+                "baseline": None if baseline is None else {"trial": baseline.number, "value": baseline.value},
+                "overrides": overrides,
+                "set": result.set_item,
+                "made_from": context.made_from,
+            }
+        ),
+    )
     return result
 
 
@@ -426,5 +499,7 @@ def _import_optuna() -> Any:
     try:
         import optuna
     except ImportError:
-        raise UserError(f"metadagger tune needs Optuna, which is not installed; install it with: {_INSTALL_OPTUNA}") from None
+        raise UserError(
+            f"metadagger tune needs Optuna, which is not installed; install it with: {_INSTALL_OPTUNA}"
+        ) from None
     return optuna

@@ -18,14 +18,14 @@ import numpy as np
 from metadagger.errors import UserError
 from metadagger.imitation.minari_io import RecordedEpisode, check_new_dataset_name, write_dataset
 from metadagger.imitation.rollouts import rollout
-from metadagger.runfolder.layout import RunLayout
 from metadagger.metal.groundtruth import load_groundtruth
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairStore
+from metadagger.runfolder.driver import SeedJob, StageOptions
+from metadagger.runfolder.layout import RunLayout
+from metadagger.tasks.base import Task
 from metadagger.utils.executors import in_order, make_executor
 from metadagger.utils.progress import progress_bar
-from metadagger.runfolder.driver import SeedJob, StageOptions
-from metadagger.tasks.base import Task
 
 EXPORTS = ("demos", "dagger", "pairs-data")
 FORMATS = ("minari",)
@@ -48,8 +48,13 @@ def seed_episodes(job: ExportJob) -> dict[str, Any]:
         finally:
             env.close()
     episodes: list[RecordedEpisode] = []
-    pair = run_pair(job.task, job.groundtruth, job.seed, job.config,
-                    on_episode=lambda round_idx, trajectory: episodes.append(RecordedEpisode(trajectory, round=round_idx)))
+    pair = run_pair(
+        job.task,
+        job.groundtruth,
+        job.seed,
+        job.config,
+        on_episode=lambda round_idx, trajectory: episodes.append(RecordedEpisode(trajectory, round=round_idx)),
+    )
     if job.what == "dagger":
         episodes = [e for e in episodes if e.round > 0]
     return {"seed": job.seed, "episodes": episodes, "w_bc": pair.w_bc, "w_da": pair.w_da}
@@ -64,8 +69,16 @@ def check_export(what: str, fmt: str, name: str) -> None:
     check_new_dataset_name(name)
 
 
-def export_run(task: Task, layout: RunLayout, config: PairConfig, *, what: str, name: str, seeds: Sequence[int],
-               options: StageOptions = StageOptions()) -> dict[str, Any]:
+def export_run(
+    task: Task,
+    layout: RunLayout,
+    config: PairConfig,
+    *,
+    what: str,
+    name: str,
+    seeds: Sequence[int],
+    options: StageOptions = StageOptions(),
+) -> dict[str, Any]:
     """Write the run's ``what`` episodes of ``seeds`` as the Minari dataset ``name``.
 
     Returns:
@@ -82,8 +95,10 @@ def export_run(task: Task, layout: RunLayout, config: PairConfig, *, what: str, 
     if what != "demos":
         load_groundtruth(layout)  # a missing or corrupt pi* is named before any work
     stored = _stored_pairs(task, layout, config, seeds) if what != "demos" else {}
-    jobs = [ExportJob(task=task, groundtruth=str(layout.groundtruth), seed=s, methods=(what,), config=config, what=what)
-            for s in seeds]
+    jobs = [
+        ExportJob(task=task, groundtruth=str(layout.groundtruth), seed=s, methods=(what,), config=config, what=what)
+        for s in seeds
+    ]
     counts = {"episodes": 0, "steps": 0, "checked": 0}
 
     def chunks(results: Iterable[dict[str, Any]]) -> Iterator[list[RecordedEpisode]]:
@@ -99,22 +114,34 @@ def export_run(task: Task, layout: RunLayout, config: PairConfig, *, what: str, 
     spaces = {"observation_space": env.observation_space, "action_space": env.action_space}
     env.close()
     with make_executor(options.executor, workers=options.workers, address=options.address) as pool:
-        results = progress_bar(in_order(pool.imap_unordered(seed_episodes, jobs), [j.seed for j in jobs], key=_seed_of),
-                               total=len(jobs), desc=f"export {what}", enabled=options.progress)
-        folder = write_dataset(name, chunks(results), **spaces, algorithm=f"metadagger {what}",
-                               description=f"{task.name}: {_DESCRIPTIONS[what]} of seeds {seeds[0]}..{seeds[-1]} "
-                                           f"({len(seeds)} seeds), from run {layout.root}")
+        results = progress_bar(
+            in_order(pool.imap_unordered(seed_episodes, jobs), [j.seed for j in jobs], key=_seed_of),
+            total=len(jobs),
+            desc=f"export {what}",
+            enabled=options.progress,
+        )
+        folder = write_dataset(
+            name,
+            chunks(results),
+            **spaces,
+            algorithm=f"metadagger {what}",
+            description=f"{task.name}: {_DESCRIPTIONS[what]} of seeds {seeds[0]}..{seeds[-1]} "
+            f"({len(seeds)} seeds), from run {layout.root}",
+        )
     return {"dataset": str(folder), **counts}
 
 
 _DESCRIPTIONS = {
     "demos": "the expert's demonstrations",
     "dagger": "the learner's per-seed DAgger rollouts (infos: expert_label, queried, round, seed)",
-    "pairs-data": "each pair's demonstration (round 0) and per-seed DAgger rollouts (infos: expert_label, queried, round, seed)",
+    "pairs-data": "each pair's demonstration (round 0) and per-seed DAgger rollouts (infos: expert_label, queried, "
+    "round, seed)",
 }
 
 
-def _stored_pairs(task: Task, layout: RunLayout, config: PairConfig, seeds: Sequence[int]) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _stored_pairs(
+    task: Task, layout: RunLayout, config: PairConfig, seeds: Sequence[int]
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """The stored pairs among ``seeds`` made from today's pi* and settings."""
     if not layout.pairs_dir.is_dir():
         return {}
@@ -134,5 +161,7 @@ def _seed_of(result: dict[str, Any]) -> int:
 
 def _check_pair(result: dict[str, Any], w_bc: np.ndarray, w_da: np.ndarray) -> None:
     if not (np.array_equal(result["w_bc"], w_bc) and np.array_equal(result["w_da"], w_da)):
-        raise RuntimeError(f"seed {result['seed']}: the re-run pair differs from the stored one, so the episodes would not be "
-                           "the data it was fit on; the code changed since the pairs were collected")
+        raise RuntimeError(
+            f"seed {result['seed']}: the re-run pair differs from the stored one, so the episodes would not be "
+            "the data it was fit on; the code changed since the pairs were collected"
+        )

@@ -67,17 +67,28 @@ class GroundTruthConfig:
         if not self.seeds:
             raise UserError("groundtruth.seeds must not be empty")
         if set(self.seeds) & set(self.eval_seeds):
-            raise UserError("groundtruth.eval_seeds must be unseen: they overlap groundtruth.seeds; pick disjoint ranges")
+            raise UserError(
+                "groundtruth.eval_seeds must be unseen: they overlap groundtruth.seeds; pick disjoint ranges"
+            )
         if set(self.select_seeds) & (set(self.seeds) | set(self.eval_seeds)):
-            raise UserError("groundtruth.select_seeds must be held out: they overlap groundtruth.seeds or eval_seeds; pick disjoint ranges")
+            raise UserError(
+                "groundtruth.select_seeds must be held out: they overlap groundtruth.seeds or eval_seeds; pick "
+                "disjoint ranges"
+            )
         if self.select_seeds and self.dagger_rounds:
-            raise UserError("groundtruth.select_seeds chooses an epoch of the BC fit and needs dagger_rounds: 0; "
-                            "drop select_seeds or set dagger_rounds: 0")
+            raise UserError(
+                "groundtruth.select_seeds chooses an epoch of the BC fit and needs dagger_rounds: 0; "
+                "drop select_seeds or set dagger_rounds: 0"
+            )
         if not isinstance(self.select_every, int) or isinstance(self.select_every, bool) or self.select_every < 1:
             raise UserError(f"groundtruth.select_every must be an integer >= 1, got {self.select_every!r}")
         if self.dagger_rounds < 0:
             raise UserError(f"groundtruth.dagger_rounds must be >= 0, got {self.dagger_rounds}")
-        if isinstance(self.min_success, bool) or not isinstance(self.min_success, (int, float)) or not 0 <= self.min_success <= 1:
+        if (
+            isinstance(self.min_success, bool)
+            or not isinstance(self.min_success, (int, float))
+            or not 0 <= self.min_success <= 1
+        ):
             raise UserError(f"groundtruth.min_success must be a number in [0, 1], got {self.min_success!r}; e.g. 0.2")
         if self.bc.head_only:
             raise UserError("groundtruth.bc.head_only must be false: pi* trains the whole policy")
@@ -96,8 +107,15 @@ def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout
     return describe_changes(read_json(layout.groundtruth_stamp, "pi*'s stamp"), groundtruth_stamp(task, config))
 
 
-def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, *, rebuild: bool = False,
-                      progress: bool = True, workers: int = 1) -> dict:
+def train_groundtruth(
+    task: Task,
+    config: GroundTruthConfig,
+    layout: RunLayout,
+    *,
+    rebuild: bool = False,
+    progress: bool = True,
+    workers: int = 1,
+) -> dict:
     """Train pi* (or reuse a finished one made from the same config) and return its metrics:
     ``own_seeds`` and ``unseen_seeds`` (:func:`~metadagger.imitation.metrics.summarize`), ``rounds``
     (:func:`~metadagger.imitation.dagger.run_dagger`'s records), ``bc_epoch_losses`` (the BC fit's
@@ -115,8 +133,10 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     """
     changes = groundtruth_changes(task, config, layout)
     if changes and not rebuild:
-        raise UserError(f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
-                        f"run `metadagger reproduce` (it rebuilds pi* and what depends on it) or use another --out")
+        raise UserError(
+            f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
+            f"run `metadagger reproduce` (it rebuilds pi* and what depends on it) or use another --out"
+        )
     if changes:
         shutil.rmtree(layout.groundtruth_dir)
     if layout.groundtruth.is_file() and layout.groundtruth_metrics.is_file():
@@ -128,23 +148,56 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
     demos = collect(task, config.seeds, policy=None, progress=progress, workers=workers)
     data = Dataset.concat(*(t.to_dataset() for t in demos))
     policy = make_policy(task, seed=config.seed)
-    selector = EpochSelector(task, policy, config.select_seeds, every=config.select_every, epochs=config.bc.epochs,
-                             workers=workers, progress=progress) if config.select_seeds else None
-    bc_losses = fit_or_resume(policy, data, config.bc, layout.groundtruth_rounds / "round_0.safetensors", progress=progress,
-                              selector=selector, what="pi*'s BC fit (groundtruth.bc)")
+    selector = (
+        EpochSelector(
+            task,
+            policy,
+            config.select_seeds,
+            every=config.select_every,
+            epochs=config.bc.epochs,
+            workers=workers,
+            progress=progress,
+        )
+        if config.select_seeds
+        else None
+    )
+    bc_losses = fit_or_resume(
+        policy,
+        data,
+        config.bc,
+        layout.groundtruth_rounds / "round_0.safetensors",
+        progress=progress,
+        selector=selector,
+        what="pi*'s BC fit (groundtruth.bc)",
+    )
     history = []
     if config.dagger_rounds:
         result = run_dagger(
-            policy, task, config.seeds, initial=data,
+            policy,
+            task,
+            config.seeds,
+            initial=data,
             config=DAggerConfig(rounds=config.dagger_rounds, bc=config.bc),
-            progress=progress, checkpoints=layout.groundtruth_rounds, workers=workers,
+            progress=progress,
+            checkpoints=layout.groundtruth_rounds,
+            workers=workers,
         )
         history = result.rounds
-    own = summarize(evaluate_policy(task, policy, config.seeds, label="pi* on its seeds", progress=progress, workers=workers))
-    unseen = summarize(evaluate_policy(task, policy, config.eval_seeds, label="pi* on unseen seeds", progress=progress,
-                                       workers=workers))
-    metrics = {"own_seeds": own, "unseen_seeds": unseen, "rounds": history, "bc_epoch_losses": bc_losses,
-               "expert_queries": history[-1]["dagger/expert_queries"] if history else len(data)}
+    own = summarize(
+        evaluate_policy(task, policy, config.seeds, label="pi* on its seeds", progress=progress, workers=workers)
+    )
+    unseen = summarize(
+        evaluate_policy(
+            task, policy, config.eval_seeds, label="pi* on unseen seeds", progress=progress, workers=workers
+        )
+    )
+    metrics = {
+        "own_seeds": own,
+        "unseen_seeds": unseen,
+        "rounds": history,
+        "bc_epoch_losses": bc_losses,
+        "expert_queries": history[-1]["dagger/expert_queries"] if history else len(data),
+    }
     if selector is not None:
         metrics["bc_selection"] = selector.choice if bc_losses is not None else None
     policy.save(layout.groundtruth)
@@ -154,12 +207,15 @@ def train_groundtruth(task: Task, config: GroundTruthConfig, layout: RunLayout, 
 
 def pistar_rates(metrics: dict) -> str:
     """pi*'s success on its own and on its unseen seeds, with 95% Wilson intervals, as one line."""
-    return "; ".join(f"{what} {_rate(metrics[key])}" for what, key in (("own seeds", "own_seeds"), ("unseen seeds", "unseen_seeds")))
+    return "; ".join(
+        f"{what} {_rate(metrics[key])}" for what, key in (("own seeds", "own_seeds"), ("unseen seeds", "unseen_seeds"))
+    )
 
 
 def _rate(summary: dict) -> str:
     low, high = wilson_interval(summary["successes"], summary["episodes"])
-    return f"{summary['successes']}/{summary['episodes']} ({summary['successes'] / max(summary['episodes'], 1):.0%}, 95% interval {low:.0%}-{high:.0%})"
+    share = summary["successes"] / max(summary["episodes"], 1)
+    return f"{summary['successes']}/{summary['episodes']} ({share:.0%}, 95% interval {low:.0%}-{high:.0%})"
 
 
 def check_pistar(metrics: dict, config: GroundTruthConfig, layout: RunLayout) -> None:
@@ -168,17 +224,21 @@ def check_pistar(metrics: dict, config: GroundTruthConfig, layout: RunLayout) ->
     unseen = metrics["unseen_seeds"]
     if unseen["success_rate"] >= config.min_success:
         return
-    raise UserError(f"pi* in {layout.groundtruth_dir} is too weak to learn from: {pistar_rates(metrics)}, below "
-                    f"groundtruth.min_success={config.min_success:g} on unseen seeds; with its trunk frozen the per-seed DAgger "
-                    "refits would rarely succeed and the later stages would measure nothing; make pi* stronger (more "
-                    "groundtruth.seeds, groundtruth.bc.augment_shift, more epochs or dagger_rounds, policy_arch; "
-                    "docs/custom_task.md, \"Making pi* work on a new task\"), or set groundtruth.min_success=0 to go on anyway")
+    raise UserError(
+        f"pi* in {layout.groundtruth_dir} is too weak to learn from: {pistar_rates(metrics)}, below "
+        f"groundtruth.min_success={config.min_success:g} on unseen seeds; with its trunk frozen the per-seed DAgger "
+        "refits would rarely succeed and the later stages would measure nothing; make pi* stronger (more "
+        "groundtruth.seeds, groundtruth.bc.augment_shift, more epochs or dagger_rounds, policy_arch; "
+        'docs/custom_task.md, "Making pi* work on a new task"), or set groundtruth.min_success=0 to go on anyway'
+    )
 
 
 def load_groundtruth(layout: RunLayout) -> Policy:
     """The run's pi*; a missing or unreadable file is a :class:`UserError` naming it and the fix."""
     if not layout.groundtruth.is_file():
-        raise UserError(f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first")
+        raise UserError(
+            f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first"
+        )
     return load_policy(layout.groundtruth)
 
 

@@ -111,9 +111,19 @@ def demonstration_share(demo: Trajectory, fraction: float) -> Trajectory:
     n = max(1, math.ceil(fraction * demo.steps))
     if n == demo.steps:
         return demo
-    return dataclasses.replace(demo, obs=demo.obs[:n], expert_labels=demo.expert_labels[:n], learner_actions=demo.learner_actions[:n],
-                               step_rewards=demo.step_rewards[:n], reward=float(demo.step_rewards[:n].sum()), steps=n,
-                               expert_queries=n, final_obs=demo.obs[n], final_label=demo.expert_labels[n], terminated=False)
+    return dataclasses.replace(
+        demo,
+        obs=demo.obs[:n],
+        expert_labels=demo.expert_labels[:n],
+        learner_actions=demo.learner_actions[:n],
+        step_rewards=demo.step_rewards[:n],
+        reward=float(demo.step_rewards[:n].sum()),
+        steps=n,
+        expert_queries=n,
+        final_obs=demo.obs[n],
+        final_label=demo.expert_labels[n],
+        terminated=False,
+    )
 
 
 def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig, *, what: str = "the BC head's fit") -> np.ndarray:
@@ -158,8 +168,17 @@ class Round:
     """Expert queries so far, the demonstration's included."""
 
 
-def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory, demo: Trajectory, rounds: int,
-                  fit: BCConfig, gate: Gate | None = None, early_stop: float | None = None) -> Iterator[Round]:
+def dagger_rounds(
+    learner: SeedLearner,
+    *,
+    start: np.ndarray,
+    first: Trajectory,
+    demo: Trajectory,
+    rounds: int,
+    fit: BCConfig,
+    gate: Gate | None = None,
+    early_stop: float | None = None,
+) -> Iterator[Round]:
     """Step 4: ``rounds`` DAgger rounds from head ``start``, whose rollout ``first`` round 1 labels.
 
     Each round labels the states of the last rollout that ``gate`` selects (all of them without
@@ -182,7 +201,9 @@ def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory,
     actions = demo.expert_labels
     queries = len(data)
     # what a gate may know of the run: the demonstration first, then each rollout it has gated
-    memory = GateMemory() if gate is None else GateMemory([Episode(learner.cache.features(demo.obs), bool(demo.success))])
+    memory = (
+        GateMemory() if gate is None else GateMemory([Episode(learner.cache.features(demo.obs), bool(demo.success))])
+    )
     learner.load(start)
     trajectory = first
     for index in range(1, rounds + 1):
@@ -202,13 +223,22 @@ def dagger_rounds(learner: SeedLearner, *, start: np.ndarray, first: Trajectory,
         yield Round(index=index, labelled=labelled, head=head, rollout=trajectory, queries=queries)
 
 
-def _gate_mask(gate: Gate, cache: FeatureCache, data: Aggregate, actions: np.ndarray, trajectory: Trajectory,
-               generator: torch.Generator, memory: GateMemory) -> np.ndarray:
+def _gate_mask(
+    gate: Gate,
+    cache: FeatureCache,
+    data: Aggregate,
+    actions: np.ndarray,
+    trajectory: Trajectory,
+    generator: torch.Generator,
+    memory: GateMemory,
+) -> np.ndarray:
     """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far
     and the run's finished episodes (``memory``), to which ``trajectory`` is then added."""
     labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
     features = cache.features(trajectory.obs)
-    keep = gate.select(features, _tensor(trajectory.learner_actions), labelled, generator=generator, memory=memory).numpy()
+    keep = gate.select(
+        features, _tensor(trajectory.learner_actions), labelled, generator=generator, memory=memory
+    ).numpy()
     memory.episodes.append(Episode(features=features, succeeded=bool(trajectory.success)))
     return keep
 

@@ -2,8 +2,9 @@
 
 For each seed, the steps of :mod:`metadagger.metal.method`: the demonstration, w_BC (a fresh head
 on pi*'s frozen trunk fitted by BC on it), then DAgger rounds from there -> w_DA; both rolled out.
-The seed's context is stored with its pair. The seeds run in parallel through :mod:`metadagger.utils.executors`; the driver alone
-writes each pair to the :class:`~metadagger.metal.store.PairStore` as soon as it arrives, so a
+The seed's context is stored with its pair. The seeds run in parallel through
+:mod:`metadagger.utils.executors`; the driver alone writes each pair to the
+:class:`~metadagger.metal.store.PairStore` as soon as it arrives, so a
 killed run resumes with the seeds that are not stored yet.
 """
 
@@ -21,15 +22,23 @@ from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.data import Aggregate
 from metadagger.imitation.early_stop import check_threshold
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.utils.io import write_json
-from metadagger.runfolder.layout import RunLayout
 from metadagger.metal.groundtruth import load_groundtruth
-from metadagger.metal.method import CONTEXT_PARTS, SeedLearner, bc_head, dagger_rounds, demonstration, seed_context, seeded
+from metadagger.metal.method import (
+    CONTEXT_PARTS,
+    SeedLearner,
+    bc_head,
+    dagger_rounds,
+    demonstration,
+    seed_context,
+    seeded,
+)
 from metadagger.metal.store import PairStore
 from metadagger.runfolder.driver import SeedJob, StageOptions, drive, plan
+from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import describe_changes, file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
+from metadagger.utils.io import write_json
 from metadagger.utils.kernels import kernel_stamp
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")
@@ -115,8 +124,16 @@ class PairRun:
     rounds, in visiting order."""
 
 
-def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit_seed: int | None = None,
-             with_states: bool = False, on_episode: Callable[[int, Trajectory], None] | None = None) -> PairRun:
+def run_pair(
+    task: Task,
+    groundtruth: str,
+    seed: int,
+    config: PairConfig,
+    *,
+    fit_seed: int | None = None,
+    with_states: bool = False,
+    on_episode: Callable[[int, Trajectory], None] | None = None,
+) -> PairRun:
     """The pair procedure on ``seed``: BC on its demonstration, then DAgger, both rolled out.
 
     ``fit_seed`` seeds the fits' shuffling (default: ``seed``, as the pairs do); another value
@@ -132,19 +149,41 @@ def run_pair(task: Task, groundtruth: str, seed: int, config: PairConfig, *, fit
         w_bc = bc_head(learner, data, seeded(config.bc, fit_seed))
         # BC's own rollout, under the pairs' early stop, is the one DAgger's first round labels
         first = learner.roll(w_bc, early_stop=config.early_stop)
-        rounds = list(dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=config.dagger_rounds,
-                                    fit=seeded(config.dagger_bc, fit_seed), early_stop=config.early_stop))
+        rounds = list(
+            dagger_rounds(
+                learner,
+                start=w_bc,
+                first=first,
+                demo=demo,
+                rounds=config.dagger_rounds,
+                fit=seeded(config.dagger_bc, fit_seed),
+                early_stop=config.early_stop,
+            )
+        )
         context = seed_context(learner.cache, data.obs, first.obs)
         states = learner.cache.features_of(Aggregate([r.labelled for r in rounds])) if with_states else None
     if on_episode is not None:
         for index, episode in enumerate([demo, first, *(r.rollout for r in rounds[:-1])]):
             on_episode(index, episode)
     final = rounds[-1]
-    bc = {"success": bool(first.success), "reward": float(first.reward), "steps": int(first.steps), "expert_queries": len(data)}
-    da = {"success": bool(final.rollout.success), "reward": float(final.rollout.reward), "steps": int(final.rollout.steps),
-          "expert_queries": final.queries}
-    record = {"bc": bc, "da": da, "kept": is_kept(config.keep, bc["success"], da["success"]),
-              "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}"}
+    bc = {
+        "success": bool(first.success),
+        "reward": float(first.reward),
+        "steps": int(first.steps),
+        "expert_queries": len(data),
+    }
+    da = {
+        "success": bool(final.rollout.success),
+        "reward": float(final.rollout.reward),
+        "steps": int(final.rollout.steps),
+        "expert_queries": final.queries,
+    }
+    record = {
+        "bc": bc,
+        "da": da,
+        "kept": is_kept(config.keep, bc["success"], da["success"]),
+        "outcome": f"bc_{'ok' if bc['success'] else 'fail'}/da_{'ok' if da['success'] else 'fail'}",
+    }
     if demo.variation is not None:
         record["variation"] = demo.variation
     return PairRun(w_bc=w_bc, w_da=final.head, context=context, record=record, dagger_features=states)
@@ -158,8 +197,13 @@ def collect_pair(job: PairJob) -> dict[str, Any]:
 
 def pair_stamp(task: Task, layout: RunLayout, config: PairConfig) -> dict[str, Any]:
     """What a pair is made from: the task, the pair settings (not the seed list) and pi*."""
-    return {**kernel_stamp(), **task_stamp(task), **stamp_of(config, drop=("seeds", "val_fraction")),
-            "context": list(CONTEXT_PARTS), "groundtruth_fingerprint": file_fingerprint(layout.groundtruth)}
+    return {
+        **kernel_stamp(),
+        **task_stamp(task),
+        **stamp_of(config, drop=("seeds", "val_fraction")),
+        "context": list(CONTEXT_PARTS),
+        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+    }
 
 
 def pair_status(task: Task, layout: RunLayout, config: PairConfig) -> tuple[list[int], list[str]]:
@@ -183,9 +227,18 @@ def collect_pairs(
     load_groundtruth(layout)  # a missing or corrupt pi* is named before any work
     store = PairStore(layout.pairs_dir)
     stamps = {"pair": pair_stamp(task, layout, config)}
-    todo = plan(config.seeds, stamps, store, rebuild=options.rebuild, what="the pair",
-                fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`")
-    jobs = [PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config) for p in todo]
+    todo = plan(
+        config.seeds,
+        stamps,
+        store,
+        rebuild=options.rebuild,
+        what="the pair",
+        fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`",
+    )
+    jobs = [
+        PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config)
+        for p in todo
+    ]
     drive(collect_pair, jobs, log=store, stamps=stamps, options=options, desc="pairs")
     current = {s for s, stamp in store.stamps().items() if stamp["pair"] == stamps["pair"]} & set(config.seeds)
     summary = summarize_pairs([r for r in store.records() if r["seed"] in current] if current else [])
@@ -209,9 +262,13 @@ def negligible_change_warning(summary: dict[str, Any]) -> str | None:
     change = summary.get("head_change")
     if change is None or change["median"] >= NEGLIGIBLE_HEAD_CHANGE:
         return None
-    return (f"warning: DAgger moved the heads by a median {change['median']:.1%} of their norm (||w_DA - w_BC|| / ||w_BC||, "
-            f"{change['min']:.1%}-{change['max']:.1%}), below {NEGLIGIBLE_HEAD_CHANGE:.0%}: mapped and BC heads will act alike; "
-            "give pairs.bc and pairs.dagger_bc more epochs or a larger lr (docs/custom_task.md)")
+    return (
+        f"warning: DAgger moved the heads by a median {change['median']:.1%} of their norm (||w_DA - w_BC|| / "
+        "||w_BC||, "
+        f"{change['min']:.1%}-{change['max']:.1%}), below {NEGLIGIBLE_HEAD_CHANGE:.0%}: mapped and BC heads will act "
+        "alike; "
+        "give pairs.bc and pairs.dagger_bc more epochs or a larger lr (docs/custom_task.md)"
+    )
 
 
 def summarize_pairs(records: list[dict[str, Any]]) -> dict[str, Any]:

@@ -72,7 +72,9 @@ class PairSplit:
                 field = f"{kind}_{name}"
                 shape = tuple(getattr(self, field).shape)
                 if shape != (len(seeds), dim):
-                    raise ValueError(f"PairSplit.{field} has shape {shape}, expected {(len(seeds), dim)} ({len(seeds)} {name}_seeds)")
+                    raise ValueError(
+                        f"PairSplit.{field} has shape {shape}, expected {(len(seeds), dim)} ({len(seeds)} {name}_seeds)"
+                    )
         if (self.context_train is None) != (self.context_val is None):
             raise ValueError("PairSplit.context_train and context_val must both be given or both be None")
         if self.context_train is not None:
@@ -80,16 +82,24 @@ class PairSplit:
             for name, seeds in (("train", self.train_seeds), ("val", self.val_seeds)):
                 shape = tuple(getattr(self, f"context_{name}").shape)
                 if shape != (len(seeds), width):
-                    raise ValueError(f"PairSplit.context_{name} has shape {shape}, expected {(len(seeds), width)} ({len(seeds)} {name}_seeds)")
+                    raise ValueError(
+                        f"PairSplit.context_{name} has shape {shape}, expected {(len(seeds), width)} ({len(seeds)} "
+                        f"{name}_seeds)"
+                    )
         if set(self.train_seeds) & set(self.val_seeds):
-            raise ValueError(f"PairSplit train_seeds and val_seeds overlap: {sorted(set(self.train_seeds) & set(self.val_seeds))}")
+            raise ValueError(
+                f"PairSplit train_seeds and val_seeds overlap: {sorted(set(self.train_seeds) & set(self.val_seeds))}"
+            )
 
     def with_train_rows(self, rows: torch.Tensor) -> PairSplit:
         """The same validation pairs with only the training rows at indices ``rows``."""
         return dataclasses.replace(
-            self, w_bc_train=self.w_bc_train[rows], w_da_train=self.w_da_train[rows],
+            self,
+            w_bc_train=self.w_bc_train[rows],
+            w_da_train=self.w_da_train[rows],
             train_seeds=tuple(self.train_seeds[i] for i in rows.tolist()),
-            context_train=None if self.context_train is None else self.context_train[rows])
+            context_train=None if self.context_train is None else self.context_train[rows],
+        )
 
 
 def validation_size(pairs: int, val_fraction: float) -> int:
@@ -126,8 +136,14 @@ class PairStore:
             done.add(seed)
         return done
 
-    def write(self, seed: int, w_bc: torch.Tensor, w_da: torch.Tensor, record: Mapping[str, Any],
-              context: torch.Tensor | None = None) -> None:
+    def write(
+        self,
+        seed: int,
+        w_bc: torch.Tensor,
+        w_da: torch.Tensor,
+        record: Mapping[str, Any],
+        context: torch.Tensor | None = None,
+    ) -> None:
         """Store one seed's pair and record; a later write for the same seed supersedes it.
 
         Args:
@@ -143,9 +159,15 @@ class PairStore:
         """
         seed = _check_seed(seed)
         for name, tensor in (("w_bc", w_bc), ("w_da", w_da), ("context", context)):
-            if isinstance(tensor, torch.Tensor) and tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
-                raise DivergedError(f"refusing to write the pair of seed {seed}: its {name} holds NaN or infinite values, "
-                                    "so the fits that made it diverged; nothing was written")
+            if (
+                isinstance(tensor, torch.Tensor)
+                and tensor.is_floating_point()
+                and not bool(torch.isfinite(tensor).all())
+            ):
+                raise DivergedError(
+                    f"refusing to write the pair of seed {seed}: its {name} holds NaN or infinite values, "
+                    "so the fits that made it diverged; nothing was written"
+                )
         _check_vectors(w_bc, w_da)
         if context is not None:
             _check_context(context)
@@ -201,8 +223,10 @@ class PairStore:
             return None
         lengths = sorted({c.shape[0] for c in contexts})
         if len(lengths) > 1:
-            raise CheckpointError(f"the pairs in {self.root} hold contexts of lengths {lengths}: pairs from different policies "
-                                  "are mixed; re-run metadagger pairs --rebuild")
+            raise CheckpointError(
+                f"the pairs in {self.root} hold contexts of lengths {lengths}: pairs from different policies "
+                "are mixed; re-run metadagger pairs --rebuild"
+            )
         return torch.stack(contexts)
 
     def stamps(self) -> dict[int, dict[str, Any]]:
@@ -220,8 +244,10 @@ class PairStore:
             if seed not in done:
                 continue
             if "stamp" not in record:
-                raise CheckpointError(f"{self.jsonl_path} has a pair record without its stamp (seed {seed}); "
-                                      "delete that line and re-run metadagger pairs")
+                raise CheckpointError(
+                    f"{self.jsonl_path} has a pair record without its stamp (seed {seed}); "
+                    "delete that line and re-run metadagger pairs"
+                )
             stamps[seed] = {"pair": record["stamp"]}
         return stamps
 
@@ -230,12 +256,17 @@ class PairStore:
         with the stamp it was made from."""
         # np.array copies: arrays from Ray workers are read-only, which torch warns about
         context = result.get("context")
-        self.write(result["seed"], torch.from_numpy(np.array(result["w_bc"])), torch.from_numpy(np.array(result["w_da"])),
-                   {**result["record"], "stamp": dict(stamps["pair"])},
-                   context=None if context is None else torch.from_numpy(np.array(context)))
+        self.write(
+            result["seed"],
+            torch.from_numpy(np.array(result["w_bc"])),
+            torch.from_numpy(np.array(result["w_da"])),
+            {**result["record"], "stamp": dict(stamps["pair"])},
+            context=None if context is None else torch.from_numpy(np.array(context)),
+        )
 
-    def load_split(self, *, val_fraction: float, seed: int, kept_only: bool = True,
-                   seeds: Iterable[int] | None = None) -> PairSplit:
+    def load_split(
+        self, *, val_fraction: float, seed: int, kept_only: bool = True, seeds: Iterable[int] | None = None
+    ) -> PairSplit:
         """Split the stored pairs into train and validation sets by a seeded permutation.
 
         Args:
@@ -249,9 +280,15 @@ class PairStore:
             UserError: bad ``val_fraction``, or too few pairs for a training set.
         """
         if not isinstance(val_fraction, (int, float)) or not 0.0 <= val_fraction < 1.0:
-            raise UserError(f"val_fraction must be in [0, 1), got {val_fraction!r}; e.g. 0.2 holds out a fifth of the pairs")
+            raise UserError(
+                f"val_fraction must be in [0, 1), got {val_fraction!r}; e.g. 0.2 holds out a fifth of the pairs"
+            )
         wanted = None if seeds is None else set(seeds)
-        seeds = [r["seed"] for r in self.records() if (r.get("kept") is True or not kept_only) and (wanted is None or r["seed"] in wanted)]
+        seeds = [
+            r["seed"]
+            for r in self.records()
+            if (r.get("kept") is True or not kept_only) and (wanted is None or r["seed"] in wanted)
+        ]
         n_val = validation_size(len(seeds), val_fraction)
         if len(seeds) - n_val < 1:
             which = "kept pairs" if kept_only else "pairs"
@@ -279,7 +316,10 @@ class PairStore:
 
     def _require_root(self) -> None:
         if not self.root.is_dir():
-            raise UserError(f"pair store not found: {self.root} (expected the pairs/ folder of a run); check --out or run metadagger pairs first")
+            raise UserError(
+                f"pair store not found: {self.root} (expected the pairs/ folder of a run); check --out or run "
+                "metadagger pairs first"
+            )
 
     def _latest_records(self) -> dict[int, dict[str, Any]]:
         latest: dict[int, dict[str, Any]] = {}
@@ -291,7 +331,8 @@ class PairStore:
                     raise ValueError(f"record 'stamp' must be a mapping, got {record['stamp']!r}")
             except ValueError as exc:
                 raise CheckpointError(
-                    f"{self.jsonl_path} has a damaged pair record ({exc}): {str(record)[:80]}; delete that line and re-run "
+                    f"{self.jsonl_path} has a damaged pair record ({exc}): {str(record)[:80]}; delete that line and "
+                    "re-run "
                     "metadagger pairs (it collects the seed again)"
                 ) from None
             latest[seed] = record
@@ -308,7 +349,8 @@ class PairStore:
         for seed in seeds:
             if seed not in recorded:
                 raise CheckpointError(
-                    f"seed {seed} has no record in {self.jsonl_path}; collect it first (metadagger pairs resumes missing seeds)"
+                    f"seed {seed} has no record in {self.jsonl_path}; collect it first (metadagger pairs resumes "
+                    "missing seeds)"
                 )
             files.append(self._read_pair(seed))
         dim = files[0]["w_bc"].shape[0]
@@ -316,8 +358,10 @@ class PairStore:
             w_bc = tensors["w_bc"]
             if w_bc.shape[0] != dim:
                 raise CheckpointError(
-                    f"pair file {self.pair_path(seed)} holds vectors of length {w_bc.shape[0]}, but seed {seeds[0]} has "
-                    f"length {dim}; pairs from different policies are mixed: delete the odd files and re-run metadagger pairs"
+                    f"pair file {self.pair_path(seed)} holds vectors of length {w_bc.shape[0]}, but seed {seeds[0]} "
+                    "has "
+                    f"length {dim}; pairs from different policies are mixed: delete the odd files and re-run "
+                    "metadagger pairs"
                 )
         return files
 
@@ -377,8 +421,10 @@ def _check_vectors(w_bc: Any, w_da: Any) -> None:
 
 def _check_context(context: Any) -> None:
     if not isinstance(context, torch.Tensor) or context.dtype != torch.float32 or context.ndim != 1:
-        raise ValueError(f"context must be a 1-D float32 tensor, got {getattr(context, 'dtype', type(context).__name__)} "
-                         f"of shape {tuple(getattr(context, 'shape', ()))}")
+        raise ValueError(
+            f"context must be a 1-D float32 tensor, got {getattr(context, 'dtype', type(context).__name__)} "
+            f"of shape {tuple(getattr(context, 'shape', ()))}"
+        )
     if not bool(torch.isfinite(context).all()):
         raise ValueError("context holds NaN or infinite values")
 
@@ -407,4 +453,3 @@ def _json_scalar(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
-

@@ -100,18 +100,27 @@ class RunConfig:
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
-        unseen = set(self.evaluate.seeds) | (set(self.mdi.seeds) if self.mdi else set()) | (set(self.benchmark.seeds) if self.benchmark else set())
+        unseen = (
+            set(self.evaluate.seeds)
+            | (set(self.mdi.seeds) if self.mdi else set())
+            | (set(self.benchmark.seeds) if self.benchmark else set())
+        )
         seen = sorted((gt | set(self.pairs.seeds)) & unseen)
         if seen:
-            raise UserError(f"evaluate.seeds, mdi.seeds and benchmark.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' seeds; pick disjoint ranges")
+            raise UserError(
+                f"evaluate.seeds, mdi.seeds and benchmark.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' "
+                "seeds; pick disjoint ranges"
+            )
         unknown = sorted(set(self.mappers) - set(learned_names()))
         if unknown:
             raise UserError(f"mappers has unknown kind(s) {unknown}; expected one of {', '.join(learned_names())}")
         if self.benchmark is not None and "mdi" in self.benchmark.methods and self.mdi is None:
             raise UserError("benchmark.methods has mdi, but the run has no mdi section; drop mdi or add an mdi section")
         if self.mdi is not None and self.mdi.bc is not None and self.mdi.bc != self.pairs.bc:
-            raise UserError("mdi.bc differs from pairs.bc, but DAgger-MDI must fit w_BC exactly as the pairs did (the mapper "
-                            "learned from those); drop mdi.bc (it defaults to pairs.bc)")
+            raise UserError(
+                "mdi.bc differs from pairs.bc, but DAgger-MDI must fit w_BC exactly as the pairs did (the mapper "
+                "learned from those); drop mdi.bc (it defaults to pairs.bc)"
+            )
         for kind in self.mappers:
             self.mapper_config(kind)  # validates the overrides now, not hours later
 
@@ -146,25 +155,37 @@ def load_preset(task: str, preset: str, presets_file: str | Path | None = None) 
     check_task(task)
     if presets_file is None:
         if preset not in PRESETS:
-            raise UserError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}, "
-                            "or pass --presets FILE with presets of your own (see docs/custom_task.md)")
+            raise UserError(
+                f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}, "
+                "or pass --presets FILE with presets of your own (see docs/custom_task.md)"
+            )
         try:
             text = resources.files("metadagger.pipeline.presets").joinpath(f"{task}.yaml").read_text()
         except FileNotFoundError:
-            raise UserError(f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)") from None
+            raise UserError(
+                f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)"
+            ) from None
         where = f"metadagger/pipeline/presets/{task}.yaml"
         presets = yaml.safe_load(text).get("presets")
     else:
         where = str(presets_file)
-        presets = read_yaml_mapping(presets_file, "presets file", "fix it or pass another (layout: docs/custom_task.md)").get("presets")
+        presets = read_yaml_mapping(
+            presets_file, "presets file", "fix it or pass another (layout: docs/custom_task.md)"
+        ).get("presets")
     if not isinstance(presets, dict) or not presets:
-        raise UserError(f"{where} has no presets: expected a top-level 'presets:' mapping of preset names to stage sections "
-                        "(see docs/custom_task.md)")
+        raise UserError(
+            f"{where} has no presets: expected a top-level 'presets:' mapping of preset names to stage sections "
+            "(see docs/custom_task.md)"
+        )
     if preset not in presets:
-        raise UserError(f"{where} has no preset {preset!r}: expected one of {', '.join(map(str, presets))}; pass one with --preset")
+        raise UserError(
+            f"{where} has no preset {preset!r}: expected one of {', '.join(map(str, presets))}; pass one with --preset"
+        )
     if not isinstance(presets[preset], dict):
-        raise UserError(f"{where}: preset {preset!r} is {presets[preset]!r}, not a mapping of stage sections; "
-                        f"give it sections, e.g. {preset}: {{pairs: {{dagger_rounds: 4}}}}")
+        raise UserError(
+            f"{where}: preset {preset!r} is {presets[preset]!r}, not a mapping of stage sections; "
+            f"give it sections, e.g. {preset}: {{pairs: {{dagger_rounds: 4}}}}"
+        )
     return presets[preset]
 
 
@@ -178,15 +199,22 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
         if not sep or not all(keys):
             raise UserError(f"bad --set {item!r}: expected section.key=value, e.g. --set pairs.dagger_rounds=4")
         if keys[0] == VERSION_KEY:
-            raise UserError(f"bad --set {item!r}: {VERSION_KEY} records the metadagger version that made the run folder; "
-                            "it cannot be set")
+            raise UserError(
+                f"bad --set {item!r}: {VERSION_KEY} records the metadagger version that made the run folder; "
+                "it cannot be set"
+            )
         if keys[0] in CHOSEN_AT_START:
-            raise UserError(f"bad --set {item!r}: the {keys[0]} is chosen with --{keys[0]}, not --set, and a run keeps the one it "
-                            f"started with; pass --{keys[0]} instead (with a new --out for a started run)")
+            raise UserError(
+                f"bad --set {item!r}: the {keys[0]} is chosen with --{keys[0]}, not --set, and a run keeps the one it "
+                f"started with; pass --{keys[0]} instead (with a new --out for a started run)"
+            )
         try:
             value = yaml.safe_load(text)
         except yaml.YAMLError as exc:
-            raise UserError(f"bad --set {item!r}: the value is not YAML ({exc.problem}); quote it, e.g. --set 'evaluate.methods=[dm, sam]'") from None
+            raise UserError(
+                f"bad --set {item!r}: the value is not YAML ({exc.problem}); quote it, e.g. --set "
+                "'evaluate.methods=[dm, sam]'"
+            ) from None
         node = data
         for key in keys[:-1]:
             child = node.get(key)
@@ -199,15 +227,18 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
     return data
 
 
-def resolve_config(task: str, preset: str, presets_file: str | Path | None = None, overrides: Sequence[str] = ()) -> RunConfig:
+def resolve_config(
+    task: str, preset: str, presets_file: str | Path | None = None, overrides: Sequence[str] = ()
+) -> RunConfig:
     """The config of a new run: a preset (packaged, or from ``presets_file``) with ``overrides``."""
     sections = {k: v for k, v in load_preset(task, preset, presets_file).items() if k != "demo"}
     data = apply_overrides({"task": task, "preset": preset, **sections}, overrides)
     return build(RunConfig, data, where=f"{task}.{preset}" + (" with --set" if overrides else ""))
 
 
-def init_run(run: str | Path, task: str, preset: str, presets_file: str | Path | None = None,
-             overrides: Sequence[str] = ()) -> RunConfig:
+def init_run(
+    run: str | Path, task: str, preset: str, presets_file: str | Path | None = None, overrides: Sequence[str] = ()
+) -> RunConfig:
     """Create ``<run>/config.yaml`` from a preset and ``overrides``, or read the existing one (of
     the same task and preset) with ``overrides`` applied; an existing run's file is updated by the
     stage that runs with the result (:func:`records_config`). Pins the CPU kernels first
@@ -244,7 +275,9 @@ def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     pin_cpu_kernels()
     path = RunLayout(run).config
     if not path.is_file():
-        raise UserError(f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`")
+        raise UserError(
+            f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`"
+        )
     data = read_run_data(path)
     check_version(path, data)
     return build(RunConfig, apply_overrides(data, overrides), where=str(path) + (" with --set" if overrides else ""))
@@ -258,8 +291,10 @@ def check_version(path: str | Path, data: dict[str, Any]) -> None:
         return
     made_by = f"metadagger {recorded}" if recorded is not None else f"a metadagger version before {FIRST_RECORDED}"
     task, preset = data.get("task", "T"), data.get("preset", "P")
-    raise UserError(f"{path} was made by {made_by}; this is {__version__}: start a new run folder "
-                    f"(metadagger reproduce --task {task} --preset {preset} --out NEW) or use {made_by}")
+    raise UserError(
+        f"{path} was made by {made_by}; this is {__version__}: start a new run folder "
+        f"(metadagger reproduce --task {task} --preset {preset} --out NEW) or use {made_by}"
+    )
 
 
 def _major_minor(version: str) -> tuple[str, ...]:
@@ -279,7 +314,9 @@ def _timed(stage: Callable[..., R], layout: RunLayout, config: RunConfig, *args:
 
     def record(stopped: bool) -> None:
         if layout.config.is_file():
-            record_stage_time(layout, stage.__name__.removeprefix("stage_"), time.perf_counter() - start, stopped=stopped)
+            record_stage_time(
+                layout, stage.__name__.removeprefix("stage_"), time.perf_counter() - start, stopped=stopped
+            )
 
     try:
         result = stage(layout, config, *args, **kwargs)
@@ -299,10 +336,14 @@ def record_stage_time(layout: RunLayout, stage: str, seconds: float, *, stopped:
     before = times.get(stage, {})
     total = float(before.get("total_seconds", 0.0)) + seconds
     cpu = machine_description()["cpu"]
-    times[stage] = {"seconds": round(seconds, 3), "total_seconds": round(total, 3),
-                    "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                    "commits": _once(before.get("commits", []), source_revision() or "unknown"),
-                    "cpus": _once(before.get("cpus", []), cpu), **({"stopped": True} if stopped else {})}
+    times[stage] = {
+        "seconds": round(seconds, 3),
+        "total_seconds": round(total, 3),
+        "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "commits": _once(before.get("commits", []), source_revision() or "unknown"),
+        "cpus": _once(before.get("cpus", []), cpu),
+        **({"stopped": True} if stopped else {}),
+    }
     write_json(layout.stage_times, times)
 
 
@@ -310,7 +351,9 @@ def _once(seen: list[str], item: str) -> list[str]:
     return list(seen) if item in seen else [*seen, item]
 
 
-def records_config(stage: Callable[Concatenate[RunLayout, RunConfig, P], R]) -> Callable[Concatenate[RunLayout, RunConfig, P], R]:
+def records_config(
+    stage: Callable[Concatenate[RunLayout, RunConfig, P], R],
+) -> Callable[Concatenate[RunLayout, RunConfig, P], R]:
     """``stage(layout, config, ...)`` run with ``config`` as the run's ``config.yaml``: written first
     when the file says otherwise (``--set`` overrides), and put back as it was when the stage
     refuses (a :class:`UserError`), so a refused command leaves the run's config unchanged. A

@@ -29,15 +29,28 @@ from metadagger.evaluation.diagnose import diagnose_mappers
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import evaluate_run
 from metadagger.evaluation.report import build_report
+from metadagger.evaluation.tensorboard import (
+    Scalar,
+    benchmark_scalars,
+    groundtruth_scalars,
+    mapper_scalars,
+    pairs_scalars,
+    table_scalars,
+    write_tensorboard,
+)
 from metadagger.evaluation.video import FIXED_METHODS, check_methods, compose, require_imageio, seed_clips, write_video
-from metadagger.evaluation.tensorboard import (Scalar, benchmark_scalars, groundtruth_scalars, mapper_scalars, pairs_scalars,
-                                               table_scalars, write_tensorboard)
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
 from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
 from metadagger.metal.export import export_run
-from metadagger.metal.groundtruth import check_pistar, groundtruth_changes, load_groundtruth, pistar_rates, train_groundtruth
+from metadagger.metal.groundtruth import (
+    check_pistar,
+    groundtruth_changes,
+    load_groundtruth,
+    pistar_rates,
+    train_groundtruth,
+)
 from metadagger.metal.pairs import OUTCOMES, collect_pairs, negligible_change_warning, pair_status
 from metadagger.metal.store import PairSplit, PairStore, validation_size
 from metadagger.pipeline.run_config import RunConfig, init_run, load_run, records_config, save_run
@@ -79,8 +92,14 @@ def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOption
     """Train pi* (skipped when done and made from this config)."""
     # pi*'s rollouts use this machine's cores (a local pool) whatever executor the per-seed stages use
     workers = options.workers if options.executor == "local" and options.workers else default_workers()
-    metrics = train_groundtruth(run_task(config, checked=True), config.groundtruth, layout, rebuild=options.rebuild, progress=options.progress,
-                                workers=workers)
+    metrics = train_groundtruth(
+        run_task(config, checked=True),
+        config.groundtruth,
+        layout,
+        rebuild=options.rebuild,
+        progress=options.progress,
+        workers=workers,
+    )
     _log(layout, config, lambda: {"groundtruth": groundtruth_scalars(layout)})
     return metrics
 
@@ -90,8 +109,10 @@ def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Po
     pistar = load_groundtruth(layout)  # a corrupt file is named even when no work is left
     changes = groundtruth_changes(task, config.groundtruth, layout)
     if changes:
-        raise UserError(f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
-                        f"run `metadagger reproduce` to rebuild it and what depends on it")
+        raise UserError(
+            f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
+            f"run `metadagger reproduce` to rebuild it and what depends on it"
+        )
     return pistar
 
 
@@ -112,20 +133,29 @@ def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSpli
     and pair settings."""
     missing, changes = pair_status(task, layout, config.pairs)
     if missing:
-        PairStore(layout.pairs_dir).check_readable(missing, fix=f"run `metadagger pairs --out {layout.root}`, which collects that pair again")
+        PairStore(layout.pairs_dir).check_readable(
+            missing, fix=f"run `metadagger pairs --out {layout.root}`, which collects that pair again"
+        )
         why = f"made from other inputs ({'; '.join(changes)})" if changes else "not collected"
         raise UserError(
-            f"{len(missing)} of {len(config.pairs.seeds)} seeds of pairs.seeds have no current pair (e.g. {missing[0]}: {why}); "
-            f"run `metadagger pairs --out {layout.root}`" + (" --rebuild" if changes else "") + " or `metadagger reproduce` first"
+            f"{len(missing)} of {len(config.pairs.seeds)} seeds of pairs.seeds have no current pair (e.g. "
+            f"{missing[0]}: {why}); "
+            f"run `metadagger pairs --out {layout.root}`"
+            + (" --rebuild" if changes else "")
+            + " or `metadagger reproduce` first"
         )
     store = PairStore(layout.pairs_dir)
     kept = sum(1 for r in store.records() if r.get("kept") is True and r["seed"] in set(config.pairs.seeds))
     if kept - validation_size(kept, config.pairs.val_fraction) < 2:
-        raise UserError(f"only {kept} kept pairs (pairs.keep={config.pairs.keep}) in {layout.pairs_dir}, too few for a "
-                        f"training set with pairs.val_fraction={config.pairs.val_fraction:g}: {_pair_outcomes(layout)}; "
-                        "with few kept pairs, collect more pairs.seeds or relax pairs.keep; with none, make pi* stronger "
-                        "(docs/custom_task.md, \"Making pi* work on a new task\")")
-    return store.load_split(val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True, seeds=config.pairs.seeds)
+        raise UserError(
+            f"only {kept} kept pairs (pairs.keep={config.pairs.keep}) in {layout.pairs_dir}, too few for a "
+            f"training set with pairs.val_fraction={config.pairs.val_fraction:g}: {_pair_outcomes(layout)}; "
+            "with few kept pairs, collect more pairs.seeds or relax pairs.keep; with none, make pi* stronger "
+            '(docs/custom_task.md, "Making pi* work on a new task")'
+        )
+    return store.load_split(
+        val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True, seeds=config.pairs.seeds
+    )
 
 
 def _pair_outcomes(layout: RunLayout) -> str:
@@ -142,8 +172,9 @@ def _pair_outcomes(layout: RunLayout) -> str:
 
 
 @records_config
-def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | None = None,
-                  options: StageOptions = StageOptions()) -> list[Path]:
+def stage_mappers(
+    layout: RunLayout, config: RunConfig, kinds: Sequence[str] | None = None, options: StageOptions = StageOptions()
+) -> list[Path]:
     """Train the mappers of ``kinds`` (default: the kinds the run uses, ``config.mapper_kinds``)
     on the run's current kept pairs; curves.png beside each."""
     kinds = config.mapper_kinds if kinds is None else tuple(kinds)
@@ -152,18 +183,30 @@ def stage_mappers(layout: RunLayout, config: RunConfig, kinds: Sequence[str] | N
     task = run_task(config)
     head = _current_groundtruth(layout, config, task).head_vector()
     split = _current_split(layout, config, task)
-    jobs = [MapperJob(split=split, config=config.mapper_config(kind), out_dir=layout.mapper_dir(kind), pistar_head=head)
-            for kind in kinds]
+    jobs = [
+        MapperJob(split=split, config=config.mapper_config(kind), out_dir=layout.mapper_dir(kind), pistar_head=head)
+        for kind in kinds
+    ]
     train_mappers(jobs, rebuild=options.rebuild, options=options)
     for kind in kinds:
-        draw_figure(layout.mapper_curves_figure(kind), lambda path, kind=kind: plot_curves(layout.mapper_curves(kind), path))
+        draw_figure(
+            layout.mapper_curves_figure(kind), lambda path, kind=kind: plot_curves(layout.mapper_curves(kind), path)
+        )
     _log(layout, config, lambda: {f"mapper/{kind}": mapper_scalars(layout, kind) for kind in kinds})
     return [layout.mapper(kind) for kind in kinds]
 
 
 @records_config
-def stage_tune(layout: RunLayout, config: RunConfig, kind: str, *, trials: int, seed: int = 0, apply: bool = False,
-               options: StageOptions = StageOptions()) -> TuneResult:
+def stage_tune(
+    layout: RunLayout,
+    config: RunConfig,
+    kind: str,
+    *,
+    trials: int,
+    seed: int = 0,
+    apply: bool = False,
+    options: StageOptions = StageOptions(),
+) -> TuneResult:
     """Search mapper ``kind``'s hyperparameters (:mod:`metadagger.mapping.tune`): trials train on
     the run's training pairs and are scored on its validation pairs, never on evaluation seeds.
     The study resumes from ``tune/<kind>.db`` (``options.rebuild`` starts a new one); ``apply``
@@ -172,8 +215,16 @@ def stage_tune(layout: RunLayout, config: RunConfig, kind: str, *, trials: int, 
     task = run_task(config)
     _current_groundtruth(layout, config, task)
     split = _current_split(layout, config, task)
-    result = tune_mapper(split, config.mapper_config(kind), study=layout.tune_study(kind), summary=layout.tune_summary(kind),
-                         trials=trials, seed=seed, base_overrides=config.mappers.get(kind) or {}, options=options)
+    result = tune_mapper(
+        split,
+        config.mapper_config(kind),
+        study=layout.tune_study(kind),
+        summary=layout.tune_summary(kind),
+        trials=trials,
+        seed=seed,
+        base_overrides=config.mappers.get(kind) or {},
+        options=options,
+    )
     if apply:
         save_run(layout.root, load_run(layout.root, [result.set_item]))  # validated like any --set
     return result
@@ -186,15 +237,20 @@ def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequ
     for kind in kinds:
         path = layout.mapper(kind)
         if not path.is_file():
-            raise UserError(f"mapper {kind} not trained yet (no {path}); run `metadagger train-mapper --out {layout.root} --kind all` first")
+            raise UserError(
+                f"mapper {kind} not trained yet (no {path}); run `metadagger train-mapper --out {layout.root} --kind "
+                "all` first"
+            )
         mapper = load_mapper(path)
         if not mapper.stamp:
             continue
         split = split or _current_split(layout, config, task)
         changes = describe_changes(mapper.stamp, mapper_stamp(split, config.mapper_config(kind), pistar.head_vector()))
         if changes:
-            raise UserError(f"mapper {kind} in {layout.mapper_dir(kind)} was made from other inputs ({'; '.join(changes)}); "
-                            f"run `metadagger train-mapper --out {layout.root} --kind {kind} --rebuild` or `metadagger reproduce`")
+            raise UserError(
+                f"mapper {kind} in {layout.mapper_dir(kind)} was made from other inputs ({'; '.join(changes)}); "
+                f"run `metadagger train-mapper --out {layout.root} --kind {kind} --rebuild` or `metadagger reproduce`"
+            )
 
 
 def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
@@ -207,23 +263,29 @@ def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
 
 
 @records_config
-def stage_evaluate(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
-                   options: StageOptions = StageOptions()) -> list[dict]:
+def stage_evaluate(
+    layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None, options: StageOptions = StageOptions()
+) -> list[dict]:
     """MDM and one-shot evaluation on the config's unseen seeds (or on ``seeds``): the missing
     (seed, method) rows only."""
-    eval_config = config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
+    eval_config = (
+        config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
+    )
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, eval_config.methods, pistar)
-    rows = evaluate_run(task, layout, eval_config, bc=config.pairs.bc, early_stop=config.pairs.early_stop, options=options)
+    rows = evaluate_run(
+        task, layout, eval_config, bc=config.pairs.bc, early_stop=config.pairs.early_stop, options=options
+    )
     tables = ("mdm", "oneshot") if eval_config.oneshot else ("mdm",)
     _log(layout, config, lambda: {f"eval/{table}": table_scalars(layout.eval_table(table)) for table in tables})
     return rows
 
 
 @records_config
-def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
-              options: StageOptions = StageOptions()) -> list[dict]:
+def stage_mdi(
+    layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None, options: StageOptions = StageOptions()
+) -> list[dict]:
     """The MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) on the config's unseen seeds (or on
     ``seeds``); [] for a run without an ``mdi`` section."""
     mdi = config.mdi_config
@@ -239,8 +301,14 @@ def stage_mdi(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | No
 
 
 @records_config
-def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int] | None = None,
-                    methods: Sequence[str] | None = None, options: StageOptions = StageOptions()) -> list[dict]:
+def stage_benchmark(
+    layout: RunLayout,
+    config: RunConfig,
+    *,
+    seeds: Sequence[int] | None = None,
+    methods: Sequence[str] | None = None,
+    options: StageOptions = StageOptions(),
+) -> list[dict]:
     """Success against expert queries on the config's unseen seeds (or ``seeds``), for its methods
     (or ``methods``); [] for a run without a ``benchmark`` section."""
     bench = config.benchmark
@@ -255,9 +323,19 @@ def stage_benchmark(layout: RunLayout, config: RunConfig, *, seeds: Sequence[int
     kinds = config.evaluate.methods if "mdm" in bench.methods else ()
     mdi = config.mdi_config if "mdi" in bench.methods else None
     _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
-    rows = run_benchmark(task, layout, bench, rounds=config.pairs.dagger_rounds, bc=config.pairs.bc,
-                         dagger_bc=config.pairs.dagger_bc, early_stop=config.pairs.early_stop, kinds=tuple(kinds), mdi=mdi,
-                         meta_queries=_meta_training_queries(layout, config), options=options)
+    rows = run_benchmark(
+        task,
+        layout,
+        bench,
+        rounds=config.pairs.dagger_rounds,
+        bc=config.pairs.bc,
+        dagger_bc=config.pairs.dagger_bc,
+        early_stop=config.pairs.early_stop,
+        kinds=tuple(kinds),
+        mdi=mdi,
+        meta_queries=_meta_training_queries(layout, config),
+        options=options,
+    )
     _log(layout, config, lambda: {"benchmark": benchmark_scalars(layout)})
     return rows
 
@@ -272,25 +350,57 @@ def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOption
     _check_mappers(layout, config, task, kinds, pistar)
     split = _current_split(layout, config, task)
     learned = {kind: config.mapper_config(kind) for kind in kinds if get_kind(kind).learned}
-    return diagnose_mappers(task, layout, split, {kind: load_mapper(layout.mapper(kind)) for kind in kinds}, config.pairs,
-                            config.diagnose, scaling_configs=learned, split_seed=config.split_seed,
-                            outputs=pistar.net.head.out_features, discrete=pistar.discrete, options=options)
+    return diagnose_mappers(
+        task,
+        layout,
+        split,
+        {kind: load_mapper(layout.mapper(kind)) for kind in kinds},
+        config.pairs,
+        config.diagnose,
+        scaling_configs=learned,
+        split_seed=config.split_seed,
+        outputs=pistar.net.head.out_features,
+        discrete=pistar.discrete,
+        options=options,
+    )
 
 
 @records_config
-def stage_export(layout: RunLayout, config: RunConfig, *, what: str, name: str, seeds: Sequence[int] | None = None,
-                 options: StageOptions = StageOptions()) -> dict:
+def stage_export(
+    layout: RunLayout,
+    config: RunConfig,
+    *,
+    what: str,
+    name: str,
+    seeds: Sequence[int] | None = None,
+    options: StageOptions = StageOptions(),
+) -> dict:
     """The run's ``what`` episodes (demos, dagger, pairs-data) of ``seeds`` (default: the pair
     seeds) as the Minari dataset ``name`` (:mod:`metadagger.metal.export`)."""
     task = run_task(config)
     if what != "demos":
         _current_groundtruth(layout, config, task)
-    return export_run(task, layout, config.pairs, what=what, name=name,
-                      seeds=sorted(set(config.pairs.seeds if seeds is None else seeds)), options=options)
+    return export_run(
+        task,
+        layout,
+        config.pairs,
+        what=what,
+        name=name,
+        seeds=sorted(set(config.pairs.seeds if seeds is None else seeds)),
+        options=options,
+    )
 
 
-def stage_video(layout: RunLayout, config: RunConfig, *, seed: int, methods: Sequence[str], fps: int = 30, scale: int = 3,
-                gif_stride: int = 3) -> tuple[Path, Path]:
+def stage_video(
+    layout: RunLayout,
+    config: RunConfig,
+    *,
+    seed: int,
+    methods: Sequence[str],
+    fps: int = 30,
+    scale: int = 3,
+    gif_stride: int = 3,
+) -> tuple[Path, Path]:
     """``methods`` rolled out on ``seed`` side by side (:mod:`metadagger.evaluation.video`), as
     ``RUN/videos/<seed>-<methods>.mp4`` and ``.gif``; returns their paths."""
     if fps < 1 or scale < 1 or gif_stride < 1:
@@ -300,12 +410,25 @@ def stage_video(layout: RunLayout, config: RunConfig, *, seed: int, methods: Seq
     task = run_task(config, checked=True)
     pistar = _current_groundtruth(layout, config, task)
     _check_mappers(layout, config, task, [m for m in methods if m not in FIXED_METHODS], pistar)
-    clips = seed_clips(task, layout, seed, methods, bc=config.pairs.bc, dagger_bc=config.pairs.dagger_bc,
-                       rounds=config.pairs.dagger_rounds, early_stop=config.pairs.early_stop)
+    clips = seed_clips(
+        task,
+        layout,
+        seed,
+        methods,
+        bc=config.pairs.bc,
+        dagger_bc=config.pairs.dagger_bc,
+        rounds=config.pairs.dagger_rounds,
+        early_stop=config.pairs.early_stop,
+    )
     stem = layout.root / "videos" / f"{seed}-{'-'.join(methods)}"
     with run_lock(layout.root):
-        return write_video(compose(clips, scale=scale), stem.with_suffix(".mp4"), stem.with_suffix(".gif"), fps=fps,
-                           gif_stride=gif_stride)
+        return write_video(
+            compose(clips, scale=scale),
+            stem.with_suffix(".mp4"),
+            stem.with_suffix(".gif"),
+            fps=fps,
+            gif_stride=gif_stride,
+        )
 
 
 def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:
@@ -314,8 +437,10 @@ def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, in
     metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics") if layout.groundtruth_metrics.is_file() else {}
     seeds = set(config.pairs.seeds)
     records = PairStore(layout.pairs_dir).records() if layout.pairs_dir.is_dir() else []
-    return {"pistar": int(metrics.get("expert_queries", 0)),
-            "pairs": sum(int(r["da"]["expert_queries"]) for r in records if r["seed"] in seeds)}
+    return {
+        "pistar": int(metrics.get("expert_queries", 0)),
+        "pairs": sum(int(r["da"]["expert_queries"]) for r in records if r["seed"] in seeds),
+    }
 
 
 def _heading(number: int, stage: str, progress: bool) -> None:
@@ -323,8 +448,16 @@ def _heading(number: int, stage: str, progress: bool) -> None:
         print(f"[{number}/{len(STAGES)}] {stage}", file=sys.stderr, flush=True)
 
 
-def reproduce(task: str, preset: str, run: str | Path, *, presets_file: str | Path | None = None,
-              overrides: Sequence[str] = (), diagnose: bool = False, options: StageOptions = StageOptions()) -> Path:
+def reproduce(
+    task: str,
+    preset: str,
+    run: str | Path,
+    *,
+    presets_file: str | Path | None = None,
+    overrides: Sequence[str] = (),
+    diagnose: bool = False,
+    options: StageOptions = StageOptions(),
+) -> Path:
     """Every stage in order, each resuming where a previous run stopped and rebuilding what a
     changed input made stale (``options.rebuild`` is always on); returns the report path.
     ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one;
@@ -344,12 +477,18 @@ def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions, *, d
         ("pairs (w_BC, w_DA)", lambda: stage_pairs(layout, config, options)),
         (f"mappers: {', '.join(config.mapper_kinds)}", lambda: stage_mappers(layout, config, options=options)),
         ("evaluate: MDM and one-shot", lambda: stage_evaluate(layout, config, options=options)),
-        ("mdi: DAgger-MDI vs DAgger-BC vs DAgger" if config.mdi else "mdi: not in this preset",
-         lambda: stage_mdi(layout, config, options=options)),
-        ("benchmark: success against expert queries" if config.benchmark else "benchmark: not in this preset",
-         lambda: stage_benchmark(layout, config, options=options)),
-        ("diagnose: does a mapper learn anything?" if diagnose else "diagnose: not asked for (--diagnose)",
-         lambda: stage_diagnose(layout, config, options=options) if diagnose else None),
+        (
+            "mdi: DAgger-MDI vs DAgger-BC vs DAgger" if config.mdi else "mdi: not in this preset",
+            lambda: stage_mdi(layout, config, options=options),
+        ),
+        (
+            "benchmark: success against expert queries" if config.benchmark else "benchmark: not in this preset",
+            lambda: stage_benchmark(layout, config, options=options),
+        ),
+        (
+            "diagnose: does a mapper learn anything?" if diagnose else "diagnose: not asked for (--diagnose)",
+            lambda: stage_diagnose(layout, config, options=options) if diagnose else None,
+        ),
     ]
     for number, (heading, stage) in enumerate(stages, 1):
         _heading(number, heading, options.progress)
@@ -363,5 +502,19 @@ def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions, *, d
     return build_report(layout)
 
 
-__all__ = ["STAGES", "init_run", "load_run", "reproduce", "run_task", "stage_benchmark", "stage_diagnose", "stage_evaluate", "stage_groundtruth",
-           "stage_mappers", "stage_mdi", "stage_pairs", "stage_tune", "StageOptions"]
+__all__ = [
+    "STAGES",
+    "init_run",
+    "load_run",
+    "reproduce",
+    "run_task",
+    "stage_benchmark",
+    "stage_diagnose",
+    "stage_evaluate",
+    "stage_groundtruth",
+    "stage_mappers",
+    "stage_mdi",
+    "stage_pairs",
+    "stage_tune",
+    "StageOptions",
+]

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Protocol, Sequence
 
-
 from metadagger.errors import CheckpointError, UserError
 from metadagger.runfolder.stamps import describe_changes
 from metadagger.utils.executors import make_executor
@@ -58,8 +57,10 @@ class RowLog:
         for record in read_lines(self.path, what="row record"):
             entries = record.get("entries")
             if not isinstance(entries, dict):
-                raise CheckpointError(f"{self.path} has a row record without its entries: {str(record)[:80]}; "
-                                      "delete that line and re-run the stage")
+                raise CheckpointError(
+                    f"{self.path} has a row record without its entries: {str(record)[:80]}; "
+                    "delete that line and re-run the stage"
+                )
             for method, entry in entries.items():
                 latest.setdefault(int(record["seed"]), {})[method] = entry
         return latest
@@ -124,8 +125,9 @@ class SeedPlan:
     methods: tuple[str, ...]
 
 
-def plan(seeds: Sequence[int], stamps: Mapping[str, Stamp], log: SeedLog, *, rebuild: bool, what: str,
-         fix: str) -> list[SeedPlan]:
+def plan(
+    seeds: Sequence[int], stamps: Mapping[str, Stamp], log: SeedLog, *, rebuild: bool, what: str, fix: str
+) -> list[SeedPlan]:
     """The missing work: for each seed, the methods of ``stamps`` not logged with these stamps.
 
     Args:
@@ -159,21 +161,29 @@ def plan(seeds: Sequence[int], stamps: Mapping[str, Stamp], log: SeedLog, *, reb
         changes = "; ".join(describe_changes(old, stamps[method])) or "stamp format"
         of_method = f" of {method!r}" if len(stamps) > 1 else ""  # a stage of one kind of work needs no name for it
         raise UserError(
-            f"{what}{of_method} on {len(which)} seed(s) (e.g. {which[0]}) was made from other inputs ({changes}); "
-            f"{fix}"
+            f"{what}{of_method} on {len(which)} seed(s) (e.g. {which[0]}) was made from other inputs ({changes}); {fix}"
         )
     return todo
 
 
-def drive(work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], *, log: SeedLog, stamps: Mapping[str, Stamp],
-          save: Callable[[dict[str, Any]], None] | None = None, options: StageOptions = StageOptions(),
-          desc: str = "seeds") -> None:
+def drive(
+    work: Callable[[Any], dict[str, Any]],
+    jobs: Sequence[Any],
+    *,
+    log: SeedLog,
+    stamps: Mapping[str, Stamp],
+    save: Callable[[dict[str, Any]], None] | None = None,
+    options: StageOptions = StageOptions(),
+    desc: str = "seeds",
+) -> None:
     """Run ``work`` on every job, in parallel; as each result arrives, ``save`` its artifacts and
     then append it to ``log`` with its methods' stamps."""
     if not jobs:
         return
     with make_executor(options.executor, workers=options.workers, address=options.address) as pool:
-        for result in progress_bar(pool.imap_unordered(work, jobs), total=len(jobs), desc=desc, enabled=options.progress):
+        for result in progress_bar(
+            pool.imap_unordered(work, jobs), total=len(jobs), desc=desc, enabled=options.progress
+        ):
             if save is not None:
                 save(result)
             log.append(result, stamps)

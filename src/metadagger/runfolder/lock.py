@@ -71,20 +71,32 @@ def _acquire(root: Path, command: str):
     try:
         handle = open(path, "a+", encoding="utf-8")
     except OSError as exc:
-        raise UserError(f"cannot write the run folder {root} ({exc.strerror}): {path} cannot be created; "
-                        "choose a folder you can write to (--out) or fix its permissions") from None
+        raise UserError(
+            f"cannot write the run folder {root} ({exc.strerror}): {path} cannot be created; "
+            "choose a folder you can write to (--out) or fix its permissions"
+        ) from None
     try:
         fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         handle.seek(0)
         holder = _describe(handle.read())
         handle.close()
-        raise UserError(f"run folder {root} is in use by {holder}; wait for it to finish (or stop it), "
-                        "or write to another folder with --out") from None
+        raise UserError(
+            f"run folder {root} is in use by {holder}; wait for it to finish (or stop it), "
+            "or write to another folder with --out"
+        ) from None
     handle.seek(0)
     handle.truncate()
-    handle.write(json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "command": command,
-                             "since": time.strftime("%Y-%m-%d %H:%M:%S")}))
+    handle.write(
+        json.dumps(
+            {
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                "command": command,
+                "since": time.strftime("%Y-%m-%d %H:%M:%S"),
+            }
+        )
+    )
     handle.flush()
     return handle
 

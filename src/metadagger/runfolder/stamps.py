@@ -66,7 +66,9 @@ def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: 
         if isinstance(a, Mapping) and isinstance(b, Mapping):
             changes += describe_changes(a, b, prefix=f"{name}.")
         elif key.endswith("_fingerprint"):
-            changes.append(f"{name.removesuffix('_fingerprint')}: {'changed' if a and b else 'missing' if not b else 'new'}")
+            changes.append(
+                f"{name.removesuffix('_fingerprint')}: {'changed' if a and b else 'missing' if not b else 'new'}"
+            )
         else:
             changes.append(f"{name}: {_short(old, key)} -> {_short(new, key)}")
     return changes

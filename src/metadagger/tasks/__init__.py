@@ -50,7 +50,9 @@ def available_tasks() -> list[str]:
 def check_task(name: str) -> None:
     """Raise a :class:`UserError` naming the known tasks unless ``name`` is one of them."""
     if name not in _factories():
-        raise UserError(f"unknown task {name!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these")
+        raise UserError(
+            f"unknown task {name!r}: expected one of {', '.join(available_tasks())}; pass --task with one of these"
+        )
 
 
 def make_task(name: str, **kwargs) -> Task:
@@ -89,7 +91,10 @@ def _load_factory(name: str, target: str) -> Callable[..., Task]:
         raise UserError(f"task {name!r} needs a missing module ({exc.name}); {fix}") from None
     for part in attr.split(".") if attr else [""]:
         if not hasattr(factory, part):
-            raise UserError(f"task {name!r}: module {module} has no {attr!r}; fix {entry_point} to name the task's class as module:name")
+            raise UserError(
+                f"task {name!r}: module {module} has no {attr!r}; fix {entry_point} to name the task's class as "
+                "module:name"
+            )
         factory = getattr(factory, part)
     return factory
 

@@ -34,8 +34,10 @@ def _call(task: Task, method: str, fn: Callable[..., Any], *args: Any, **kwargs:
     except UserError:
         raise
     except Exception as exc:  # the task's own code: any mistake in it is the user's to fix
-        raise UserError(f"{_where(task, method)} raised {type(exc).__name__}: {exc}; fix the task's code "
-                        f"(`metadagger check-task --task {task.name}` checks it)") from None
+        raise UserError(
+            f"{_where(task, method)} raised {type(exc).__name__}: {exc}; fix the task's code "
+            f"(`metadagger check-task --task {task.name}` checks it)"
+        ) from None
 
 
 def _where(task: Task, method: str) -> str:
@@ -46,27 +48,41 @@ def check_observation_space(task: Task, space: gym.Space) -> None:
     """The observation space is a uint8 ``Box`` of shape (height, width, channels), channels 1-4."""
     where = _where(task, "make_base_env")
     if not isinstance(space, gym.spaces.Box):
-        raise UserError(f"{where}: the env's observation_space is {space}; expected a Box of uint8 images (H, W, C); "
-                        "wrap the env so that it returns rendered frames (see docs/custom_task.md)")
+        raise UserError(
+            f"{where}: the env's observation_space is {space}; expected a Box of uint8 images (H, W, C); "
+            "wrap the env so that it returns rendered frames (see docs/custom_task.md)"
+        )
     shape = tuple(space.shape)
     if len(shape) != 3:
-        raise UserError(f"{where}: the env's observations have shape {shape}; expected images (H, W, C), e.g. (64, 64, 3); "
-                        "metadagger learns from pixels: render frames in an ObservationWrapper")
+        raise UserError(
+            f"{where}: the env's observations have shape {shape}; expected images (H, W, C), e.g. (64, 64, 3); "
+            "metadagger learns from pixels: render frames in an ObservationWrapper"
+        )
     if space.dtype != np.uint8:
-        raise UserError(f"{where}: the env's observations are {space.dtype}; expected uint8 pixels 0-255; "
-                        "scale float images in [0, 1] with (obs * 255).round().astype(np.uint8) in an ObservationWrapper")
+        raise UserError(
+            f"{where}: the env's observations are {space.dtype}; expected uint8 pixels 0-255; "
+            "scale float images in [0, 1] with (obs * 255).round().astype(np.uint8) in an ObservationWrapper"
+        )
     if not 1 <= shape[2] <= MAX_CHANNELS:
-        first = " (it looks channels-first: move the channel axis last with np.moveaxis(obs, 0, -1))" if shape[0] <= MAX_CHANNELS else ""
-        raise UserError(f"{where}: the env's observations have shape {shape}; expected (H, W, C) with 1-{MAX_CHANNELS} "
-                        f"channels last{first}")
+        first = (
+            " (it looks channels-first: move the channel axis last with np.moveaxis(obs, 0, -1))"
+            if shape[0] <= MAX_CHANNELS
+            else ""
+        )
+        raise UserError(
+            f"{where}: the env's observations have shape {shape}; expected (H, W, C) with 1-{MAX_CHANNELS} "
+            f"channels last{first}"
+        )
 
 
 def check_observation(task: Task, space: gym.spaces.Box, obs: Any, method: str) -> None:
     """An observation ``method`` returned matches the declared observation space."""
     array = np.asarray(obs)
     if array.dtype != space.dtype or array.shape != space.shape:
-        raise UserError(f"{_where(task, method)}: returned an observation of {array.dtype} {array.shape}; the env's "
-                        f"observation_space declares {space.dtype} {tuple(space.shape)}; make them agree")
+        raise UserError(
+            f"{_where(task, method)}: returned an observation of {array.dtype} {array.shape}; the env's "
+            f"observation_space declares {space.dtype} {tuple(space.shape)}; make them agree"
+        )
 
 
 def check_action_space(task: Task) -> gym.Space:
@@ -74,13 +90,17 @@ def check_action_space(task: Task) -> gym.Space:
     space = _call(task, "learner_action_space", lambda: task.learner_action_space)
     if isinstance(space, gym.spaces.Discrete):
         if space.n < 2 or space.start != 0:
-            raise UserError(f"{_where(task, 'learner_action_space')} is {space}; expected Discrete(n) with n >= 2 classes "
-                            "numbered from 0")
+            raise UserError(
+                f"{_where(task, 'learner_action_space')} is {space}; expected Discrete(n) with n >= 2 classes "
+                "numbered from 0"
+            )
         return space
     if isinstance(space, gym.spaces.Box) and np.issubdtype(space.dtype, np.floating) and len(space.shape) == 1:
         return space
-    raise UserError(f"{_where(task, 'learner_action_space')} is {space}; expected Discrete(n) (a classification head) or "
-                    "a float Box of shape (k,) (a regression head)")
+    raise UserError(
+        f"{_where(task, 'learner_action_space')} is {space}; expected Discrete(n) (a classification head) or "
+        "a float Box of shape (k,) (a regression head)"
+    )
 
 
 def check_label(task: Task, space: gym.Space, label: Any, method: str = "to_label") -> None:
@@ -89,16 +109,24 @@ def check_label(task: Task, space: gym.Space, label: Any, method: str = "to_labe
     where = _where(task, method)
     if isinstance(space, gym.spaces.Discrete):
         if isinstance(label, (bool, np.bool_)) or not isinstance(label, (int, np.integer)):
-            shown = f"{np.asarray(label).dtype} of shape {np.asarray(label).shape}" if hasattr(label, "shape") else type(label).__name__
-            raise UserError(f"{where} returned {label!r} ({shown}); expected a class index, an int in 0..{space.n - 1} "
-                            "(for a one-hot or float action, return int(np.argmax(...)) or int(...))")
+            shown = (
+                f"{np.asarray(label).dtype} of shape {np.asarray(label).shape}"
+                if hasattr(label, "shape")
+                else type(label).__name__
+            )
+            raise UserError(
+                f"{where} returned {label!r} ({shown}); expected a class index, an int in 0..{space.n - 1} "
+                "(for a one-hot or float action, return int(np.argmax(...)) or int(...))"
+            )
         if not 0 <= int(label) < space.n:
             raise UserError(f"{where} returned {int(label)}; expected a class index in 0..{space.n - 1}")
         return
     array = np.asarray(label)
     if array.dtype.kind not in "fiu" or array.shape != space.shape:
-        raise UserError(f"{where} returned {array.dtype} of shape {array.shape}; expected a float vector of shape "
-                        f"{tuple(space.shape)} (the learner's action space)")
+        raise UserError(
+            f"{where} returned {array.dtype} of shape {array.shape}; expected a float vector of shape "
+            f"{tuple(space.shape)} (the learner's action space)"
+        )
     if not np.all(np.isfinite(array)):
         raise UserError(f"{where} returned a non-finite label {array.tolist()}; expected finite values")
 
@@ -117,7 +145,9 @@ def _labels_to_check(space: gym.Space, expert_label: Any) -> list[Any]:
     rng = np.random.default_rng(0)
     low, high = np.maximum(space.low, -1e3), np.minimum(space.high, 1e3)
     labels = [rng.uniform(low, high).astype(space.dtype) for _ in range(3)]
-    return ([np.asarray(expert_label, space.dtype)] if space.contains(np.asarray(expert_label, space.dtype)) else []) + labels
+    return (
+        [np.asarray(expert_label, space.dtype)] if space.contains(np.asarray(expert_label, space.dtype)) else []
+    ) + labels
 
 
 def check_round_trip(task: Task, space: gym.Space, action: np.ndarray) -> None:
@@ -127,14 +157,20 @@ def check_round_trip(task: Task, space: gym.Space, action: np.ndarray) -> None:
         back = _call(task, "to_label", task.to_label, np.asarray(full, np.float32))
         check_label(task, space, back)
         if not _same_label(space, back, label):
-            raise UserError(f"{_where(task, 'combine')} and to_label disagree: to_label(combine({_show(label)}, expert action)) "
-                            f"is {_show(back)}; expected {_show(label)} (combine must put the learner's label into the full "
-                            "action so that to_label reads it back)")
+            raise UserError(
+                f"{_where(task, 'combine')} and to_label disagree: to_label(combine({_show(label)}, expert action)) "
+                f"is {_show(back)}; expected {_show(label)} (combine must put the learner's label into the full "
+                "action so that to_label reads it back)"
+            )
 
 
 def _show(value: Any) -> str:
     array = np.asarray(value)
-    return str(int(array)) if array.shape == () and array.dtype.kind in "iu" else str(np.round(array.astype(float), 6).tolist())
+    return (
+        str(int(array))
+        if array.shape == () and array.dtype.kind in "iu"
+        else str(np.round(array.astype(float), 6).tolist())
+    )
 
 
 def _expert_step(task: Task, space: gym.Space, env: gym.Env) -> tuple[np.ndarray, Any]:
@@ -143,9 +179,13 @@ def _expert_step(task: Task, space: gym.Space, env: gym.Env) -> tuple[np.ndarray
     try:
         action = np.asarray(raw, dtype=np.float32)
     except (TypeError, ValueError):
-        raise UserError(f"{_where(task, 'expert')} returned {raw!r}; expected the full upstream action as numbers") from None
+        raise UserError(
+            f"{_where(task, 'expert')} returned {raw!r}; expected the full upstream action as numbers"
+        ) from None
     if not np.all(np.isfinite(action)):
-        raise UserError(f"{_where(task, 'expert')} returned a non-finite action {action.tolist()}; expected finite values")
+        raise UserError(
+            f"{_where(task, 'expert')} returned a non-finite action {action.tolist()}; expected finite values"
+        )
     label = _call(task, "to_label", task.to_label, action)
     check_label(task, space, label)
     return action, label
@@ -171,7 +211,9 @@ def _episode_start(task: Task, space: gym.Space, seed: int, steps: int) -> list[
         check_round_trip(task, space, _expert_step(task, space, env)[0])
         success = _call(task, "is_success", task.is_success, env)
         if not isinstance(success, (bool, np.bool_)):
-            raise UserError(f"{_where(task, 'is_success')} returned {success!r} ({type(success).__name__}); expected a bool")
+            raise UserError(
+                f"{_where(task, 'is_success')} returned {success!r} ({type(success).__name__}); expected a bool"
+            )
         return frames
     finally:
         env.close()
@@ -184,12 +226,16 @@ def _checked(task: Task) -> None:
     again = _episode_start(task, space, seed=0, steps=DETERMINISM_STEPS)
     for step, (a, b) in enumerate(zip(first, again)):
         if a.shape != b.shape or not np.array_equal(a, b):
-            raise UserError(f"{_where(task, 'make_base_env')}: two envs reset with seed 0 differ after {step} expert steps; "
-                            "expected the seed to draw the whole episode: draw all randomness from reset(seed=...)'s "
-                            "self.np_random, never from the global random or numpy generators")
+            raise UserError(
+                f"{_where(task, 'make_base_env')}: two envs reset with seed 0 differ after {step} expert steps; "
+                "expected the seed to draw the whole episode: draw all randomness from reset(seed=...)'s "
+                "self.np_random, never from the global random or numpy generators"
+            )
     if len(first) != len(again):
-        raise UserError(f"{_where(task, 'make_base_env')}: two envs reset with seed 0 end after {len(first) - 1} and "
-                        f"{len(again) - 1} expert steps; expected the seed to draw the whole episode")
+        raise UserError(
+            f"{_where(task, 'make_base_env')}: two envs reset with seed 0 end after {len(first) - 1} and "
+            f"{len(again) - 1} expert steps; expected the seed to draw the whole episode"
+        )
 
 
 def check_task_code(task: Task) -> None:

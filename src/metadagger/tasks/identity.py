@@ -22,7 +22,11 @@ from metadagger.tasks.base import Task
 
 def task_stamp(task: Task) -> dict[str, Any]:
     """The task's part of a stage's stamp: ``task``, ``max_episode_steps``, ``task_code_fingerprint``."""
-    return {"task": task.name, "max_episode_steps": task.max_episode_steps, "task_code_fingerprint": code_fingerprint(type(task))}
+    return {
+        "task": task.name,
+        "max_episode_steps": task.max_episode_steps,
+        "task_code_fingerprint": code_fingerprint(type(task)),
+    }
 
 
 @functools.lru_cache(maxsize=32)

@@ -28,8 +28,16 @@ from metadagger.errors import UserError
 from metadagger.utils.kernels import pin_cpu_kernels, pinned_environment
 from metadagger.utils.ray_cluster import ADDRESS_HINT, bounded_gcs_wait, check_reachable, import_ray, token_hint
 
-__all__ = ["Executor", "LocalExecutor", "RayExecutor", "WorkerError", "check_executor_options", "default_workers", "in_order",
-           "make_executor"]
+__all__ = [
+    "Executor",
+    "LocalExecutor",
+    "RayExecutor",
+    "WorkerError",
+    "check_executor_options",
+    "default_workers",
+    "in_order",
+    "make_executor",
+]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -217,7 +225,9 @@ class LocalExecutor(Executor[futures.Future]):
         # The workers (and the forkserver they fork from) start with this environment and load
         # numpy before any code of theirs runs: the pins must be in it now.
         pin_cpu_kernels()
-        self._pool = futures.ProcessPoolExecutor(max_workers=workers, mp_context=_mp_context(), initializer=_init_pool_worker)
+        self._pool = futures.ProcessPoolExecutor(
+            max_workers=workers, mp_context=_mp_context(), initializer=_init_pool_worker
+        )
 
     def _submit(self, fn: Callable[[T], R], item: T) -> futures.Future:
         return self._pool.submit(fn, item)

@@ -37,10 +37,13 @@ def make_folder(folder: Path) -> None:
     except (FileExistsError, NotADirectoryError):
         blocker = next((p for p in (folder, *folder.parents) if p.exists() and not p.is_dir()), folder)
         raise UserError(
-            f"cannot create folder {folder}: {blocker} is a file, not a folder; choose another output path or move that file"
+            f"cannot create folder {folder}: {blocker} is a file, not a folder; choose another output path or move "
+            "that file"
         ) from None
     except OSError as exc:
-        raise UserError(f"cannot create folder {folder} ({exc.strerror}); choose an output path you can write to") from None
+        raise UserError(
+            f"cannot create folder {folder} ({exc.strerror}); choose an output path you can write to"
+        ) from None
 
 
 def check_writable(folder: str | Path) -> None:
@@ -52,7 +55,9 @@ def check_writable(folder: str | Path) -> None:
     try:
         fd, probe = tempfile.mkstemp(prefix=".probe.", suffix=".tmp", dir=folder)
     except OSError as exc:
-        raise machine_fault(folder, exc) or UserError(f"cannot write in {folder} ({exc.strerror}); choose a folder you can write to") from None
+        raise machine_fault(folder, exc) or UserError(
+            f"cannot write in {folder} ({exc.strerror}); choose a folder you can write to"
+        ) from None
     os.close(fd)
     os.unlink(probe)
 
@@ -65,19 +70,27 @@ def check_output_file(path: str | Path, option: str) -> None:
         raise UserError(f"{option} {path} is a folder; give a file path such as {path / 'result.json'}")
     nearest = next(p for p in (path.parent.absolute(), *path.parent.absolute().parents) if p.exists())
     if not nearest.is_dir():
-        raise UserError(f"{option} {path}: {nearest} is a file, not a folder; choose another output path or move that file")
+        raise UserError(
+            f"{option} {path}: {nearest} is a file, not a folder; choose another output path or move that file"
+        )
     try:
         fd, trial = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=nearest)
     except OSError as exc:
-        raise UserError(f"{option} {path}: cannot write in {nearest} ({exc.strerror}); choose an output path you can write to") from None
+        raise UserError(
+            f"{option} {path}: cannot write in {nearest} ({exc.strerror}); choose an output path you can write to"
+        ) from None
     os.close(fd)
     os.unlink(trial)
 
 
 #: The errors of the machine rather than of the code: a full disk, a read-only or forbidden folder.
-_MACHINE_FAULTS = {errno.ENOSPC: "the disk is full", errno.EDQUOT: "the disk quota is used up",
-                   errno.EROFS: "the file system is read-only", errno.EACCES: "permission denied",
-                   errno.EPERM: "operation not permitted"}
+_MACHINE_FAULTS = {
+    errno.ENOSPC: "the disk is full",
+    errno.EDQUOT: "the disk quota is used up",
+    errno.EROFS: "the file system is read-only",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+}
 
 
 def machine_fault(path: str | Path, exc: BaseException) -> UserError | None:
@@ -87,8 +100,11 @@ def machine_fault(path: str | Path, exc: BaseException) -> UserError | None:
     if code not in _MACHINE_FAULTS and "No space left on device" not in str(exc):
         return None
     reason = _MACHINE_FAULTS.get(code, "the disk is full")
-    fix = ("free some space, then run the same command again: finished work is kept"
-           if reason.startswith("the disk") else "make the folder writable or choose another --out, then run the command again")
+    fix = (
+        "free some space, then run the same command again: finished work is kept"
+        if reason.startswith("the disk")
+        else "make the folder writable or choose another --out, then run the command again"
+    )
     return UserError(f"cannot write {path}: {reason}; {fix}")
 
 
@@ -162,7 +178,9 @@ def read_json(path: str | Path, what: str) -> Any:
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
-        raise UserError(f"{what} not found: {path}; re-run the stage that writes it (`metadagger reproduce` resumes a run)") from None
+        raise UserError(
+            f"{what} not found: {path}; re-run the stage that writes it (`metadagger reproduce` resumes a run)"
+        ) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise corrupt_artifact(what, path, exc.strerror if isinstance(exc, OSError) else str(exc)) from None
 
@@ -200,8 +218,13 @@ def _non_finite(name: str, tensor: torch.Tensor, masks: Collection[str]) -> bool
     return not bool(torch.isfinite(tensor).all())
 
 
-def save_tensors(path: str | Path, tensors: dict[str, torch.Tensor], metadata: dict[str, str] | None = None, *,
-                 masks: Collection[str] = ()) -> Path:
+def save_tensors(
+    path: str | Path,
+    tensors: dict[str, torch.Tensor],
+    metadata: dict[str, str] | None = None,
+    *,
+    masks: Collection[str] = (),
+) -> Path:
     """Save tensors as safetensors atomically (contiguous CPU copies); same inputs, same bytes.
 
     ``masks`` names the tensors where -inf marks an unused entry.
@@ -213,8 +236,10 @@ def save_tensors(path: str | Path, tensors: dict[str, torch.Tensor], metadata: d
     clean = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
     for name, tensor in clean.items():
         if _non_finite(name, tensor, masks):
-            raise DivergedError(f"refusing to write {path}: its tensor {name!r} holds NaN or infinite values, so the "
-                                "computation that made it diverged; nothing was written")
+            raise DivergedError(
+                f"refusing to write {path}: its tensor {name!r} holds NaN or infinite values, so the "
+                "computation that made it diverged; nothing was written"
+            )
     header = {_METADATA_KEY: json.dumps(metadata or {}, sort_keys=True)}
     return atomic_write(path, lambda p: save_file(clean, str(p), metadata=header))
 
@@ -226,15 +251,20 @@ def load_tensors(path: str | Path, what: str = "checkpoint", *, masks: Collectio
         tensors = load_file(str(path))
     except Exception as exc:  # safetensors raises several types for corrupt headers
         raise CheckpointError(
-            f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes it"
+            f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes "
+            "it"
         ) from None
     for name, tensor in tensors.items():
         if tensor.is_floating_point() and tensor.dtype != torch.float32:
-            raise CheckpointError(f"{what} {path} holds tensor {name!r} as {str(tensor.dtype).removeprefix('torch.')}, expected "
-                                  "float32; it was not written by metadagger: re-run the stage that writes it")
+            raise CheckpointError(
+                f"{what} {path} holds tensor {name!r} as {str(tensor.dtype).removeprefix('torch.')}, expected "
+                "float32; it was not written by metadagger: re-run the stage that writes it"
+            )
         if _non_finite(name, tensor, masks):
-            raise CheckpointError(f"{what} {path} holds NaN or infinite values in tensor {name!r}; it is damaged: delete it "
-                                  "and re-run the stage that writes it")
+            raise CheckpointError(
+                f"{what} {path} holds NaN or infinite values in tensor {name!r}; it is damaged: delete it "
+                "and re-run the stage that writes it"
+            )
     return tensors
 
 
@@ -249,10 +279,15 @@ def _tensor_file(path: str | Path | None, what: str) -> Path:
         hint = f" (it holds {', '.join(found)})" if found else ""
         raise CheckpointError(f"{what}: {path} is a folder{hint}; pass the .safetensors file itself")
     if not path.is_file():
-        raise CheckpointError(f"{what} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes it)")
+        raise CheckpointError(
+            f"{what} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes "
+            "it)"
+        )
     if path.suffix != ".safetensors":
-        raise CheckpointError(f"{what}: {path} is not a .safetensors file; pass a file that metadagger wrote "
-                              "(a policy: RUN/groundtruth/policy.safetensors; a mapper: RUN/mappers/KIND/mapper.safetensors)")
+        raise CheckpointError(
+            f"{what}: {path} is not a .safetensors file; pass a file that metadagger wrote "
+            "(a policy: RUN/groundtruth/policy.safetensors; a mapper: RUN/mappers/KIND/mapper.safetensors)"
+        )
     return path
 
 
@@ -267,5 +302,6 @@ def read_metadata(path: str | Path, what: str = "checkpoint") -> dict[str, str]:
         return json.loads(header[_METADATA_KEY]) if _METADATA_KEY in header else header
     except Exception as exc:
         raise CheckpointError(
-            f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes it"
+            f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes "
+            "it"
         ) from None

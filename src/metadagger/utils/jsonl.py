@@ -45,7 +45,9 @@ def read_lines(path: str | Path, *, what: str) -> list[dict[str, Any]]:
         except ValueError:
             record = None
         if not isinstance(record, dict):
-            raise CheckpointError(f"{path} line {number} is not a {what}: {raw[:80]!r}; delete that line and re-run the stage")
+            raise CheckpointError(
+                f"{path} line {number} is not a {what}: {raw[:80]!r}; delete that line and re-run the stage"
+            )
         records.append(record)
     return records
 

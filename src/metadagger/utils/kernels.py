@@ -112,7 +112,18 @@ def pinned_environment() -> dict[str, str]:
 
 
 #: The instruction sets that decide which kernels a library may pick, as /proc/cpuinfo names them.
-_ISA_FLAGS = ("sse4_2", "avx", "avx2", "fma", "avx512f", "avx512bw", "avx512vl", "avx512_vnni", "avx512_bf16", "amx_tile")
+_ISA_FLAGS = (
+    "sse4_2",
+    "avx",
+    "avx2",
+    "fma",
+    "avx512f",
+    "avx512bw",
+    "avx512vl",
+    "avx512_vnni",
+    "avx512_bf16",
+    "amx_tile",
+)
 
 
 @functools.lru_cache(maxsize=1)
@@ -137,5 +148,11 @@ def machine_description() -> dict[str, Any]:
     """The CPU a result was made on: model, instruction sets (those that decide kernels), cores,
     and the kernel settings in effect (:func:`kernel_stamp`)."""
     model, instruction_sets = _cpu()
-    return {"cpu": model, "instruction_sets": list(instruction_sets), "cores": os.cpu_count(),
-            "machine": platform.machine(), "python": platform.python_version(), **kernel_stamp()}
+    return {
+        "cpu": model,
+        "instruction_sets": list(instruction_sets),
+        "cores": os.cpu_count(),
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+        **kernel_stamp(),
+    }

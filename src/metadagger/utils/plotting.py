@@ -36,7 +36,9 @@ def interval_errors(centres: Sequence[float], lows: Sequence[float], highs: Sequ
         ValueError: the lengths differ, or an interval excludes its centre by more than rounding.
     """
     if not len(centres) == len(lows) == len(highs):
-        raise ValueError(f"interval_errors needs as many lows and highs as centres, got {len(centres)}, {len(lows)}, {len(highs)}")
+        raise ValueError(
+            f"interval_errors needs as many lows and highs as centres, got {len(centres)}, {len(lows)}, {len(highs)}"
+        )
     below, above = [], []
     for centre, low, high in zip(centres, lows, highs):
         if low - centre > ROUNDING or centre - high > ROUNDING:

@@ -75,8 +75,15 @@ def _clock(seconds: float) -> str:
     return f"{minutes}m{secs:02d}s" if minutes else f"{secs}s"
 
 
-def progress_bar(iterable: Iterable[Any], *, desc: str, total: int | None = None, enabled: bool = True,
-             leave: bool = True, stream: IO[str] | None = None) -> Iterable[Any]:
+def progress_bar(
+    iterable: Iterable[Any],
+    *,
+    desc: str,
+    total: int | None = None,
+    enabled: bool = True,
+    leave: bool = True,
+    stream: IO[str] | None = None,
+) -> Iterable[Any]:
     """``iterable`` with its progress shown on ``stream`` (standard error by default).
 
     Args:

@@ -36,8 +36,10 @@ def token_hint() -> str:
     token = Path.home() / ".ray" / "auth_token"
     if not token.is_file() or os.environ.get("RAY_AUTH_MODE") == "token":
         return ""
-    return (f"; or, if the cluster uses token authentication (this machine has {token}), "
-            "set RAY_AUTH_MODE=token so that the driver sends the token")
+    return (
+        f"; or, if the cluster uses token authentication (this machine has {token}), "
+        "set RAY_AUTH_MODE=token so that the driver sends the token"
+    )
 
 
 def import_ray() -> Any:
@@ -84,7 +86,8 @@ def check_reachable(address: str | None) -> None:
         ) from None
     if not _answers_grpc(f"{host}:{port}"):
         raise UserError(
-            f"{target!r}{found} accepts connections but does not answer as a Ray cluster within {_CONNECT_TIMEOUT_S:.0f} s; "
+            f"{target!r}{found} accepts connections but does not answer as a Ray cluster within "
+            f"{_CONNECT_TIMEOUT_S:.0f} s; "
             f"check the host and port (a head's GCS port, or its Ray Client port for ray://): {ADDRESS_HINT}"
         )
 

@@ -48,22 +48,30 @@ def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
     if not isinstance(text, str):
         text = list(text)
         if len(text) > MAX_SEEDS:
-            raise UserError(f"bad seed list: {len(text)} seeds, more than the {MAX_SEEDS:,} one list may hold; give fewer seeds")
+            raise UserError(
+                f"bad seed list: {len(text)} seeds, more than the {MAX_SEEDS:,} one list may hold; give fewer seeds"
+            )
         return check_seeds(tuple(int(s) for s in text), f"bad seed list {text!r}"[:120])
     parts = []
     for part in text.replace(" ", "").split(","):
         m = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
         if not m or (m.group(2) is not None and int(m.group(2)) < int(m.group(1))):
-            raise UserError(f"bad seed list {text!r}: expected ranges like '0-99' or lists like '1,5,9' (non-negative, A <= B)")
+            raise UserError(
+                f"bad seed list {text!r}: expected ranges like '0-99' or lists like '1,5,9' (non-negative, A <= B)"
+            )
         lo = int(m.group(1))
         hi = int(m.group(2)) if m.group(2) is not None else lo
         if hi > MAX_SEED:
-            raise UserError(f"bad seed list {text!r}: seed {hi} is above the largest seed, {MAX_SEED}; use smaller seeds")
+            raise UserError(
+                f"bad seed list {text!r}: seed {hi} is above the largest seed, {MAX_SEED}; use smaller seeds"
+            )
         parts.append((lo, hi))
     count = sum(hi - lo + 1 for lo, hi in parts)
     if count > MAX_SEEDS:
-        raise UserError(f"bad seed list {text!r}: {count:,} seeds, more than the {MAX_SEEDS:,} one list may hold; "
-                        "give a shorter range")
+        raise UserError(
+            f"bad seed list {text!r}: {count:,} seeds, more than the {MAX_SEEDS:,} one list may hold; "
+            "give a shorter range"
+        )
     return check_seeds([seed for lo, hi in parts for seed in range(lo, hi + 1)], f"bad seed list {text!r}")
 
 
@@ -128,7 +136,10 @@ def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise UserError(f"{where}: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(fields)}")
-    kwargs = {name: _coerce(hints[name], _over_default(fields[name], value), f"{where}.{name}", name) for name, value in data.items()}
+    kwargs = {
+        name: _coerce(hints[name], _over_default(fields[name], value), f"{where}.{name}", name)
+        for name, value in data.items()
+    }
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
@@ -139,7 +150,9 @@ def _over_default(field: dataclasses.Field, value: Any) -> Any:
     """``value``, a mapping of fields, laid over ``field``'s default dataclass; any other value as it is."""
     if not isinstance(value, typing.Mapping):
         return value
-    return _laid_over(field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default, value)
+    return _laid_over(
+        field.default_factory() if field.default_factory is not dataclasses.MISSING else field.default, value
+    )
 
 
 def _laid_over(default: Any, value: Any) -> Any:
@@ -180,9 +193,16 @@ def _coerce(hint: Any, value: Any, where: str, field: str = "") -> Any:
         if not math.isfinite(value):
             raise UserError(f"{where}: expected a finite number, got {value!r}")
         return float(value)
-    if hint is int and isinstance(value, int) and not isinstance(value, bool) and not SEED_FIELD.fullmatch(field) \
-            and abs(value) > MAX_COUNT:
-        raise UserError(f"{where}: {value} is beyond the largest count metadagger accepts, {MAX_COUNT:,}; give a smaller value")
+    if (
+        hint is int
+        and isinstance(value, int)
+        and not isinstance(value, bool)
+        and not SEED_FIELD.fullmatch(field)
+        and abs(value) > MAX_COUNT
+    ):
+        raise UserError(
+            f"{where}: {value} is beyond the largest count metadagger accepts, {MAX_COUNT:,}; give a smaller value"
+        )
     if hint in (int, float, str, bool) and not isinstance(value, hint) or (hint is int and isinstance(value, bool)):
         raise UserError(f"{where}: expected {hint.__name__}, got {value!r}")
     return check_seeds((value,), where)[0] if hint is int and SEED_FIELD.fullmatch(field) else value
@@ -197,8 +217,11 @@ def to_dict(obj: Any, *, stamp: bool = False) -> Any:
     """A dataclass as plain YAML-ready data (tuples become lists); with ``stamp``, without the
     :data:`LATER_OPTION` fields that hold their default."""
     if dataclasses.is_dataclass(obj):
-        return {f.name: to_dict(getattr(obj, f.name), stamp=stamp) for f in dataclasses.fields(obj)
-                if not (stamp and f.metadata.get("stamp") == "unless_default" and getattr(obj, f.name) == f.default)}
+        return {
+            f.name: to_dict(getattr(obj, f.name), stamp=stamp)
+            for f in dataclasses.fields(obj)
+            if not (stamp and f.metadata.get("stamp") == "unless_default" and getattr(obj, f.name) == f.default)
+        }
     if isinstance(obj, typing.Mapping):
         return {k: to_dict(v, stamp=stamp) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
@@ -216,4 +239,3 @@ def check_positive(owner: str, **values: float) -> None:
     for name, value in values.items():
         if not value > 0:
             raise UserError(f"{owner}.{name} must be > 0, got {value!r}")
-

@@ -65,7 +65,13 @@ def test_renderer_rejects_bad_supersample_and_render_before_reset():
 
 def test_renderer_reset_checks_shapes():
     with pytest.raises(ValueError, match="road_vertices"):
-        StateRenderer().reset(road_vertices=np.zeros((3, 3, 2)), road_colors=np.zeros((3, 3)), bg_color=np.zeros(3), grass_color=np.zeros(3), car=None)
+        StateRenderer().reset(
+            road_vertices=np.zeros((3, 3, 2)),
+            road_colors=np.zeros((3, 3)),
+            bg_color=np.zeros(3),
+            grass_color=np.zeros(3),
+            car=None,
+        )
     assert STATE_SIZE == 96
 
 

@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from metadagger.tasks.carracing.expert import TRACK_HALF_WIDTH, PIDExpert, PIDExpertConfig, track_geometry
 from metadagger.tasks.carracing.env import CarRacingFast
+from metadagger.tasks.carracing.expert import TRACK_HALF_WIDTH, PIDExpert, PIDExpertConfig, track_geometry
 
 
 @pytest.fixture

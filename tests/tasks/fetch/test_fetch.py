@@ -17,7 +17,6 @@ import gymnasium as gym  # noqa: E402
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import metadagger  # noqa: E402
-from metadagger.tasks.fetch.task import FetchTask, expert_success  # noqa: E402
 from metadagger.tasks.fetch.env import (  # noqa: E402
     UPSTREAM_ID,
     FetchPickAndPlacePixels,
@@ -25,6 +24,7 @@ from metadagger.tasks.fetch.env import (  # noqa: E402
     fetch_is_success,
     read_fetch_state,
 )
+from metadagger.tasks.fetch.task import FetchTask, expert_success  # noqa: E402
 
 PIXELS_ID = "metadagger/FetchPickAndPlacePixels-v0"
 XYZ_ID = "metadagger/FetchPickAndPlaceXYZ-v0"

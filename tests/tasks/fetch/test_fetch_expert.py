@@ -86,7 +86,9 @@ def test_regrasps_a_dropped_cube():
         for step in range(50):
             state = read_fetch_state(fetch)
             lifted = lifted or state.object_pos[2] > state.goal[2] + 0.01
-            dropped = dropped or (lifted and state.gripper_opening > 0.09 and state.object_pos[2] < state.goal[2] + 0.002)
+            dropped = dropped or (
+                lifted and state.gripper_opening > 0.09 and state.object_pos[2] < state.goal[2] + 0.002
+            )
             action = expert.act(state)
             if lifted and step < 24:
                 action[3] = OPEN  # drop the cube once it is in the air

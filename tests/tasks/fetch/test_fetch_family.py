@@ -65,9 +65,13 @@ def test_distribution_follows_the_parameters():
 def test_apply_rotates_scales_and_clips_xy_only():
     variation = DisplacementVariation()
     quarter = {"theta": math.pi / 2, "scale": 1.0}
-    np.testing.assert_allclose(variation.apply(quarter, np.array([0.5, 0.0, 0.3, 1.0])), [0.0, 0.5, 0.3, 1.0], atol=1e-6)
+    np.testing.assert_allclose(
+        variation.apply(quarter, np.array([0.5, 0.0, 0.3, 1.0])), [0.0, 0.5, 0.3, 1.0], atol=1e-6
+    )
     doubled = {"theta": 0.0, "scale": 1.5}
-    np.testing.assert_allclose(variation.apply(doubled, np.array([0.8, -0.2, -0.4, -1.0])), [1.0, -0.3, -0.4, -1.0], atol=1e-6)
+    np.testing.assert_allclose(
+        variation.apply(doubled, np.array([0.8, -0.2, -0.4, -1.0])), [1.0, -0.3, -0.4, -1.0], atol=1e-6
+    )
     assert variation.size(quarter) == pytest.approx(math.sqrt(2))
     assert variation.size({"theta": math.pi, "scale": 1.0}) == pytest.approx(2.0)
     assert variation.size(doubled) == pytest.approx(0.5)
@@ -82,8 +86,17 @@ def test_apply_undoes_compensate_for_reachable_actions(task, rng):
             command = variation.compensate(v, wanted)
             assert command.dtype == np.float32 and np.all(np.abs(command) <= 1.0)
             np.testing.assert_array_equal(command[2:], wanted[2:])
-            unclipped = np.abs(np.array([math.cos(-v["theta"]) * wanted[0] - math.sin(-v["theta"]) * wanted[1],
-                                         math.sin(-v["theta"]) * wanted[0] + math.cos(-v["theta"]) * wanted[1]])) / v["scale"]
+            unclipped = (
+                np.abs(
+                    np.array(
+                        [
+                            math.cos(-v["theta"]) * wanted[0] - math.sin(-v["theta"]) * wanted[1],
+                            math.sin(-v["theta"]) * wanted[0] + math.cos(-v["theta"]) * wanted[1],
+                        ]
+                    )
+                )
+                / v["scale"]
+            )
             if np.all(unclipped <= 1.0):  # reachable
                 np.testing.assert_allclose(variation.apply(v, command), wanted, atol=1e-5)
 
@@ -134,20 +147,23 @@ def test_expert_succeeds_on_a_rotated_seed(task):
     assert trajectory.success
 
 
-@pytest.mark.parametrize("kwargs", [
-    {"max_rotation": -0.1},
-    {"max_rotation": 4.0},
-    {"max_rotation": "half"},
-    {"max_rotation": float("nan")},
-    {"scale_range": (0.0, 1.0)},
-    {"scale_range": (1.5, 1.0)},
-    {"scale_range": (1.0,)},
-    {"scale_range": (1.0, float("inf"))},
-    {"scale_range": None},
-    {"scale_range": ("1", "2")},
-    {"scale_range": (1.0, 1.2, 1.5)},
-    {"max_episode_steps": 0},
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"max_rotation": -0.1},
+        {"max_rotation": 4.0},
+        {"max_rotation": "half"},
+        {"max_rotation": float("nan")},
+        {"scale_range": (0.0, 1.0)},
+        {"scale_range": (1.5, 1.0)},
+        {"scale_range": (1.0,)},
+        {"scale_range": (1.0, float("inf"))},
+        {"scale_range": None},
+        {"scale_range": ("1", "2")},
+        {"scale_range": (1.0, 1.2, 1.5)},
+        {"max_episode_steps": 0},
+    ],
+)
 def test_bad_parameters_raise_user_error(kwargs):
     with pytest.raises(UserError) as excinfo:
         make_task("fetch-family", **kwargs)

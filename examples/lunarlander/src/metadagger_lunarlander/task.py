@@ -73,7 +73,9 @@ class LanderPixels(gym.Wrapper):
     def _observation(self) -> np.ndarray:
         return np.stack([self._frames[2], self._frames[1], self._frames[0]], axis=-1)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         state, info = self.env.reset(seed=seed, options=options)
         self.lander_state = np.asarray(state, np.float32)
         self._frames.extend([self._grey()] * 3)
@@ -104,11 +106,20 @@ class LunarLanderTask(Task):
     #: A keypoint trunk (README.md, "Making pi* work"): three 3x3 convolutions keeping 32 x 48
     #: maps, a spatial softmax (the expected x, y of each of 16 maps), then 128 and 64 units; the
     #: head maps 64 features to the 2 action logits (130 weights).
-    policy_arch = {"conv_channels": (8, 16, 16), "kernel_sizes": (3, 3, 3), "strides": (2, 1, 1),
-                   "hidden": (128, 64), "spatial_softmax": True}
+    policy_arch = {
+        "conv_channels": (8, 16, 16),
+        "kernel_sizes": (3, 3, 3),
+        "strides": (2, 1, 1),
+        "hidden": (128, 64),
+        "spatial_softmax": True,
+    }
 
     def __init__(self, *, max_episode_steps: int = 200):
-        if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps < 1:
+        if (
+            isinstance(max_episode_steps, bool)
+            or not isinstance(max_episode_steps, (int, np.integer))
+            or max_episode_steps < 1
+        ):
             raise ValueError(f"max_episode_steps must be a positive integer, got {max_episode_steps!r}")
         self.max_episode_steps = int(max_episode_steps)
 
@@ -145,7 +156,11 @@ class LunarLanderTask(Task):
         """Landed: the lander is at rest (the env ended the episode with its +100 landing bonus),
         its body never touched the ground and it is within the screen."""
         lander = env.unwrapped
-        return bool(not lander.lander.awake and not lander.game_over and abs(float(env.get_wrapper_attr("lander_state")[0])) < 1.0)
+        return bool(
+            not lander.lander.awake
+            and not lander.game_over
+            and abs(float(env.get_wrapper_attr("lander_state")[0])) < 1.0
+        )
 
 
 class LunarLanderAllEnginesTask(LunarLanderTask):

@@ -67,7 +67,10 @@ class CarRacingFast(CarRacing):
         render: str = "fast",
     ):
         if render not in RENDERERS:
-            raise UserError(f"render={render!r} is not supported: expected one of {', '.join(map(repr, RENDERERS))}; pass render='fast' or render='reference'")
+            raise UserError(
+                f"render={render!r} is not supported: expected one of {', '.join(map(repr, RENDERERS))}; pass "
+                "render='fast' or render='reference'"
+            )
         super().__init__(
             render_mode=render_mode,
             verbose=verbose,

@@ -72,11 +72,23 @@ class CarRacingFamily(FamilyTask):
         mirror_probability, gain_range, max_offset: the variation's distribution.
     """
 
-    def __init__(self, *, max_episode_steps: int = 1000, mirror_probability: float = 0.5,
-                 gain_range: tuple[float, float] = (0.8, 2.0), max_offset: float = 0.1):
-        variation = SteeringVariation(mirror_probability=mirror_probability, gain_range=tuple(gain_range), max_offset=max_offset)
-        super().__init__(CarRacingTask(max_episode_steps=max_episode_steps), variation,
-                         name="carracing-family", learner_env_id="metadagger/CarRacingSteerFamily-v0")
+    def __init__(
+        self,
+        *,
+        max_episode_steps: int = 1000,
+        mirror_probability: float = 0.5,
+        gain_range: tuple[float, float] = (0.8, 2.0),
+        max_offset: float = 0.1,
+    ):
+        variation = SteeringVariation(
+            mirror_probability=mirror_probability, gain_range=tuple(gain_range), max_offset=max_offset
+        )
+        super().__init__(
+            CarRacingTask(max_episode_steps=max_episode_steps),
+            variation,
+            name="carracing-family",
+            learner_env_id="metadagger/CarRacingSteerFamily-v0",
+        )
 
 
 def make_family_env(*, max_episode_steps: int = 1000, **kwargs: Any) -> LearnerEnv:

@@ -98,7 +98,10 @@ def miters(polys: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarr
     det = prev_n[..., 0] * normal[..., 1] - prev_n[..., 1] * normal[..., 0]
     parallel = np.abs(det) < 1e-9
     det = np.where(parallel, 1.0, det)
-    m = np.stack([(prev_w * normal[..., 1] - w * prev_n[..., 1]) / det, (prev_n[..., 0] * w - normal[..., 0] * prev_w) / det], axis=-1)
+    m = np.stack(
+        [(prev_w * normal[..., 1] - w * prev_n[..., 1]) / det, (prev_n[..., 0] * w - normal[..., 0] * prev_w) / det],
+        axis=-1,
+    )
     m = np.where(parallel[..., None], normal * w[..., None], m)
     # edge i turns around once d * (m[i+1] - m[i]) . e_i reaches -|e_i|^2
     shrink = np.sum((np.roll(m, -1, axis=1) - m) * e, axis=-1)
@@ -203,7 +206,10 @@ class StateRenderer:
         self._canvas = np.zeros((self.size, self.size, 3), dtype=np.uint8)
         self._map: np.ndarray | None = None
         # the canvas point the car sits on: upstream's (W/2, H/4 from the bottom), in canvas pixels
-        self._view_centre = (cr.WINDOW_W / 2 * _SX * supersample - 0.5, (cr.WINDOW_H - cr.WINDOW_H / 4) * _SY * supersample - 0.5)
+        self._view_centre = (
+            cr.WINDOW_W / 2 * _SX * supersample - 0.5,
+            (cr.WINDOW_H - cr.WINDOW_H / 4) * _SY * supersample - 0.5,
+        )
         self._car: cd.Car | None = None
 
     def reset(
@@ -227,7 +233,10 @@ class StateRenderer:
             car: upstream's :class:`~gymnasium.envs.box2d.car_dynamics.Car` to draw.
         """
         if road_vertices.ndim != 3 or road_vertices.shape[1:] != (4, 2) or road_colors.shape != (len(road_vertices), 3):
-            raise ValueError(f"road_vertices must be (P, 4, 2) and road_colors (P, 3), got {road_vertices.shape} and {road_colors.shape}")
+            raise ValueError(
+                f"road_vertices must be (P, 4, 2) and road_colors (P, 3), got {road_vertices.shape} and "
+                f"{road_colors.shape}"
+            )
         # Ground then road, one (S, 4, 2) array, in draw order: they never move, so they are
         # drawn once per track into a world map (see _draw_map), sampled every frame.
         static = np.concatenate([_GROUND, np.asarray(road_vertices, dtype=np.float64)])
@@ -236,7 +245,9 @@ class StateRenderer:
         shrink = _CV2_GROWTH / _MAP_PX - _GFXDRAW_GROWTH / (cr.ZOOM * cr.SCALE)  # world units
         # a polygon thinner than twice the shrink is left out (upstream's is below a pixel too)
         self._map_drawn = static_limit > shrink
-        self._map_polys = np.rint(((static + shrink * static_miters + _MAP_HALF) * _MAP_PX - 0.5) * _ONE).astype(np.int32)
+        self._map_polys = np.rint(((static + shrink * static_miters + _MAP_HALF) * _MAP_PX - 0.5) * _ONE).astype(
+            np.int32
+        )
         # (S, 4): x0, y0, x1, y1 in map pixels, padded by one for the fills' growth
         lo, hi = (self._map_polys.min(axis=1) >> _SHIFT) - 1, (self._map_polys.max(axis=1) >> _SHIFT) + 2
         self._map_boxes = np.concatenate([lo, hi], axis=1)
@@ -267,8 +278,15 @@ class StateRenderer:
         if not np.array_equal(self._road_colors, self._map_colors):  # the car touched a tile
             self._repaint_map(self._n_ground + np.flatnonzero((self._road_colors != self._map_colors).any(axis=1)))
         # each canvas pixel takes the map's colour at its centre, as a fill would
-        cv2.warpAffine(self._map, _canvas_to_map(a, b), (self.size, self.size), dst=canvas,
-                       flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        cv2.warpAffine(
+            self._map,
+            _canvas_to_map(a, b),
+            (self.size, self.size),
+            dst=canvas,
+            flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
         car_polys, car_colors = self._car_polygons(a, b, zoom)
         for poly, col in zip(car_polys, car_colors):
             cv2.fillConvexPoly(canvas, poly, col, cv2.LINE_8, _SHIFT)
@@ -322,7 +340,13 @@ class StateRenderer:
         for j in changed[self._map_drawn[changed]]:  # a part too thin to draw stays undrawn
             x0, y0, x1, y1 = boxes[j]
             later = boxes[j + 1 :]
-            near = self._map_drawn[j + 1 :] & (later[:, 0] <= x1) & (later[:, 2] >= x0) & (later[:, 1] <= y1) & (later[:, 3] >= y0)
+            near = (
+                self._map_drawn[j + 1 :]
+                & (later[:, 0] <= x1)
+                & (later[:, 2] >= x0)
+                & (later[:, 1] <= y1)
+                & (later[:, 3] >= y0)
+            )
             indices = np.concatenate([[j], j + 1 + np.flatnonzero(near)])
             (rx0, ry0), (rx1, ry1) = np.maximum(boxes[indices, :2].min(axis=0), 0), boxes[indices, 2:].max(axis=0)
             region = self._map[ry0 : ry1 + 1, rx0 : rx1 + 1]
@@ -411,10 +435,12 @@ def _canvas_to_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     b0, b1 = b.tolist()
     k = _MAP_PX / (a00 * a11 - a01 * a10)  # map pixels per world unit over det(a)
     i00, i01, i10, i11 = a11 * k, -a01 * k, -a10 * k, a00 * k  # _MAP_PX * inverse(a)
-    return np.array([
-        [i00, i01, _MAP_HALF * _MAP_PX - 0.5 - i00 * b0 - i01 * b1],
-        [i10, i11, _MAP_HALF * _MAP_PX - 0.5 - i10 * b0 - i11 * b1],
-    ])
+    return np.array(
+        [
+            [i00, i01, _MAP_HALF * _MAP_PX - 0.5 - i00 * b0 - i01 * b1],
+            [i10, i11, _MAP_HALF * _MAP_PX - 0.5 - i10 * b0 - i11 * b1],
+        ]
+    )
 
 
 def _paint(strip: np.ndarray, patch: tuple[int, int, np.ndarray] | None) -> None:
@@ -432,7 +458,13 @@ _V_BOTTOM = cr.WINDOW_H - _SLOT_H
 _V_BOTTOM_PX = int(_V_BOTTOM)
 _V_BARS = tuple(
     (-_SLOT_H * k, int(p * _SLOT_W), int((p + 1) * _SLOT_W), c)
-    for k, p, c in ((0.02, 5, (255, 255, 255)), (0.01, 7, (0, 0, 255)), (0.01, 8, (0, 0, 255)), (0.01, 9, (51, 0, 255)), (0.01, 10, (51, 0, 255)))
+    for k, p, c in (
+        (0.02, 5, (255, 255, 255)),
+        (0.01, 7, (0, 0, 255)),
+        (0.01, 8, (0, 0, 255)),
+        (0.01, 9, (51, 0, 255)),
+        (0.01, 10, (51, 0, 255)),
+    )
 )
 _H_TOP, _H_BOTTOM = int(cr.WINDOW_H - 4 * _SLOT_H), int(cr.WINDOW_H - 2 * _SLOT_H)
 _H_BARS = ((-10.0 * _SLOT_W, 20 * _SLOT_W, (0, 255, 0)), (-0.8 * _SLOT_W, 30 * _SLOT_W, (255, 0, 0)))

@@ -14,8 +14,8 @@ import gymnasium as gym
 import numpy as np
 
 from metadagger.errors import UserError
-from metadagger.tasks.carracing.expert import STEER_LIMIT, PIDExpert
 from metadagger.tasks.base import LearnerEnv, Task
+from metadagger.tasks.carracing.expert import STEER_LIMIT, PIDExpert
 
 #: The 20 steering values (the env's ``action[0]``; +1 steers right) the learner chooses from.
 #: The front wheels of gymnasium's car stop at +-0.4 rad (``car_dynamics``), and the env turns them
@@ -39,7 +39,11 @@ class CarRacingTask(Task):
     learner_env_id = "metadagger/CarRacingSteer-v0"
 
     def __init__(self, *, max_episode_steps: int = 1000, expert: PIDExpert | None = None):
-        if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) or max_episode_steps <= 0:
+        if (
+            isinstance(max_episode_steps, bool)
+            or not isinstance(max_episode_steps, (int, np.integer))
+            or max_episode_steps <= 0
+        ):
             raise UserError(f"max_episode_steps must be a positive integer, got {max_episode_steps!r}; pass e.g. 1000")
         self.max_episode_steps = int(max_episode_steps)
         self._expert = expert or PIDExpert()

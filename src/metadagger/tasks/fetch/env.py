@@ -189,7 +189,9 @@ class FetchPickAndPlacePixels(gym.Env[np.ndarray, np.ndarray]):
         self._frame: np.ndarray | None = None
         self._closed = False
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         # One generator for the whole env: upstream samples the cube and goal from ours, so a
         # given seed lays out the same scene as upstream's reset(seed=seed).
@@ -245,7 +247,9 @@ def bench_fetch_env(*, seeds: Sequence[int], steps: int) -> dict[str, Any]:
         A JSON-ready dict with the totals and rates.
     """
     if len(seeds) == 0 or steps <= 0:
-        raise ValueError(f"bench_fetch_env needs at least one seed and steps > 0, got {len(seeds)} seeds and steps={steps}")
+        raise ValueError(
+            f"bench_fetch_env needs at least one seed and steps > 0, got {len(seeds)} seeds and steps={steps}"
+        )
     env = FetchPickAndPlacePixels()
     try:
         start = time.perf_counter()

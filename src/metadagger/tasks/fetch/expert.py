@@ -195,14 +195,17 @@ class DistilledFetchExpert:
         metadata = read_metadata(path, what="distilled Fetch expert")
         if metadata.get("kind") != cls.__name__ or metadata.get("features") != str(N_FEATURES):
             raise CheckpointError(
-                f"{path} is not a distilled Fetch expert (metadata {metadata}); pass a file written by DistilledFetchExpert.save"
+                f"{path} is not a distilled Fetch expert (metadata {metadata}); pass a file written by "
+                "DistilledFetchExpert.save"
             )
         expert = cls(hidden=int(metadata["hidden"]))
         expert.net.load_state_dict(load_tensors(path, what="distilled Fetch expert"))
         return expert
 
 
-def collect_distillation_data(config: DistillConfig, controller: FetchExpert | None = None) -> tuple[np.ndarray, np.ndarray]:
+def collect_distillation_data(
+    config: DistillConfig, controller: FetchExpert | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Features and controller labels of every state of noisy controller rollouts (50 steps each).
 
     Rollouts run on upstream's state-based env (no rendering) with the goal at the cube's height.

@@ -84,7 +84,9 @@ class DisplacementVariation(Variation):
 
     def size(self, variation: dict[str, float]) -> float:
         """``|scale * e^(i theta) - 1|``: how far a unit command lands from where the nominal arm puts it."""
-        return float(abs(variation["scale"] * complex(math.cos(variation["theta"]), math.sin(variation["theta"])) - 1.0))
+        return float(
+            abs(variation["scale"] * complex(math.cos(variation["theta"]), math.sin(variation["theta"])) - 1.0)
+        )
 
 
 class FetchFamily(FamilyTask):
@@ -98,12 +100,21 @@ class FetchFamily(FamilyTask):
         max_rotation, scale_range: the variation's distribution.
     """
 
-    def __init__(self, *, expert: Callable[[gym.Env], np.ndarray] | None = None,
-                 max_episode_steps: int = MAX_EPISODE_STEPS, max_rotation: float = MAX_ROTATION,
-                 scale_range: tuple[float, float] = SCALE_RANGE):
+    def __init__(
+        self,
+        *,
+        expert: Callable[[gym.Env], np.ndarray] | None = None,
+        max_episode_steps: int = MAX_EPISODE_STEPS,
+        max_rotation: float = MAX_ROTATION,
+        scale_range: tuple[float, float] = SCALE_RANGE,
+    ):
         variation = DisplacementVariation(max_rotation=max_rotation, scale_range=scale_range)
-        super().__init__(FetchTask(expert=expert, max_episode_steps=max_episode_steps), variation,
-                         name="fetch-family", learner_env_id="metadagger/FetchPickAndPlaceXYZFamily-v0")
+        super().__init__(
+            FetchTask(expert=expert, max_episode_steps=max_episode_steps),
+            variation,
+            name="fetch-family",
+            learner_env_id="metadagger/FetchPickAndPlaceXYZFamily-v0",
+        )
 
 
 def make_family_env(*, max_episode_steps: int = MAX_EPISODE_STEPS, **kwargs: Any) -> LearnerEnv:

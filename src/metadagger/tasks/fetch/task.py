@@ -11,10 +11,10 @@ from typing import Any, Callable, Sequence
 import gymnasium as gym
 import numpy as np
 
-from metadagger.tasks.fetch.expert import FetchExpert
 from metadagger.errors import UserError
 from metadagger.tasks.base import LearnerEnv, Task
 from metadagger.tasks.fetch.env import FetchPickAndPlacePixels, fetch_is_success
+from metadagger.tasks.fetch.expert import FetchExpert
 
 #: Episode length of the paper's Fetch setting.
 MAX_EPISODE_STEPS = 50
@@ -34,10 +34,17 @@ class FetchTask(Task):
     max_episode_steps = MAX_EPISODE_STEPS
     #: A keypoint trunk (docs/fetch.md, "The policy"): three 3x3 convolutions keeping 32x32 maps,
     #: a spatial softmax, then 128 and 64 units; the head maps 64 features to x, y, z (195 weights).
-    policy_arch = {"conv_channels": (16, 16, 32), "kernel_sizes": (3, 3, 3), "strides": (2, 1, 1),
-                   "hidden": (128, 64), "spatial_softmax": True}
+    policy_arch = {
+        "conv_channels": (16, 16, 32),
+        "kernel_sizes": (3, 3, 3),
+        "strides": (2, 1, 1),
+        "hidden": (128, 64),
+        "spatial_softmax": True,
+    }
 
-    def __init__(self, *, expert: Callable[[gym.Env], np.ndarray] | None = None, max_episode_steps: int = MAX_EPISODE_STEPS):
+    def __init__(
+        self, *, expert: Callable[[gym.Env], np.ndarray] | None = None, max_episode_steps: int = MAX_EPISODE_STEPS
+    ):
         if max_episode_steps < 1:
             raise UserError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         self.max_episode_steps = int(max_episode_steps)
