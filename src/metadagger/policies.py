@@ -279,6 +279,10 @@ class Policy:
         """An independent deep copy."""
         return Policy(net=copy.deepcopy(self.net), task=self.task)
 
+    def with_own_head(self) -> Policy:
+        """A policy whose trunk is this one's (the same module) and whose head is a copy of this one's."""
+        return Policy(net=copy.deepcopy(self.net, memo={id(self.net.trunk): self.net.trunk}), task=self.task)
+
     def save(self, path: str | Path) -> Path:
         """Write the weights and constructor arguments to a safetensors file (atomically)."""
         metadata = {

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import shutil
 
 import gymnasium as gym
 import numpy as np
@@ -97,7 +98,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
             RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False)
         )
 
-        result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10, nodes=(4,))
+        result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10, nodes=(4,), lanes=(2,))
         assert not (run / "pairs").exists()  # collected into temporary stores only
         assert set(result["seconds"]) == {"1", "2"} and all(t > 0 for t in result["seconds"].values())
         assert all(r > 0 for r in result["pairs_per_hour"].values())
@@ -110,6 +111,8 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         )
         assert result["extrapolated"]["pair_seeds_for_target_kept"] == 10
         assert result["machine"]["cpu_count"] == os.cpu_count()
+        assert result["lanes"]["2"]["workers"] == 2 and result["lanes"]["2"]["pairs_per_hour"] > 0
+        assert result["lanes_speedup"]["2"] > 0
 
         # with a pairs summary in the run, its kept share is used
         (run / "pairs").mkdir()
@@ -120,7 +123,26 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
 
         with pytest.raises(UserError, match="1 <= --seeds <= 4"):
             bench_pairs(run, seeds=5)
+        with pytest.raises(UserError, match="bench pairs --lanes must be an integer from 1 to 256, got 0"):
+            bench_pairs(run, seeds=1, lanes=(0,))
         with pytest.raises(UserError, match="--target-kept >= 1 and --nodes >= 1"):
             bench_pairs(run, seeds=1, nodes=(0,))
     finally:
         del _FACTORIES["corridor-bench"]
+
+
+def test_bench_lanes_times_one_benchmark_seed_at_each_width_without_touching_the_run(carracing_ci_run, tmp_path):
+    from metadagger.cli.bench import bench_lanes
+
+    run = tmp_path / "run"
+    shutil.copytree(carracing_ci_run, run)
+    before = (run / "benchmark" / "rows.jsonl").read_bytes()
+    result = bench_lanes(run, widths=(1, 4))
+    assert (run / "benchmark" / "rows.jsonl").read_bytes() == before
+    assert result["seed"] == 5000 and set(result["widths"]) == {"1", "4"}
+    for timing in result["widths"].values():
+        assert timing["wall_seconds"] > 0 and timing["worker_cpu_seconds"] > 0 and timing["worker_peak_rss_mb"] > 50
+        assert len(timing["rows_sha256"]) == 64
+    assert result["speedup_wall"]["1"] == 1.0 and result["speedup_wall"]["4"] > 0
+    with pytest.raises(UserError, match="--lanes from 1 to 256"):
+        bench_lanes(run, widths=(0,))

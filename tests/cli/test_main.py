@@ -185,7 +185,7 @@ def test_unknown_executor(tmp_path: Path):
     [
         (["--workers", "0"], "workers must be a positive integer, got 0"),
         (["--workers", "-1"], "workers must be a positive integer, got -1"),
-        (["--executor", "foo"], "unknown executor 'foo'; expected 'local' or 'ray'"),
+        (["--executor", "foo"], "unknown executor 'foo'; expected 'local', 'ray' or 'inline'"),
         (["--address", "auto"], "address 'auto' only applies to executor 'ray'; use --executor ray"),
     ],
     ids=["workers-0", "workers-negative", "unknown-executor", "address-without-ray"],

@@ -51,7 +51,7 @@ def _run(layout: RunLayout, config: BenchmarkConfig = CONFIG, **kwargs) -> list[
         kinds=("pistar-head",),
         mdi=None,
         meta_queries={"pistar": 900, "pairs": 100},
-        options=StageOptions(workers=1, progress=False, **kwargs),
+        options=StageOptions(**{"workers": 1, "progress": False, **kwargs}),
     )
 
 
@@ -143,6 +143,24 @@ def test_bc_refit_is_a_reference_of_the_paired_comparisons(toy_run, rows):
     assert any(c["against"] == "bc-refit" and c["method"] == "dagger" for c in summary["comparisons"])
 
 
+def _one_key_job(toy_run, key, seed: int, config: BenchmarkConfig) -> bench.BenchmarkJob:
+    """The benchmark job of one method key on one seed of the toy run."""
+    return bench.BenchmarkJob(
+        task=CorridorTask(),
+        groundtruth=str(toy_run.groundtruth),
+        seed=seed,
+        methods=(key.id,),
+        keys=(key,),
+        mappers={},
+        config=config,
+        rounds=ROUNDS,
+        bc=BC,
+        dagger_bc=BC,
+        early_stop=None,
+        mdi=None,
+    )
+
+
 @pytest.mark.parametrize("gate, value", [("novelty", 0.5), ("thrifty", 0.25), ("conformal", 0.5)])
 def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate, value):
     """Every query is a state the gate selected: count the selections independently; a gate's memory
@@ -164,20 +182,7 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
 
     monkeypatch.setattr(bench, "make_gate", counting)
     key = GateKey(f"dagger-{gate}", f"{value:g}", gate=gate, value=value)
-    job = bench.BenchmarkJob(
-        task=CorridorTask(),
-        groundtruth=str(toy_run.groundtruth),
-        seed=SEEDS[0],
-        methods=(key.id,),
-        keys=(key,),
-        mappers={},
-        config=CONFIG,
-        rounds=ROUNDS,
-        bc=BC,
-        dagger_bc=BC,
-        early_stop=None,
-        mdi=None,
-    )
+    job = _one_key_job(toy_run, key, SEEDS[0], CONFIG)
     [row] = bench.benchmark_seed(job)["entries"][key.id]  # in this process: the patch applies
     demo = collect(CorridorTask(), SEEDS[:1], policy=None)[0]
     assert len(selected) == ROUNDS and row["expert_queries"] == demo.steps + sum(selected)
@@ -200,6 +205,61 @@ def test_resume_and_widening_add_only_the_missing_rows(toy_run, rows, tmp_path):
     assert layout.benchmark_log.read_text().startswith(before)
     assert again == rows  # the same rows as one full run
     assert layout.benchmark_table.read_bytes() == toy_run.benchmark_table.read_bytes()
+
+
+def _copy_run(toy_run, root) -> RunLayout:
+    layout = RunLayout(root)
+    shutil.copytree(toy_run.groundtruth_dir, layout.groundtruth_dir)
+    shutil.copytree(toy_run.root / "mappers", layout.root / "mappers")
+    return layout
+
+
+def test_lanes_rows_do_not_depend_on_workers_nor_on_the_methods_beside_them(toy_run, rows, tmp_path):
+    """With lanes, every chain of a seed steps in lockstep: the rows are the same with 1 or 2
+    workers and for a method run alone; they are the same rows as alone, each recorded with its lanes."""
+    laned = dataclasses.replace(CONFIG, lanes=4)
+    one = _run(_copy_run(toy_run, tmp_path / "one"), laned)
+    two = _run(_copy_run(toy_run, tmp_path / "two"), laned, workers=2)
+    assert one == two
+    ids = [(r["method"], r["setting"], r["demo_fraction"], r["seed"], r["expert_queries"] > 0) for r in rows]
+    assert [(r["method"], r["setting"], r["demo_fraction"], r["seed"], r["expert_queries"] > 0) for r in one] == ids
+    key = GateKey("dagger-ensemble", "0.5", gate="ensemble", value=0.5)
+    job = _one_key_job(toy_run, key, SEEDS[1], laned)
+    [alone] = bench.benchmark_seed(job)["entries"][key.id]
+    [beside] = [
+        r
+        for r in one
+        if (r["method"], r["setting"], r["seed"], r["demo_fraction"]) == (key.method, "0.5", SEEDS[1], 1.0)
+    ]
+    assert {k: alone[k] for k in beside} == beside
+
+
+def test_rows_made_alone_are_not_reused_for_lanes(toy_run, tmp_path):
+    layout = _copy_run(toy_run, tmp_path / "run")
+    config = dataclasses.replace(CONFIG, seeds=SEEDS[:1], methods=("bc",))
+    _run(layout, config)
+    with pytest.raises(UserError, match="lanes"):
+        _run(layout, dataclasses.replace(config, lanes=2))
+    with pytest.raises(UserError, match="benchmark.lanes must be an integer from 1 to 256, got 0"):
+        dataclasses.replace(config, lanes=0)
+
+
+def test_a_round_that_labels_nothing_rolls_nothing_out_again(toy_run, monkeypatch):
+    """A gate that chooses no state leaves the head as it was, so the round's rollout is the last one."""
+    from metadagger.imitation.gates import make_gate
+    from metadagger.metal.method import dagger_rounds
+
+    with SeedLearner(CorridorTask(), str(toy_run.groundtruth), SEEDS[0], head_init_seed=SEEDS[0]) as learner:
+        demo = demonstration(learner)
+        w_bc = bc_head(learner, demo.to_dataset(), seeded(BC, SEEDS[0]))
+        first = learner.roll(w_bc)
+        rolled = []
+        monkeypatch.setattr(SeedLearner, "roll", lambda self, *a, **k: rolled.append(1))
+        rounds = list(
+            dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=3, fit=BC, gate=make_gate("random", 0.0))
+        )
+    assert rolled == [] and all(r.rollout is first and r.labelled is None for r in rounds)
+    assert [r.queries for r in rounds] == [demo.steps] * 3
 
 
 def test_summary_figure_and_report_section(toy_run, rows):

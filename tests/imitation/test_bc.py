@@ -114,6 +114,22 @@ def test_fit_on_an_aggregate_equals_the_fit_on_its_concatenation(task, demo):
     assert torch.equal(heads[0], heads[1])
 
 
+def test_a_cache_serves_every_policy_on_its_trunk_and_keeps_features_computed_to_act(policy, demo):
+    twin = policy.with_own_head()
+    assert twin.net.trunk is policy.net.trunk and twin.net.head is not policy.net.head
+    cache = FeatureCache(policy)
+    before = policy.head_vector()
+    fit_bc(twin, demo, BCConfig(head_only=True, epochs=1), cache=cache)  # the twin's head trains, not the policy's
+    assert torch.equal(policy.head_vector(), before) and not torch.equal(twin.head_vector(), before)
+    given = np.random.default_rng(0).normal(size=(len(demo.obs), policy.net.feature_dim)).astype(np.float32)
+    primed = FeatureCache(policy)
+    primed.add(demo.obs, given)
+    np.testing.assert_array_equal(primed.features(demo.obs[:1]).numpy(), given[:1])
+    assert primed.computed == 0  # no trunk pass for an image whose features were given
+    with pytest.raises(ValueError, match="do not fit images"):
+        primed.add(demo.obs, given[:, :3])
+
+
 def test_fit_rejects_mismatched_data_and_cache(policy, demo):
     with pytest.raises(UserError, match="empty dataset"):
         fit_bc(policy, Dataset.empty(demo), FAST)
@@ -122,7 +138,7 @@ def test_fit_rejects_mismatched_data_and_cache(policy, demo):
         fit_bc(policy, wrong, FAST)
     with pytest.raises(UserError, match="only applies to head-only"):
         fit_bc(policy, demo, FAST, cache=FeatureCache(policy))
-    with pytest.raises(UserError, match="another policy"):
+    with pytest.raises(UserError, match="another trunk"):
         fit_bc(policy, demo, BCConfig(head_only=True), cache=FeatureCache(policy.copy()))
 
 

@@ -16,7 +16,7 @@ import pytest
 import torch
 from toy_task import CorridorTask
 
-from metadagger.errors import CheckpointError
+from metadagger.errors import CheckpointError, UserError
 from metadagger.evaluation.report_run import groundtruth_section
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.early_stop import CosineEarlyStop
@@ -127,6 +127,32 @@ def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_
     records = PairStore(a / "pairs").records()
     assert {r["seed"] for r in records} == set(PAIRS.seeds)
     assert all(r["bc"]["expert_queries"] > 0 and r["da"]["expert_queries"] > r["bc"]["expert_queries"] for r in records)
+
+
+def test_pairs_in_lanes_do_not_depend_on_workers_blocks_or_resume(gt_run, tmp_path):
+    """Pair seeds made in blocks of lanes: the same files with 1 or 2 workers, for a seed made
+    alone, and after a run that stopped with part of the seeds done."""
+    laned = dataclasses.replace(PAIRS, lanes=4)  # 6 seeds: a block of 4 and a block of 2
+    one, two, resumed = tmp_path / "one", tmp_path / "two", tmp_path / "resumed"
+    collect_pairs(CorridorTask(), with_pistar(gt_run, one), laned, StageOptions(workers=1, progress=False))
+    collect_pairs(CorridorTask(), with_pistar(gt_run, two), laned, StageOptions(workers=2, progress=False))
+    layout = with_pistar(gt_run, resumed)
+    collect_pairs(
+        CorridorTask(), layout, dataclasses.replace(laned, seeds=(203,)), StageOptions(workers=1, progress=False)
+    )
+    collect_pairs(CorridorTask(), layout, laned, StageOptions(workers=1, progress=False))
+    for seed in PAIRS.seeds:
+        mine = (one / "pairs" / f"{seed}.safetensors").read_bytes()
+        assert mine == (two / "pairs" / f"{seed}.safetensors").read_bytes()
+        assert mine == (resumed / "pairs" / f"{seed}.safetensors").read_bytes()
+    assert {r["seed"] for r in PairStore(one / "pairs").records()} == set(PAIRS.seeds)
+    alone = tmp_path / "alone"
+    collect_pairs(CorridorTask(), with_pistar(gt_run, alone), PAIRS, StageOptions(workers=1, progress=False))
+    # lanes are a setting of the pairs: pairs made alone are not taken for pairs made in lanes
+    with pytest.raises(UserError, match="lanes"):
+        collect_pairs(CorridorTask(), RunLayout(alone), laned, StageOptions(workers=1, progress=False))
+    with pytest.raises(UserError, match="pairs.lanes must be an integer from 1 to 256, got 0"):
+        dataclasses.replace(PAIRS, lanes=0)
 
 
 def test_a_damaged_pistar_is_named_before_any_pair_is_touched(gt_run, tmp_path):

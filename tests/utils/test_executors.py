@@ -23,6 +23,10 @@ ITEMS = list(range(12))
 GCS_WAIT = "RAY_gcs_server_port_wait_time_s"
 
 
+def _pid(_: object) -> int:
+    return os.getpid()
+
+
 def _square(x: int) -> int:
     return x * x
 
@@ -102,6 +106,16 @@ def test_a_user_error_in_a_worker_stays_a_user_error() -> None:
     assert isinstance(info.value.__cause__, CheckpointError)
 
 
+def test_inline_runs_each_job_here_in_order_and_names_a_failing_item() -> None:
+    with make_executor("inline") as inline:
+        assert list(inline.imap_unordered(_pid, [None])) == [os.getpid()]  # in this process
+        assert list(inline.imap_unordered(_square, ITEMS)) == [x * x for x in ITEMS]
+    with make_executor("inline") as inline, pytest.raises(WorkerError, match="7"):
+        list(inline.imap_unordered(_fail_on_seven, ITEMS))
+    with pytest.raises(UserError, match="executor 'inline' runs one job at a time"):
+        make_executor("inline", workers=2)
+
+
 def test_unpicklable_function_is_a_user_error(local: LocalExecutor) -> None:
     with pytest.raises(UserError, match="top level of a module"):
         local.imap_unordered(lambda x: x, ITEMS)
@@ -110,10 +124,11 @@ def test_unpicklable_function_is_a_user_error(local: LocalExecutor) -> None:
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"kind": "dask"}, "unknown executor 'dask'; expected 'local' or 'ray'"),
+        ({"kind": "dask"}, "unknown executor 'dask'; expected 'local', 'ray' or 'inline'"),
         ({"kind": "local", "workers": 0}, "workers must be a positive integer, got 0"),
         ({"kind": "ray", "workers": -1}, "workers must be a positive integer, got -1"),
         ({"kind": "local", "address": "auto"}, "only applies to executor 'ray'"),
+        ({"kind": "inline", "address": "auto"}, "only applies to executor 'ray'"),
     ],
 )
 def test_bad_arguments_are_user_errors(kwargs: dict, match: str) -> None:

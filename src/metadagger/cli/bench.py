@@ -1,9 +1,11 @@
 """Benchmarks that write JSON: ``bench_env`` times our base env against upstream's, ``bench_bc`` a
-full BC fit against a head refit, ``bench_pairs`` the pair stage, ``bench_kernels`` the kernel pins."""
+full BC fit against a head refit, ``bench_pairs`` the pair stage, ``bench_lanes`` one benchmark seed
+at several lane widths, ``bench_kernels`` the kernel pins."""
 
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
 import platform
@@ -20,6 +22,7 @@ import gymnasium as gym
 import numpy as np
 
 from metadagger.errors import UserError
+from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks.gym_ids import register_envs
 from metadagger.utils.io import read_json, write_json
 from metadagger.utils.kernels import KERNEL_ENV, NATIVE_SWITCH, machine_description
@@ -225,8 +228,13 @@ def bench_pairs(
     workers: Sequence[int] = (1, 2),
     target_kept: int = 375,
     nodes: Sequence[int] = (4, 16),
+    lanes: Sequence[int] = (),
 ) -> dict:
     """Time pair collection with 1 and 2 workers on the first ``seeds`` pair seeds of a run.
+
+    With ``lanes``, the same seeds are also made at each of those ``pairs.lanes`` widths with the
+    most workers, side by side: ``lanes`` holds their seconds and pairs per hour, and
+    ``lanes_speedup`` each width's pairs per hour over the run's own setting's.
 
     Each measurement collects into a fresh temporary store (process-pool start-up included), so
     the run's own pairs are untouched. The kept share comes from the run's ``pairs/summary.json``
@@ -239,15 +247,17 @@ def bench_pairs(
     import dataclasses
     import tempfile
 
+    from metadagger.imitation.lanes import check_lanes
     from metadagger.metal.groundtruth import load_groundtruth
     from metadagger.metal.pairs import collect_pairs
     from metadagger.pipeline.stages import load_run, run_task
     from metadagger.runfolder.driver import StageOptions
-    from metadagger.runfolder.layout import RunLayout
 
     run = Path(run)
     layout = RunLayout(run)
     config = load_run(run)
+    for width in lanes:
+        check_lanes("bench pairs --lanes", width)
     if target_kept < 1 or any(n < 1 for n in nodes):
         raise UserError(f"bench pairs needs --target-kept >= 1 and --nodes >= 1, got {target_kept} and {list(nodes)}")
     if seeds < 1 or len(config.pairs.seeds) < seeds:
@@ -269,6 +279,16 @@ def bench_pairs(
             start = time.perf_counter()
             summary = collect_pairs(task, scratch, pairs_config, StageOptions(workers=n, progress=False))
             timings[str(n)] = time.perf_counter() - start
+    by_width: dict[str, float] = {}
+    for width in lanes:
+        with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
+            scratch = RunLayout(tmp)
+            scratch.groundtruth_dir.mkdir()
+            scratch.groundtruth.symlink_to(layout.groundtruth.resolve())
+            start = time.perf_counter()
+            laned = dataclasses.replace(pairs_config, lanes=width)
+            collect_pairs(task, scratch, laned, StageOptions(workers=max(workers), progress=False))
+            by_width[str(width)] = time.perf_counter() - start
     kept_source = summary if run_kept is None else run_kept
     kept_share = kept_source["kept"] / kept_source["seeds"] if kept_source["seeds"] else 0.0
     best = str(max(workers))
@@ -281,6 +301,11 @@ def bench_pairs(
         "seconds_per_pair": {k: v / seeds for k, v in timings.items()},
         "pairs_per_hour": {k: 3600.0 * seeds / v for k, v in timings.items()},
         "speedup": {k: timings[str(min(workers))] / v for k, v in timings.items()},
+        "lanes": {
+            k: {"workers": max(workers), "seconds": v, "pairs_per_hour": 3600.0 * seeds / v}
+            for k, v in by_width.items()
+        },
+        "lanes_speedup": {k: timings[best] / v for k, v in by_width.items()},
         "kept_share": kept_share,
         "kept_share_from": "bench" if run_kept is None else "run",
         "target_kept": target_kept,
@@ -293,6 +318,96 @@ def bench_pairs(
         },
         "machine": _machine(),
     }
+
+
+def bench_lanes(
+    run: str | Path, *, seed: int | None = None, widths: Sequence[int] = (1, 32), overrides: Sequence[str] = ()
+) -> dict:
+    """Time one benchmark seed of ``run`` (its config, with ``overrides``) at each lane width, side by side.
+
+    Each width runs the seed's whole benchmark (every method of the config) in a fresh process on
+    a scratch copy of the run that shares its pi*, pairs and mappers, with one worker: wall seconds, the
+    worker's CPU seconds and peak resident memory, and a digest of the rows (the same digest for
+    two widths would mean the same numbers; different widths round the trunk's last bits
+    differently, so they need not agree). The run's own rows are untouched.
+    """
+    import dataclasses
+
+    from metadagger.imitation.lanes import MAX_LANES
+    from metadagger.pipeline.stages import load_run
+
+    run = Path(run)
+    config = load_run(run, overrides)
+    if config.benchmark is None:
+        raise UserError(f"run {run} has no benchmark section; bench lanes times one of its benchmark seeds")
+    if not widths or any(not 1 <= w <= MAX_LANES for w in widths):
+        raise UserError(f"bench lanes needs --lanes from 1 to {MAX_LANES}, got {list(widths)}")
+    seed = config.benchmark.seeds[0] if seed is None else seed
+    dataclasses.replace(config.benchmark, seeds=(seed,))  # a bad seed or override is named before any work
+    layout = RunLayout(run)
+    for path, what in ((layout.groundtruth, "pi*"), (layout.root / "mappers", "the mappers")):
+        if not path.exists():
+            raise UserError(
+                f"bench lanes needs {what} of run {run} ({path} is missing); run metadagger reproduce first"
+            )
+    timings = {}
+    for width in widths:
+        # the pins first, before the child's numpy loads, as the command line does
+        code = "import sys, metadagger; metadagger.pin_cpu_kernels(); from metadagger.cli.bench import lanes_child"
+        child = [sys.executable, "-c", code + "; lanes_child(sys.argv[1:])"]
+        args = [str(run), str(seed), str(width), *overrides]
+        done = subprocess.run([*child, *args], capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            raise UserError(f"bench lanes: the benchmark seed at width {width} failed: {done.stderr.strip()[-500:]}")
+        timings[str(width)] = json.loads(done.stdout.strip().splitlines()[-1])
+    first = timings[str(widths[0])]
+    return {
+        "run": str(run),
+        "seed": seed,
+        "overrides": list(overrides),
+        "widths": timings,
+        "speedup_wall": {k: first["wall_seconds"] / v["wall_seconds"] for k, v in timings.items()},
+        "speedup_cpu": {k: first["worker_cpu_seconds"] / v["worker_cpu_seconds"] for k, v in timings.items()},
+        "machine": _machine(),
+    }
+
+
+def lanes_child(argv: list[str]) -> None:
+    """``bench lanes``' measurement of one width, in a process of its own: RUN SEED WIDTH [OVERRIDE ...].
+
+    The seed runs in this process (the inline executor), so its CPU time and peak memory are this
+    process's; prints them as one JSON line.
+    """
+    import dataclasses
+    import resource
+
+    import torch
+
+    from metadagger.pipeline.stages import load_run, stage_benchmark
+    from metadagger.runfolder.driver import StageOptions
+
+    torch.set_num_threads(1)  # as in every worker
+    run, seed, width, overrides = argv[0], int(argv[1]), int(argv[2]), argv[3:]
+    config = load_run(run, overrides)
+    bench = dataclasses.replace(config.benchmark, seeds=(seed,), lanes=width)
+    config = dataclasses.replace(config, benchmark=bench)
+    source = RunLayout(run)
+    with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
+        scratch = RunLayout(tmp)
+        for name in ("groundtruth", "pairs", "mappers"):  # read only: the mappers are checked against the pairs
+            if (source.root / name).exists():
+                (scratch.root / name).symlink_to((source.root / name).resolve())
+        wall, cpu = time.perf_counter(), time.process_time()
+        stage_benchmark(scratch, config, options=StageOptions(executor="inline", progress=False))
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        digest = hashlib.sha256(scratch.benchmark_table.read_bytes()).hexdigest()
+    result = {
+        "wall_seconds": wall,
+        "worker_cpu_seconds": cpu,
+        "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "rows_sha256": digest,
+    }
+    print(json.dumps(result))
 
 
 def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:

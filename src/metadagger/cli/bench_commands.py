@@ -8,7 +8,7 @@ from typing import Any, Callable, Optional
 
 import typer
 
-from metadagger.cli.options import OUT, TASK, user_errors
+from metadagger.cli.options import OUT, SET, TASK, user_errors
 
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
 
@@ -78,12 +78,36 @@ def bench_pairs_cmd(
     nodes: list[int] = typer.Option(
         [4, 16], "--nodes", help="Ray cluster sizes to extrapolate to (nodes like this machine); repeatable."
     ),
+    lanes: list[int] = typer.Option(
+        [], "--lanes", help="Also time pairs.lanes at this width, with 2 workers, side by side; repeatable."
+    ),
 ) -> None:
     """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
     pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
     from metadagger.cli.bench import bench_pairs
 
-    _measure_and_write(json_out, "--json", lambda: bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes))
+    _measure_and_write(
+        json_out,
+        "--json",
+        lambda: bench_pairs(out, seeds=seeds, target_kept=target_kept, nodes=nodes, lanes=tuple(lanes)),
+    )
+
+
+@bench_app.command("lanes")
+@user_errors
+def bench_lanes_cmd(
+    out: Path = OUT,
+    seed: Optional[int] = typer.Option(None, "--seed", help="The benchmark seed to time (default: the run's first)."),
+    lanes: list[int] = typer.Option([1, 32], "--lanes", help="Lane widths to time, side by side; repeatable."),
+    overrides: list[str] = SET,
+    json_out: Path = typer.Option(Path("runs/bench/lanes.json"), "--json", help="JSON file to write."),
+) -> None:
+    """One benchmark seed of a run at each lane width: wall and CPU seconds, peak memory, speed-ups."""
+    from metadagger.cli.bench import bench_lanes
+
+    _measure_and_write(
+        json_out, "--json", lambda: bench_lanes(out, seed=seed, widths=tuple(lanes), overrides=tuple(overrides))
+    )
 
 
 @bench_app.command("kernels")

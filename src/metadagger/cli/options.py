@@ -57,7 +57,9 @@ REBUILD = typer.Option(
     help="Redo this stage's work that was made from other inputs (another pi*, "
     "other pairs or settings) instead of refusing.",
 )
-EXECUTOR = typer.Option("local", "--executor", help="local (process pool) or ray.")
+EXECUTOR = typer.Option(
+    "local", "--executor", help="local (process pool), ray, or inline (one job at a time in this process)."
+)
 WORKERS = typer.Option(None, "--workers", help="Parallel workers (default: all cores / the Ray cluster's CPUs).")
 ADDRESS = typer.Option(
     None, "--address", help="Ray cluster: ray://HEAD:10001, HEAD:6379 or auto (default: start a local Ray instance)."

@@ -29,9 +29,13 @@ the next round, which is deterministic, so nothing is rolled out twice).
 from __future__ import annotations
 
 import math
+from contextlib import ExitStack
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
 
 from metadagger.errors import UserError
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
@@ -55,6 +59,7 @@ from metadagger.evaluation.rows import write_csv
 from metadagger.evaluation.tables import method_label
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gates import Gate, make_gate
+from metadagger.imitation.lanes import Lanes, check_lanes
 from metadagger.imitation.metrics import summarize
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
@@ -67,6 +72,7 @@ from metadagger.metal.method import (
     demonstration,
     demonstration_share,
     map_head,
+    run_steps,
     seed_context,
     seeded,
 )
@@ -78,6 +84,7 @@ from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import write_json
 from metadagger.utils.kernels import kernel_stamp
 from metadagger.utils.plotting import draw_figure, interval_errors, plt, save_figure
+from metadagger.utils.yaml_config import LATER_OPTION
 
 #: Columns of ``benchmark/queries.csv``.
 FIELDS = ("method", "setting", "demo_fraction", "seed", "success", "reward", "steps", "expert_queries")
@@ -116,6 +123,10 @@ class BenchmarkConfig:
     """Shares of the demonstration's steps that BC, the learned MDM kinds and the gated settings
     start from, in (0, 1], 1 (the whole demonstration) among them; plain DAgger and MDI always
     start from the whole one."""
+    lanes: int = field(default=1, metadata=LATER_OPTION)
+    """Episodes of a seed stepped in lockstep, one trunk forward per step for all of them, at this
+    batch shape (:mod:`metadagger.imitation.lanes`); 1 rolls each episode out alone. The numbers
+    depend on it (a batch of one rounds the last bits otherwise), never on the workers."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -147,6 +158,7 @@ class BenchmarkConfig:
                 f"benchmark.demo_fractions must be distinct shares in (0, 1] with 1 among them, got "
                 f"{list(self.demo_fractions)}; e.g. [0.25, 0.5, 1.0]"
             )
+        check_lanes("benchmark.lanes", self.lanes)
         if self.ensemble_heads < 2 or self.novelty_k < 1:
             raise UserError(
                 f"benchmark.ensemble_heads must be >= 2 and benchmark.novelty_k >= 1, got "
@@ -201,67 +213,130 @@ def _row(key: MethodKey, seed: int, traj: Trajectory, queries: int) -> dict[str,
 
 
 def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
-    """Run the job's method keys on one seed; returns ``seed`` and ``entries`` (by key id)."""
+    """Run the job's method keys on one seed; returns ``seed`` and ``entries`` (by key id).
+
+    With ``config.lanes`` above 1 every chain of rollouts (each gate setting's rounds, DAgger's,
+    each mapper's head, each refit) steps in lockstep lanes (:mod:`metadagger.imitation.lanes`).
+    """
     seed, keys = job.seed, job.keys
     rows: dict[MethodKey, dict[str, Any]] = {}
-    with SeedLearner(job.task, job.groundtruth, seed, head_init_seed=job.bc.head_init_seed(seed)) as learner:
+    with ExitStack() as stack:
+        learner = stack.enter_context(
+            SeedLearner(job.task, job.groundtruth, seed, head_init_seed=job.bc.head_init_seed(seed))
+        )
+        lanes = None
+        if job.config.lanes > 1:
+            lanes = stack.enter_context(Lanes(job.task, learner.policy.net, width=job.config.lanes))
         fresh = learner.head()
-        demo = demonstration(learner)
+        [demo] = run_steps(learner, [demonstration], lanes)
         for fraction in sorted({key.demo_fraction for key in keys}, reverse=True):
-            learner.load(fresh)
             mine = [key for key in keys if key.demo_fraction == fraction]
-            rows.update(_demonstration_rows(job, learner, demonstration_share(demo, fraction), mine))
+            share = demonstration_share(demo, fraction)
+            [start] = run_steps(learner, [partial(_start, job, fresh, share, mine)], lanes)
+            for found in run_steps(learner, _row_steps(job, start, mine), lanes):
+                rows.update(found)
     shots = [key for key in keys if isinstance(key, ShotKey)]
     if job.mdi is not None and shots:
         rows.update(_mdi_rows(job, shots))
     return {"seed": seed, "entries": {key.id: [rows[key]] for key in keys if key in rows}}
 
 
-def _demonstration_rows(
-    job: BenchmarkJob, learner: SeedLearner, demo: Trajectory, keys: list[MethodKey]
-) -> dict[MethodKey, dict[str, Any]]:
-    """The rows of ``keys`` (all but MDI's) that start from w_BC fitted on ``demo`` by the learner's fresh head."""
-    seed, rows = job.seed, {}
+@dataclass(frozen=True)
+class _Start:
+    """Where every row of one demonstration share starts: w_BC and its rollout."""
+
+    demo: Trajectory
+    w_bc: np.ndarray
+    first: Trajectory
+    """w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round."""
+    context: np.ndarray | None
+    """The seed's context, where a mapper reads one."""
+
+
+def _start(
+    job: BenchmarkJob, fresh: np.ndarray, demo: Trajectory, keys: list[MethodKey], learner: SeedLearner
+) -> _Start:
+    """w_BC fitted on ``demo`` from the learner's fresh head, rolled out; the context if a mapper needs it."""
     data = demo.to_dataset()
-    w_bc = bc_head(learner, data, seeded(job.bc, seed))
-    # w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round
+    learner.load(fresh)
+    w_bc = bc_head(learner, data, seeded(job.bc, job.seed))
     first = learner.roll(w_bc, early_stop=job.early_stop)
-    rows.update(
-        {key: _row(key, seed, first, len(data)) for key in keys if type(key) is MethodKey and key.method == "bc"}
+    needs_context = any(
+        cached_mapper(job.mappers[key.kind]).needs_context for key in keys if isinstance(key, MapperKey)
     )
-    mdm = {key: cached_mapper(job.mappers[key.kind]) for key in keys if isinstance(key, MapperKey)}
-    context = seed_context(learner.cache, data.obs, first.obs) if any(m.needs_context for m in mdm.values()) else None
-    for key, mapper in mdm.items():
-        queries = len(data) if reads_demonstration(key) else 0
-        rows[key] = _row(key, seed, learner.roll(map_head(mapper, w_bc, context), early_stop=job.early_stop), queries)
+    context = seed_context(learner.cache, data.obs, first.obs) if needs_context else None
+    return _Start(demo, w_bc, first, context)
 
-    def dagger(gate: Gate | None) -> Iterator[Round]:
-        return dagger_rounds(
-            learner,
-            start=w_bc,
-            first=first,
-            demo=demo,
-            rounds=job.rounds,
-            fit=seeded(job.dagger_bc, seed),
-            gate=gate,
-            early_stop=job.early_stop,
-        )
 
+def _row_steps(
+    job: BenchmarkJob, start: _Start, keys: list[MethodKey]
+) -> list[Callable[[SeedLearner], dict[MethodKey, dict[str, Any]]]]:
+    """One step per chain of rollouts that makes rows of ``keys`` (all but MDI's) from ``start``, in table order."""
+    seed, queries = job.seed, len(start.demo.obs)
+    steps: list[Callable[[SeedLearner], dict[MethodKey, dict[str, Any]]]] = []
+    bc_rows = {
+        key: _row(key, seed, start.first, queries) for key in keys if type(key) is MethodKey and key.method == "bc"
+    }
+    steps.append(lambda learner: bc_rows)
+    for key in (k for k in keys if isinstance(k, MapperKey)):
+        steps.append(partial(_mapper_row, job, start, key))
     by_round = {key.round: key for key in keys if isinstance(key, RoundKey)}
     if by_round:
-        for round_ in dagger(None):
-            if round_.index in by_round:
-                rows[by_round[round_.index]] = _row(by_round[round_.index], seed, round_.rollout, round_.queries)
+        steps.append(partial(_dagger_rows, job, start, by_round))
     for key in (k for k in keys if isinstance(k, GateKey)):
-        *_, last = dagger(make_gate(key.gate, key.value, **job.config.gate_options(key.method)))
-        rows[key] = _row(key, seed, last.rollout, last.queries)
+        steps.append(partial(_gate_row, job, start, key))
     for key in (k for k in keys if isinstance(k, RefitKey)):
-        # DAgger's refits (continuing from w_BC, DAgger's fit) on the demonstration alone
-        learner.load(w_bc)
-        for index in range(1, key.rounds + 1):
-            bc_head(learner, data, seeded(job.dagger_bc, seed), what=f"BC's refit {index}")
-        rows[key] = _row(key, seed, learner.roll(early_stop=job.early_stop), len(data))
-    return rows
+        steps.append(partial(_refit_row, job, start, key))
+    return steps
+
+
+def _mapper_row(
+    job: BenchmarkJob, start: _Start, key: MapperKey, learner: SeedLearner
+) -> dict[MethodKey, dict[str, Any]]:
+    head = map_head(cached_mapper(job.mappers[key.kind]), start.w_bc, start.context)
+    queries = len(start.demo.obs) if reads_demonstration(key) else 0
+    return {key: _row(key, job.seed, learner.roll(head, early_stop=job.early_stop), queries)}
+
+
+def _rounds(job: BenchmarkJob, start: _Start, learner: SeedLearner, gate: Gate | None) -> Iterator[Round]:
+    return dagger_rounds(
+        learner,
+        start=start.w_bc,
+        first=start.first,
+        demo=start.demo,
+        rounds=job.rounds,
+        fit=seeded(job.dagger_bc, job.seed),
+        gate=gate,
+        early_stop=job.early_stop,
+    )
+
+
+def _dagger_rows(
+    job: BenchmarkJob, start: _Start, by_round: dict[int, RoundKey], learner: SeedLearner
+) -> dict[MethodKey, dict[str, Any]]:
+    return {
+        by_round[r.index]: _row(by_round[r.index], job.seed, r.rollout, r.queries)
+        for r in _rounds(job, start, learner, None)
+        if r.index in by_round
+    }
+
+
+def _gate_row(job: BenchmarkJob, start: _Start, key: GateKey, learner: SeedLearner) -> dict[MethodKey, dict[str, Any]]:
+    gate = make_gate(key.gate, key.value, **job.config.gate_options(key.method))
+    for last in _rounds(job, start, learner, gate):
+        pass  # only the last round's rollout makes the row: the earlier ones are let go as they end
+    return {key: _row(key, job.seed, last.rollout, last.queries)}
+
+
+def _refit_row(
+    job: BenchmarkJob, start: _Start, key: RefitKey, learner: SeedLearner
+) -> dict[MethodKey, dict[str, Any]]:
+    # DAgger's refits (continuing from w_BC, DAgger's fit) on the demonstration alone
+    data = start.demo.to_dataset()
+    learner.load(start.w_bc)
+    for index in range(1, key.rounds + 1):
+        bc_head(learner, data, seeded(job.dagger_bc, job.seed), what=f"BC's refit {index}")
+    return {key: _row(key, job.seed, learner.roll(early_stop=job.early_stop), len(data))}
 
 
 def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> dict[MethodKey, dict[str, Any]]:
@@ -372,6 +447,8 @@ def run_benchmark(
         )
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
+    if config.lanes != 1:  # a later option: rows made alone stay current
+        settings["lanes"] = config.lanes
     stamps = benchmark_stamps(
         task, layout, settings, config, keys, mdi if with_mdi else None, mdi.mapper if with_mdi else None
     )

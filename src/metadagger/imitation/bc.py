@@ -143,7 +143,9 @@ class FeatureCache:
     """Trunk features of images, each computed once while the trunk's weights stay the same.
 
     Images are keyed by their bytes, so the cache can be shared by every fit on a growing
-    (aggregated) dataset; a change of the trunk's weights empties it. A dataset's rows are
+    (aggregated) dataset, and by every policy that shares the trunk (:meth:`Policy.with_own_head`);
+    a change of the trunk's weights empties it. :meth:`add` takes features computed elsewhere (the
+    ones a lane computed to act on the images, :mod:`metadagger.imitation.lanes`). A dataset's rows are
     remembered for as long as the dataset lives, so a part of an :class:`Aggregate` is hashed once,
     however many fits read it.
 
@@ -184,6 +186,25 @@ class FeatureCache:
         self._check_trunk()
         rows = self._row_indices([obs])[0]
         return self._store[rows]
+
+    def add(self, obs: np.ndarray, features: np.ndarray) -> None:
+        """Keep ``features`` (N, feature_dim) as the trunk features of images ``obs`` (N, H, W, C)
+        that the cache has not seen; an image already seen keeps the features it has."""
+        if len(obs) != len(features) or features.shape[1:] != self._store.shape[1:]:
+            raise ValueError(
+                f"features {features.shape} do not fit images {obs.shape}: expected ({len(obs)}, "
+                f"{self._store.shape[1]})"
+            )
+        self._check_trunk()
+        rows: dict[bytes, int] = {}
+        for i, image in enumerate(np.ascontiguousarray(obs)):
+            key = hashlib.blake2b(image, digest_size=16).digest()
+            if key not in self._rows and key not in rows:
+                rows[key] = i
+        if rows:
+            start = len(self._store)
+            self._store = torch.cat([self._store, torch.from_numpy(features[list(rows.values())])])
+            self._rows.update({key: start + j for j, key in enumerate(rows)})
 
     def features_of(self, data: Dataset | Aggregate) -> torch.Tensor:
         """Features (N, feature_dim) of a dataset's images, in its row order.
@@ -294,8 +315,8 @@ def fit_bc(
     net = policy.net
     if config.head_only:
         cache = cache if cache is not None else FeatureCache(policy)
-        if cache.policy is not policy:
-            raise UserError("the FeatureCache was built for another policy; build one with FeatureCache(policy)")
+        if cache.policy.net.trunk is not policy.net.trunk:
+            raise UserError("the FeatureCache was built for another trunk; build one with FeatureCache(policy)")
         inputs, model = cache.features_of(data), net.head
     else:
         if cache is not None:

@@ -45,6 +45,9 @@ class Trajectory:
         early_stopped: whether an :class:`EarlyStop` ended the episode.
         variation: the task family's variation of this episode (``info["variation"]`` at reset);
             None for a plain task.
+        features: (T, feature_dim) float32 trunk features the learner acted on, where lockstep
+            lanes computed them (:mod:`metadagger.imitation.lanes`); None for an episode rolled
+            out alone.
     """
 
     obs: np.ndarray
@@ -61,6 +64,7 @@ class Trajectory:
     terminated: bool
     early_stopped: bool = False
     variation: dict[str, float] | None = None
+    features: np.ndarray | None = None
 
     def to_dataset(self) -> Dataset:
         """The (observation, expert label) pairs of this episode."""
@@ -72,6 +76,82 @@ def stack_labels(values: list[Any] | np.ndarray, discrete: bool) -> np.ndarray:
     if discrete:
         return np.asarray(values, dtype=np.int64).reshape(len(values))
     return np.asarray(values, dtype=np.float32).reshape(len(values), -1)
+
+
+class EpisodeRecorder:
+    """One episode in the making: the env reset with its seed, then one :meth:`step` per action.
+
+    :func:`rollout` and the lockstep lanes (:mod:`metadagger.imitation.lanes`) both record through
+    it, so an episode means the same in either: every acted-on observation is kept with the
+    expert's label of it, the action taken and the reward that followed.
+
+    Args:
+        env: a learner env (``info["expert_label"]`` labels each returned observation).
+        seed: reset seed.
+        max_steps: stop after this many steps even if the env has not ended (not a success).
+        early_stop: stops the episode as a failure when its ``update`` returns True.
+    """
+
+    def __init__(
+        self, env: gym.Env, *, seed: int, max_steps: int | None = None, early_stop: EarlyStop | None = None
+    ) -> None:
+        if max_steps is not None and max_steps <= 0:
+            raise ValueError(f"max_steps must be positive or None, got {max_steps}")
+        self.env, self.seed, self.max_steps, self.early_stop = env, int(seed), max_steps, early_stop
+        self.discrete = isinstance(env.action_space, gym.spaces.Discrete)
+        self.obs, self.info = env.reset(seed=seed)
+        self.variation = self.info.get("variation")
+        if early_stop is not None:
+            early_stop.reset()
+        self.observations: list[np.ndarray] = []
+        self.labels: list[Any] = []
+        self.actions: list[Any] = []
+        self.rewards: list[float] = []
+        self.success, self.stopped, self.terminated = False, False, False
+
+    @property
+    def label(self) -> Any:
+        """The expert's label of the observation the next action acts on."""
+        return self.info["expert_label"]
+
+    def step(self, action: Any) -> bool:
+        """Take ``action`` on the current observation; True when the episode has ended."""
+        label = self.info["expert_label"]
+        # copied because an env may reuse its observation buffer between steps
+        self.observations.append(np.array(self.obs, dtype=np.uint8, copy=True))
+        self.labels.append(label)
+        self.actions.append(action)
+        self.obs, step_reward, terminated, truncated, self.info = self.env.step(action)
+        self.terminated = bool(terminated)
+        self.rewards.append(float(step_reward))
+        # the action was executed, so the step counts even when the early stop then fires
+        self.stopped = self.early_stop is not None and self.early_stop.update(action, label)
+        if self.stopped:
+            return True
+        if terminated or truncated:
+            self.success = bool(self.info.get("is_success", False))
+            return True
+        return self.max_steps is not None and len(self.observations) >= self.max_steps
+
+    def trajectory(self) -> Trajectory:
+        """The finished episode."""
+        steps = len(self.observations)
+        return Trajectory(
+            obs=np.stack(self.observations),
+            expert_labels=stack_labels(self.labels, self.discrete),
+            learner_actions=stack_labels(self.actions, self.discrete),
+            reward=float(sum(self.rewards)),
+            steps=steps,
+            success=self.success,
+            expert_queries=steps,
+            seed=self.seed,
+            step_rewards=np.asarray(self.rewards, dtype=np.float32),
+            final_obs=np.array(self.obs, dtype=np.uint8, copy=True),
+            final_label=self.info["expert_label"],
+            terminated=self.terminated and not self.stopped,
+            early_stopped=self.stopped,
+            variation=self.variation,
+        )
 
 
 def rollout(
@@ -94,50 +174,10 @@ def rollout(
     Returns:
         The trajectory; every visited observation is labelled by the expert.
     """
-    if max_steps is not None and max_steps <= 0:
-        raise ValueError(f"max_steps must be positive or None, got {max_steps}")
-    discrete = isinstance(env.action_space, gym.spaces.Discrete)
-    obs, info = env.reset(seed=seed)
-    variation = info.get("variation")
-    if early_stop is not None:
-        early_stop.reset()
-    observations, labels, actions, rewards = [], [], [], []
-    success, stopped, terminated = False, False, False
-    while True:
-        label = info["expert_label"]
-        action = label if policy is None else policy(obs)
-        # copied because an env may reuse its observation buffer between steps
-        observations.append(np.array(obs, dtype=np.uint8, copy=True))
-        labels.append(label)
-        actions.append(action)
-        obs, step_reward, terminated, truncated, info = env.step(action)
-        rewards.append(float(step_reward))
-        # the action was executed, so the step counts even when the early stop then fires
-        stopped = early_stop is not None and early_stop.update(action, label)
-        if stopped:
-            break
-        if terminated or truncated:
-            success = bool(info.get("is_success", False))
-            break
-        if max_steps is not None and len(observations) >= max_steps:
-            break
-    steps = len(observations)
-    return Trajectory(
-        obs=np.stack(observations),
-        expert_labels=stack_labels(labels, discrete),
-        learner_actions=stack_labels(actions, discrete),
-        reward=float(sum(rewards)),
-        steps=steps,
-        success=success,
-        expert_queries=steps,
-        seed=int(seed),
-        step_rewards=np.asarray(rewards, dtype=np.float32),
-        final_obs=np.array(obs, dtype=np.uint8, copy=True),
-        final_label=info["expert_label"],
-        terminated=bool(terminated) and not stopped,
-        early_stopped=stopped,
-        variation=variation,
-    )
+    episode = EpisodeRecorder(env, seed=seed, max_steps=max_steps, early_stop=early_stop)
+    while not episode.step(episode.label if policy is None else policy(episode.obs)):
+        pass
+    return episode.trajectory()
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,12 @@ one the next step starts from, and nothing is rolled out twice.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
-from typing import Any, Iterator, Protocol
+from typing import Any, Callable, Iterator, Protocol, Sequence, TypeVar
 
 import numpy as np
 import torch
@@ -34,6 +36,7 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.gates import Episode, Gate, GateMemory, Labelled
+from metadagger.imitation.lanes import EpisodeRequest, Lanes, current_lane, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
@@ -41,6 +44,8 @@ from metadagger.tasks.base import Task
 
 #: What a context is made of, in order (the pairs' stamp records it).
 CONTEXT_PARTS = ("demonstration feature mean", "bc rollout feature mean")
+
+T = TypeVar("T")
 
 
 class HeadMapper(Protocol):
@@ -69,7 +74,17 @@ class SeedLearner:
         self.seed = seed
         self.policy: Policy = head_from_groundtruth(cached_groundtruth(groundtruth), head_init_seed)
         self.cache = FeatureCache(self.policy)
-        self.env = task.make_env()
+        # made inside a chain (:func:`~metadagger.metal.lane_blocks.run_block`), its episodes go to the chain's lane
+        self._lane = current_lane()
+        self.env: Any = task.make_env() if self._lane is None else None
+
+    def fork(self, lane: Callable[[EpisodeRequest], Trajectory]) -> SeedLearner:
+        """A learner of the same seed with a head of its own (a copy of the current one), sharing this
+        one's trunk and feature cache, whose episodes ``lane`` rolls out (a chain's ``roll`` of
+        :func:`~metadagger.imitation.lanes.run_chains`)."""
+        twin = copy.copy(self)
+        twin.policy, twin.env, twin._lane = self.policy.with_own_head(), None, lane
+        return twin
 
     def head(self) -> np.ndarray:
         """The current head as a flat float32 vector (a copy)."""
@@ -84,12 +99,27 @@ class SeedLearner:
         labelled by the expert; cut as a failure by a cosine early stop at ``early_stop``."""
         if head is not None:
             self.load(head)
+        if self._lane is not None:
+            return self._in_lane(EpisodeRequest(self.seed, self.head(), early_stop))
         stop = None if early_stop is None else CosineEarlyStop(threshold=early_stop)
         return rollout(self.env, seed=self.seed, policy=self.policy, early_stop=stop)
 
+    def demonstrate(self) -> Trajectory:
+        """One episode of the seed driven by the expert."""
+        if self._lane is not None:
+            return self._in_lane(EpisodeRequest(self.seed, None))
+        return rollout(self.env, seed=self.seed, policy=None)
+
+    def _in_lane(self, request: EpisodeRequest) -> Trajectory:
+        # the features the lane acted on are the ones every later fit, gate and context reads
+        trajectory = self._lane(request)  # type: ignore[misc]
+        self.cache.add(trajectory.obs, trajectory.features)
+        return trajectory
+
     def close(self) -> None:
         """Close the env."""
-        self.env.close()
+        if self.env is not None:
+            self.env.close()
 
     def __enter__(self) -> SeedLearner:
         return self
@@ -98,9 +128,26 @@ class SeedLearner:
         self.close()
 
 
+def run_steps(learner: SeedLearner, steps: Sequence[Callable[[SeedLearner], T]], lanes: Lanes | None) -> list[T]:
+    """Run each of ``steps`` (a function of a learner) on the seed; their results in order.
+
+    Without ``lanes``, one after another on ``learner`` itself, every episode in its env. With
+    them, each on a :meth:`~SeedLearner.fork` of ``learner`` in a chain of its own, their episodes
+    stepped together in the lanes (:func:`~metadagger.imitation.lanes.run_chains`): a step must
+    then load every head it starts from, as it would after another step on the same learner.
+    """
+    if lanes is None:
+        return [step(learner) for step in steps]
+    return run_chains(lanes, [functools.partial(_on_fork, learner, step) for step in steps])
+
+
+def _on_fork(learner: SeedLearner, step: Callable[[SeedLearner], T], lane: Callable[[EpisodeRequest], Trajectory]) -> T:
+    return step(learner.fork(lane))
+
+
 def demonstration(learner: SeedLearner) -> Trajectory:
     """Step 1: the expert drives the seed once; every step is one query."""
-    return rollout(learner.env, seed=learner.seed, policy=None)
+    return learner.demonstrate()
 
 
 def demonstration_share(demo: Trajectory, fraction: float) -> Trajectory:
@@ -120,6 +167,7 @@ def demonstration_share(demo: Trajectory, fraction: float) -> Trajectory:
         reward=float(demo.step_rewards[:n].sum()),
         steps=n,
         expert_queries=n,
+        features=None if demo.features is None else demo.features[:n],
         final_obs=demo.obs[n],
         final_label=demo.expert_labels[n],
         terminated=False,
@@ -219,7 +267,10 @@ def dagger_rounds(
             queries += int(keep.sum())
             fit_bc(learner.policy, data, fit, cache=learner.cache, what=f"DAgger round {index}'s refit")
         head = learner.head()
-        trajectory = learner.roll(head, early_stop=early_stop)
+        if labelled is not None:
+            trajectory = learner.roll(head, early_stop=early_stop)
+        # else the head is the one ``trajectory`` was rolled out with, and an episode depends only
+        # on its seed and head: rolling it out again would give the same episode
         yield Round(index=index, labelled=labelled, head=head, rollout=trajectory, queries=queries)
 
 

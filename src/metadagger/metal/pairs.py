@@ -21,8 +21,10 @@ from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.data import Aggregate
 from metadagger.imitation.early_stop import check_threshold
+from metadagger.imitation.lanes import check_lanes
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.metal.groundtruth import load_groundtruth
+from metadagger.metal.lane_blocks import in_blocks
 from metadagger.metal.method import (
     CONTEXT_PARTS,
     SeedLearner,
@@ -40,6 +42,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import write_json
 from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.yaml_config import LATER_OPTION
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")
 
@@ -74,6 +77,10 @@ class PairConfig:
     """Share of the kept pairs held out for validation (75 of 375 in the paper)."""
     early_stop: float | None = None
     """Cosine early-stop threshold of the learner's rollouts (paper 3.4.2, Fetch); None: off."""
+    lanes: int = field(default=1, metadata=LATER_OPTION)
+    """Pair seeds made together, in blocks of this many, their episodes stepped in lockstep at this
+    batch shape (:func:`~metadagger.metal.lane_blocks.in_blocks`); 1 makes each seed alone. The pairs
+    depend on it (a batch of one rounds the trunk's last bits otherwise), never on the workers."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -87,6 +94,7 @@ class PairConfig:
         if not 0.0 < self.val_fraction < 1.0:
             raise UserError(f"pairs.val_fraction must be in (0, 1), got {self.val_fraction}")
         check_threshold("pairs.early_stop", self.early_stop)
+        check_lanes("pairs.lanes", self.lanes)
 
 
 @dataclass(frozen=True)
@@ -239,7 +247,8 @@ def collect_pairs(
         PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config)
         for p in todo
     ]
-    drive(collect_pair, jobs, log=store, stamps=stamps, options=options, desc="pairs")
+    work, units = in_blocks(collect_pair, jobs, config.lanes)
+    drive(work, units, log=store, stamps=stamps, options=options, desc="pairs")
     current = {s for s, stamp in store.stamps().items() if stamp["pair"] == stamps["pair"]} & set(config.seeds)
     summary = summarize_pairs([r for r in store.records() if r["seed"] in current] if current else [])
     if current:

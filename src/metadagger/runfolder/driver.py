@@ -95,7 +95,7 @@ class StageOptions:
     rebuild: bool = False
     """Redo work made from other inputs (another pi*, mapper or settings) instead of refusing."""
     executor: str = "local"
-    """``local`` (a process pool) or ``ray`` (:func:`metadagger.utils.executors.make_executor`)."""
+    """``local`` (a process pool), ``ray`` or ``inline`` (:func:`metadagger.utils.executors.make_executor`)."""
     workers: int | None = None
     """Parallel workers; default: this machine's cores, or the Ray cluster's CPUs."""
     address: str | None = None
@@ -177,13 +177,16 @@ def drive(
     desc: str = "seeds",
 ) -> None:
     """Run ``work`` on every job, in parallel; as each result arrives, ``save`` its artifacts and
-    then append it to ``log`` with its methods' stamps."""
+    then append it to ``log`` with its methods' stamps. A job whose ``work`` returns a list (a
+    block of seeds, :func:`metadagger.metal.lane_blocks.in_blocks`) has each of its results saved and
+    logged in turn."""
     if not jobs:
         return
     with make_executor(options.executor, workers=options.workers, address=options.address) as pool:
         for result in progress_bar(
             pool.imap_unordered(work, jobs), total=len(jobs), desc=desc, enabled=options.progress
         ):
-            if save is not None:
-                save(result)
-            log.append(result, stamps)
+            for one in result if isinstance(result, list) else [result]:
+                if save is not None:
+                    save(one)
+                log.append(one, stamps)

@@ -205,6 +205,33 @@ class Executor(abc.ABC, Generic[H]):
         """Release the workers; with ``cancel``, stop running work (``in_flight``) first."""
 
 
+class _Deferred:
+    """A job of :class:`InlineExecutor`, run when its result is read (hashed by identity)."""
+
+    def __init__(self, fn: Callable[[Any], Any], item: Any) -> None:
+        self.fn, self.item = fn, item
+
+
+class InlineExecutor(Executor[_Deferred]):
+    """Each job in this process, one at a time, when its result is read: a profiler or a timer
+    sees the work itself, with no pool around it."""
+
+    def __init__(self) -> None:
+        super().__init__(workers=1)
+
+    def _submit(self, fn: Callable[[T], R], item: T) -> _Deferred:
+        return _Deferred(fn, item)
+
+    def _wait_any(self, handles: list[_Deferred]) -> list[_Deferred]:
+        return handles[:1]
+
+    def _result(self, handle: _Deferred) -> Any:
+        return handle.fn(handle.item)
+
+    def _shutdown(self, *, cancel: bool, in_flight: list[_Deferred]) -> None:
+        pass
+
+
 def _mp_context() -> multiprocessing.context.BaseContext:
     # Never "fork": forking a process that runs torch threads can deadlock the child. Workers
     # fork from a forkserver that has imported torch once, so after the first pool of a process
@@ -342,11 +369,15 @@ def check_executor_options(kind: str, workers: int | None, address: str | None) 
     For ``"ray"`` it also checks that Ray is installed and that ``address`` answers, so a command
     fails at once instead of after its first stage.
     """
-    if kind not in ("local", "ray"):
-        raise UserError(f"unknown executor {kind!r}; expected 'local' or 'ray'")
+    if kind not in ("local", "ray", "inline"):
+        raise UserError(f"unknown executor {kind!r}; expected 'local', 'ray' or 'inline'")
+    if kind == "inline" and workers not in (None, 1):
+        raise UserError(
+            f"executor 'inline' runs one job at a time in this process, got workers={workers!r}; drop --workers"
+        )
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise UserError(f"workers must be a positive integer, got {workers!r}; pass e.g. --workers 4 or leave it unset")
-    if kind == "local" and address is not None:
+    if kind != "ray" and address is not None:
         raise UserError(f"address {address!r} only applies to executor 'ray'; use --executor ray or drop the address")
     if kind == "ray":
         import_ray()
@@ -357,7 +388,8 @@ def make_executor(kind: str = "local", *, workers: int | None = None, address: s
     """Create an executor.
 
     Args:
-        kind: ``"local"`` (a process pool on this machine) or ``"ray"`` (Ray tasks).
+        kind: ``"local"`` (a process pool on this machine), ``"ray"`` (Ray tasks) or ``"inline"``
+            (each job in this process, one at a time: for profiling and timing).
         workers: parallel workers; default: this machine's cores ("local") or the Ray cluster's
             CPUs ("ray"). For a local Ray instance it is also the number of CPUs it gets.
         address: Ray cluster address (e.g. ``"ray://head:10001"`` or ``"auto"``); ``None`` starts
@@ -369,4 +401,6 @@ def make_executor(kind: str = "local", *, workers: int | None = None, address: s
     check_executor_options(kind, workers, address)
     if kind == "local":
         return LocalExecutor(workers=workers or default_workers())
+    if kind == "inline":
+        return InlineExecutor()
     return RayExecutor(workers=workers, address=address)

@@ -1,0 +1,287 @@
+"""Lockstep lanes: many episodes stepped together, one trunk forward per step for all of them.
+
+A *lane* is one episode being stepped, in an env of its own. :class:`Lanes` holds ``width`` of
+them: every step it stacks the live lanes' observations into one batch of exactly ``width`` rows
+(the idle rows zero), runs pi*'s trunk on it once, applies each lane's own head to its row, and
+steps each lane's env. At a fixed batch shape a row's output does not depend on the other rows
+(tests/imitation/test_lanes.py checks it), so an episode is the same whichever episodes share its
+steps, and whichever lane it runs in; it depends on the width, which the config fixes.
+
+The trunk features computed to act are kept with the trajectory (:attr:`Trajectory.features`),
+so the fits, gates and contexts that read the episode later need no second trunk pass.
+
+:func:`run_chains` runs many *chains* -- plain sequential functions that roll episodes out one
+after another (a seed's DAgger rounds under one gate, say) -- with their episodes in lanes: each
+chain runs in a thread of its own, one at a time, until it asks for an episode; the episodes
+asked for wait for a free lane in the order they were asked, and a chain resumes when its episode
+ends. The method's code stays the sequential code it is (:mod:`metadagger.metal.method`).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from dataclasses import dataclass, replace
+from typing import Any, Callable, Generic, Sequence, TypeVar
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from metadagger.errors import UserError
+from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.rollouts import EpisodeRecorder, Trajectory
+from metadagger.policies import PolicyNet
+from metadagger.tasks.base import Task
+
+T = TypeVar("T")
+
+#: The most lanes a config may ask for.
+MAX_LANES = 256
+
+
+def check_lanes(name: str, value: Any) -> None:
+    """Raise a :class:`~metadagger.errors.UserError` naming config field ``name`` unless ``value`` is
+    a lane width: an integer from 1 to :data:`MAX_LANES`."""
+    if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= MAX_LANES:
+        raise UserError(f"{name} must be an integer from 1 to {MAX_LANES}, got {value!r}; e.g. 32")
+
+
+# the lane of the chain that runs in this thread (run_chains sets it)
+_running = threading.local()
+
+
+def current_lane() -> Callable[[EpisodeRequest], Trajectory] | None:
+    """The ``roll`` of the chain running in this thread, or None outside :func:`run_chains`'s chains:
+    a learner made inside a chain rolls its episodes out through it."""
+    return getattr(_running, "roll", None)
+
+
+@dataclass(frozen=True)
+class EpisodeRequest:
+    """One episode to roll out in a lane."""
+
+    seed: int
+    """The env's reset seed."""
+    head: np.ndarray | None
+    """The learner's head as a flat float32 vector (``Policy.head_vector``); None: the expert
+    drives (a demonstration)."""
+    early_stop: float | None = None
+    """Threshold of the cosine early stop (:class:`~metadagger.imitation.early_stop.CosineEarlyStop`);
+    None: none."""
+    max_steps: int | None = None
+    """Step cap (not a success); None: the env's own end."""
+
+
+class _Lane:
+    """One live episode: its recorder, its head's weight and bias, the features it acted on."""
+
+    def __init__(self, env: Any, request: EpisodeRequest, out_dim: int) -> None:
+        self.request = request
+        stop = None if request.early_stop is None else CosineEarlyStop(threshold=request.early_stop)
+        self.episode = EpisodeRecorder(env, seed=request.seed, max_steps=request.max_steps, early_stop=stop)
+        self.weight: torch.Tensor | None = None
+        self.bias: torch.Tensor | None = None
+        if request.head is not None:
+            head = torch.from_numpy(np.ascontiguousarray(request.head, dtype=np.float32))
+            n_weight = head.numel() - out_dim
+            self.weight, self.bias = head[:n_weight].view(out_dim, -1), head[n_weight:]
+        self.features: list[torch.Tensor] = []
+
+
+class Lanes:
+    """``width`` lanes of ``task``'s learner env, acting through ``net``'s trunk.
+
+    Args:
+        task: the task whose learner envs the lanes step.
+        net: the network whose trunk computes every lane's features (pi*'s); its head is not used.
+        width: the lanes, and the batch shape of every trunk forward.
+    """
+
+    def __init__(self, task: Task, net: PolicyNet, *, width: int) -> None:
+        if not isinstance(width, int) or width < 1:
+            raise ValueError(f"lanes need a width >= 1, got {width!r}")
+        self.net, self.width = net, width
+        self.discrete = net.discrete
+        self.out_dim = int(net.arch["n_outputs"])
+        self._task = task
+        self._envs: list[Any] = [None] * width  # made when a lane is first used: an env is tens of MB
+        self._lanes: list[_Lane | None] = [None] * width
+        self._batch = np.zeros((width, *net.arch["obs_shape"]), dtype=np.uint8)
+        #: trunk forwards so far (one per step of the live lanes)
+        self.forwards = 0
+
+    def free(self) -> list[int]:
+        """The idle lanes, in order."""
+        return [i for i, lane in enumerate(self._lanes) if lane is None]
+
+    def busy(self) -> bool:
+        """Whether any lane is live."""
+        return any(lane is not None for lane in self._lanes)
+
+    def start(self, index: int, request: EpisodeRequest) -> None:
+        """Start ``request``'s episode in idle lane ``index``."""
+        if self._lanes[index] is not None:
+            raise RuntimeError(f"lane {index} is still live")
+        if self._envs[index] is None:
+            self._envs[index] = self._task.make_env()
+        self._lanes[index] = _Lane(self._envs[index], request, self.out_dim)
+
+    def step(self) -> list[tuple[int, Trajectory]]:
+        """One step of every live lane; returns the episodes that ended, ``(lane, trajectory)``, by lane."""
+        live = [i for i, lane in enumerate(self._lanes) if lane is not None]
+        if not live:
+            return []
+        self._batch[:] = 0
+        for i in live:
+            self._batch[i] = self._lanes[i].episode.obs
+        with torch.inference_mode():
+            features = self.net.trunk(self.net.preprocess(torch.from_numpy(self._batch)))
+            self.forwards += 1
+            actions = {i: self._act(self._lanes[i], features[i : i + 1]) for i in live}
+        ended = []
+        for i in live:
+            lane = self._lanes[i]
+            lane.features.append(features[i].clone())
+            if lane.episode.step(actions[i]):
+                trajectory = lane.episode.trajectory()
+                ended.append((i, replace(trajectory, features=torch.stack(lane.features).numpy())))
+                self._lanes[i] = None
+        return ended
+
+    def _act(self, lane: _Lane, features: torch.Tensor) -> Any:
+        """The lane's action on its row of features: the expert's label, or its head's output."""
+        if lane.weight is None:
+            return lane.episode.label
+        # nn.Linear's own kernel, on one row: a lane of width 1 acts exactly as Policy does
+        out = F.linear(features, lane.weight, lane.bias)
+        if self.discrete:
+            return int(out.argmax(dim=1)[0])
+        return out[0].numpy().astype(np.float32, copy=True)
+
+    def run(self, requests: Sequence[EpisodeRequest]) -> list[Trajectory]:
+        """Every episode of ``requests``, in lanes, each one started in the first free lane in
+        request order; the trajectories in request order."""
+        queue = deque(enumerate(requests))
+        out: list[Trajectory | None] = [None] * len(requests)
+        owner: dict[int, int] = {}
+        while queue or self.busy():
+            for lane in self.free():
+                if not queue:
+                    break
+                owner[lane], request = queue.popleft()
+                self.start(lane, request)
+            for lane, trajectory in self.step():
+                out[owner.pop(lane)] = trajectory
+        return out  # type: ignore[return-value]
+
+    def close(self) -> None:
+        """Close every lane's env."""
+        for env in self._envs:
+            if env is not None:
+                env.close()
+
+    def __enter__(self) -> Lanes:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class _Aborted(BaseException):
+    """Raised in a chain whose run is abandoned because another chain failed."""
+
+
+class _Chain(Generic[T]):
+    """A chain's thread, handed control by :func:`run_chains` and handing it back."""
+
+    def __init__(self, body: Callable[[Callable[[EpisodeRequest], Trajectory]], T], handback: threading.Semaphore):
+        self.body, self.handback = body, handback
+        self.resume = threading.Semaphore(0)
+        self.request: EpisodeRequest | None = None
+        self.reply: Trajectory | None = None
+        self.result: T | None = None
+        self.error: BaseException | None = None
+        self.done = False
+        self.aborted = False
+        self.thread = threading.Thread(target=self._run, daemon=True, name="metadagger-chain")
+
+    def _run(self) -> None:
+        self.resume.acquire()
+        _running.roll = self.roll
+        try:
+            if not self.aborted:
+                self.result = self.body(self.roll)
+        except _Aborted:
+            pass
+        except BaseException as exc:  # handed to run_chains, which raises it in the caller
+            self.error = exc
+        self.done = True
+        self.handback.release()
+
+    def roll(self, request: EpisodeRequest) -> Trajectory:
+        """Ask for one episode and wait, control handed back, until it has ended."""
+        self.request = request
+        self.handback.release()
+        self.resume.acquire()
+        if self.aborted:
+            raise _Aborted
+        reply, self.reply = self.reply, None
+        assert reply is not None
+        return reply
+
+
+def run_chains(lanes: Lanes, bodies: Sequence[Callable[[Callable[[EpisodeRequest], Trajectory]], T]]) -> list[T]:
+    """Run each chain ``body(roll)`` to its end, its episodes in ``lanes``; their results in order.
+
+    A chain is a function of one argument, ``roll``, which it calls with an
+    :class:`EpisodeRequest` to get that episode's trajectory (:func:`current_lane` returns the
+    same ``roll`` inside the chain). Chains run one at a time, each in
+    its own thread, so their arithmetic is what it would be alone; a chain that raises stops the
+    others, and the error is raised here.
+    """
+    handback = threading.Semaphore(0)
+    chains = [_Chain(body, handback) for body in bodies]
+    waiting: deque[_Chain[T]] = deque()
+    owner: dict[int, _Chain[T]] = {}
+
+    def advance(chain: _Chain[T]) -> None:
+        # hand control to the chain until it asks for an episode or ends
+        chain.resume.release()
+        handback.acquire()
+        if chain.error is not None:
+            _abort(chains)
+            raise chain.error
+        if not chain.done:
+            waiting.append(chain)
+
+    for chain in chains:
+        chain.thread.start()
+    try:
+        for chain in chains:
+            advance(chain)
+        while waiting or lanes.busy():
+            for lane in lanes.free():
+                if not waiting:
+                    break
+                chain = waiting.popleft()
+                owner[lane] = chain
+                lanes.start(lane, chain.request)
+            for lane, trajectory in lanes.step():
+                chain = owner.pop(lane)
+                chain.reply = trajectory
+                advance(chain)
+    except BaseException:
+        _abort(chains)
+        raise
+    return [chain.result for chain in chains]  # type: ignore[misc]
+
+
+def _abort(chains: Sequence[_Chain[Any]]) -> None:
+    """End every chain still waiting: each raises :class:`_Aborted` where it waits and finishes."""
+    for chain in chains:
+        if not chain.done:
+            chain.aborted = True
+            chain.resume.release()
+    for chain in chains:
+        chain.thread.join(timeout=10)

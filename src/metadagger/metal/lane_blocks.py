@@ -1,0 +1,57 @@
+"""Per-seed jobs of one protocol in blocks, each block's seeds stepped together in lockstep lanes.
+
+A protocol's per-seed ``work`` (a pair, say) is left as it is: :func:`run_block` runs each job
+of a block as a chain (:func:`~metadagger.imitation.lanes.run_chains`), and every
+:class:`~metadagger.metal.method.SeedLearner` the job makes finds the chain's lane by itself.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+from metadagger.imitation.lanes import EpisodeRequest, Lanes, run_chains
+from metadagger.imitation.rollouts import Trajectory
+from metadagger.metal.groundtruth import cached_groundtruth
+
+
+@dataclass(frozen=True)
+class LaneBlock:
+    """Per-seed jobs of one protocol run together: each job's ``work`` is a chain, its episodes in
+    ``width`` lanes (:func:`run_block`)."""
+
+    work: Callable[[Any], dict[str, Any]]
+    jobs: tuple[Any, ...]
+    width: int
+
+    @property
+    def seed(self) -> int:
+        """The first job's seed (how an error names the block)."""
+        return int(self.jobs[0].seed)
+
+
+def in_blocks(work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], width: int) -> tuple[Callable, list]:
+    """``(work, jobs)`` for the driver: with ``width`` above 1, blocks of ``width`` consecutive jobs
+    run by :func:`run_block`, each returning its jobs' results; else as they are.
+
+    A seed's results do not depend on which seeds share its block (an episode does not depend on
+    its lane-mates, and each seed has a learner of its own), so blocks may be cut from whatever
+    jobs are left to do.
+    """
+    if width == 1:
+        return work, list(jobs)
+    blocks = [LaneBlock(work, tuple(jobs[i : i + width]), width) for i in range(0, len(jobs), width)]
+    return run_block, blocks
+
+
+def run_block(block: LaneBlock) -> list[dict[str, Any]]:
+    """Each job of ``block`` as a chain, every :class:`SeedLearner` it makes rolling out in the
+    block's lanes through pi*'s trunk; the jobs' results in order."""
+    first = block.jobs[0]
+    with Lanes(first.task, cached_groundtruth(first.groundtruth).net, width=block.width) as lanes:
+        return run_chains(lanes, [functools.partial(_job_chain, block.work, job) for job in block.jobs])
+
+
+def _job_chain(work: Callable[[Any], dict[str, Any]], job: Any, lane: Callable[[EpisodeRequest], Trajectory]) -> Any:
+    return work(job)  # its learners find ``lane`` themselves (current_lane)

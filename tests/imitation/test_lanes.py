@@ -1,0 +1,153 @@
+"""Lockstep lanes: an episode is the same whichever episodes share its steps; chains run in lanes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from toy_task import CorridorTask
+
+from metadagger.errors import UserError
+from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.lanes import EpisodeRequest, Lanes, run_chains
+from metadagger.imitation.rollouts import Trajectory, rollout
+from metadagger.policies import make_policy
+
+SEEDS = (0, 1, 2, 3, 4, 5)
+
+
+def _heads(task, n: int) -> list[np.ndarray]:
+    return [make_policy(task, seed=10 + i).head_vector().numpy() for i in range(n)]
+
+
+def _same(a: Trajectory, b: Trajectory, *, features: bool = True) -> None:
+    for name in ("obs", "expert_labels", "learner_actions", "step_rewards", "final_obs"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert (a.reward, a.steps, a.success, a.terminated, a.early_stopped, a.seed) == (
+        b.reward,
+        b.steps,
+        b.success,
+        b.terminated,
+        b.early_stopped,
+        b.seed,
+    )
+    if features:
+        np.testing.assert_array_equal(a.features, b.features)
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+def test_a_lane_acts_with_its_head_on_its_row_of_the_padded_batch(discrete):
+    """Each step's action is the lane's head applied to the trunk's output on a batch of exactly
+    ``width`` rows (the others zero), and those features are the ones the trajectory keeps."""
+    task = CorridorTask(discrete=discrete)
+    policy = make_policy(task, seed=3)
+    with Lanes(task, policy.net, width=3) as lanes:
+        [laned] = lanes.run([EpisodeRequest(SEEDS[0], policy.head_vector().numpy())])
+    batch = np.zeros((len(laned.obs), 3, *laned.obs.shape[1:]), np.uint8)
+    batch[:, 0] = laned.obs
+    for t, padded in enumerate(batch):
+        with torch.inference_mode():
+            features = policy.net.features(torch.from_numpy(padded))[:1]
+            out = policy.net.head(features)
+        np.testing.assert_array_equal(laned.features[t : t + 1], features.numpy())
+        action = out.argmax(dim=1).numpy() if discrete else out.numpy()
+        np.testing.assert_array_equal(laned.learner_actions[t : t + 1], action)
+    env = task.make_env()
+    alone = rollout(env, seed=SEEDS[0], policy=policy)  # batch 1: the same episode up to the last bits
+    env.close()
+    assert alone.steps == laned.steps and np.allclose(alone.learner_actions, laned.learner_actions, atol=1e-5)
+
+
+def test_an_episode_does_not_depend_on_the_episodes_beside_it_nor_on_its_lane():
+    task = CorridorTask(discrete=True)
+    net = make_policy(task, seed=3).net
+    heads = _heads(task, len(SEEDS))
+    requests = [EpisodeRequest(seed, head) for seed, head in zip(SEEDS, heads)]
+    with Lanes(task, net, width=4) as lanes:
+        together = lanes.run(requests)
+        backwards = lanes.run(requests[::-1])[::-1]
+        alone = [lanes.run([request])[0] for request in requests]
+        assert lanes.forwards > 0
+    for a, b, c in zip(together, backwards, alone):
+        _same(a, b)
+        _same(a, c)
+    assert len({t.steps for t in together}) > 1, "episodes of different lengths: lanes were refilled mid-run"
+
+
+def test_the_expert_drives_a_lane_without_a_head_and_early_stops_and_caps_cut_as_alone():
+    task = CorridorTask(discrete=False)
+    policy = make_policy(task, seed=3)
+    env = task.make_env()
+    demo = rollout(env, seed=1, policy=None)
+    env.close()
+    head = policy.head_vector().numpy()
+    with Lanes(task, policy.net, width=3) as lanes:
+        got = lanes.run(
+            [EpisodeRequest(1, None), EpisodeRequest(1, head, early_stop=0.5), EpisodeRequest(2, head, max_steps=2)]
+        )
+    _same(demo, got[0], features=False)
+    assert got[0].features.shape == (demo.steps, policy.net.feature_dim) and got[0].features.dtype == np.float32
+    stopped, capped = got[1], got[2]
+    stop = CosineEarlyStop(threshold=0.5)
+    fired = [stop.update(a, b) for a, b in zip(stopped.learner_actions, stopped.expert_labels)]
+    assert stopped.early_stopped and not stopped.success and fired == [False] * (stopped.steps - 1) + [True]
+    assert capped.steps == 2 and not capped.success and not capped.early_stopped
+
+
+def test_lanes_refuse_a_bad_width():
+    task = CorridorTask()
+    with pytest.raises(ValueError, match="width >= 1"):
+        Lanes(task, make_policy(task, seed=0).net, width=0)
+
+
+def _chain(seeds: tuple[int, ...], head: np.ndarray):
+    """A chain that rolls its seeds one after another, each episode's length shifting the next head."""
+
+    def body(roll):
+        out, shifted = [], head.copy()
+        for seed in seeds:
+            trajectory = roll(EpisodeRequest(seed, shifted))
+            out.append(trajectory)
+            shifted = shifted + np.float32(0.01 * trajectory.steps)
+        return out
+
+    return body
+
+
+def test_chains_give_what_each_gives_alone_in_any_order_and_any_width():
+    task = CorridorTask(discrete=True)
+    net = make_policy(task, seed=3).net
+    heads = _heads(task, 4)
+    plans = [((0, 1, 2), heads[0]), ((3,), heads[1]), ((4, 5), heads[2]), ((1, 3, 5, 0), heads[3])]
+    with Lanes(task, net, width=3) as lanes:
+        together = run_chains(lanes, [_chain(*plan) for plan in plans])
+        backwards = run_chains(lanes, [_chain(*plan) for plan in plans[::-1]])[::-1]
+        alone = [run_chains(lanes, [_chain(*plan)])[0] for plan in plans]
+    with Lanes(task, net, width=3) as other:
+        again = run_chains(other, [_chain(*plan) for plan in plans])
+    for runs in (backwards, alone, again):
+        for mine, theirs in zip(together, runs):
+            assert len(mine) == len(theirs)
+            for a, b in zip(mine, theirs):
+                _same(a, b)
+
+
+def test_a_failing_chain_stops_the_others_and_its_error_reaches_the_caller():
+    task = CorridorTask(discrete=True)
+    net = make_policy(task, seed=3).net
+    head = _heads(task, 1)[0]
+    finished = []
+
+    def failing(roll):
+        roll(EpisodeRequest(0, head))
+        raise UserError("a chain's own error")
+
+    def long(roll):
+        for seed in SEEDS:
+            roll(EpisodeRequest(seed, head))
+        finished.append(True)
+
+    with Lanes(task, net, width=2) as lanes:
+        with pytest.raises(UserError, match="a chain's own error"):
+            run_chains(lanes, [long, failing, long])
+    assert finished == []
