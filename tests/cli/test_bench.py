@@ -132,7 +132,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
 
 
 def test_bench_lanes_times_one_benchmark_seed_at_each_width_without_touching_the_run(carracing_ci_run, tmp_path):
-    from metadagger.cli.bench import bench_lanes
+    from metadagger.cli.bench_lanes import bench_lanes
 
     run = tmp_path / "run"
     shutil.copytree(carracing_ci_run, run)

@@ -103,7 +103,7 @@ def bench_lanes_cmd(
     json_out: Path = typer.Option(Path("runs/bench/lanes.json"), "--json", help="JSON file to write."),
 ) -> None:
     """One benchmark seed of a run at each lane width: wall and CPU seconds, peak memory, speed-ups."""
-    from metadagger.cli.bench import bench_lanes
+    from metadagger.cli.bench_lanes import bench_lanes
 
     _measure_and_write(
         json_out, "--json", lambda: bench_lanes(out, seed=seed, widths=tuple(lanes), overrides=tuple(overrides))
