@@ -268,26 +268,22 @@ def bench_pairs(
     run_kept = read_json(run_summary, "the run's pairs summary") if run_summary.is_file() else None
     pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]))
     task = run_task(config)
-    timings: dict[str, float] = {}
-    summary: dict = {}
-    for n in workers:
-        with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
-            scratch = RunLayout(tmp)  # a scratch run that shares the run's pi*
-            scratch.groundtruth_dir.mkdir()
-            scratch.groundtruth.symlink_to(layout.groundtruth.resolve())
-            start = time.perf_counter()
-            summary = collect_pairs(task, scratch, pairs_config, StageOptions(workers=n, progress=False))
-            timings[str(n)] = time.perf_counter() - start
-    by_width: dict[str, float] = {}
-    for width in lanes:
+
+    def timed(config: Any, n: int) -> tuple[float, dict]:
+        # into a scratch run that shares the run's pi*; process-pool start-up included
         with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
             scratch = RunLayout(tmp)
             scratch.groundtruth_dir.mkdir()
             scratch.groundtruth.symlink_to(layout.groundtruth.resolve())
             start = time.perf_counter()
-            laned = dataclasses.replace(pairs_config, lanes=width)
-            collect_pairs(task, scratch, laned, StageOptions(workers=max(workers), progress=False))
-            by_width[str(width)] = time.perf_counter() - start
+            made = collect_pairs(task, scratch, config, StageOptions(workers=n, progress=False))
+            return time.perf_counter() - start, made
+
+    timings: dict[str, float] = {}
+    summary: dict = {}
+    for n in workers:
+        timings[str(n)], summary = timed(pairs_config, n)
+    by_width = {str(w): timed(dataclasses.replace(pairs_config, lanes=w), max(workers))[0] for w in lanes}
     kept_source = summary if run_kept is None else run_kept
     kept_share = kept_source["kept"] / kept_source["seeds"] if kept_source["seeds"] else 0.0
     best = str(max(workers))
