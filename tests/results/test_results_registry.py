@@ -53,7 +53,9 @@ def test_an_added_run_keeps_small_artifacts_and_a_manifest_of_what_made_it(regis
     assert manifest["beside"] == "the test suite"
     assert set(manifest["stages"]) == {"groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark"}
     assert all(stage["commits"] and stage["cpus"] for stage in manifest["stages"].values())
-    assert manifest["machine"]["kernels"] == (KERNEL_ENV if platform.machine().lower() in ("x86_64", "amd64") else "native")
+    assert manifest["machine"]["kernels"] == (
+        KERNEL_ENV if platform.machine().lower() in ("x86_64", "amd64") else "native"
+    )
     assert manifest["wall_seconds"] > 0
     assert {"config.yaml", "eval/mdm.csv", "benchmark/summary.json", "report/report.md"} <= set(manifest["files"])
     assert not list(root.rglob("*.safetensors")) and not (root / "pairs" / "pairs.jsonl").exists()
@@ -69,7 +71,10 @@ def test_a_run_the_docs_read_diagnostics_of_is_added_with_them(carracing_ci_run,
     shutil.copytree(carracing_ci_run, run)
     root = add_run(run, diagnosed.name, beside="the test suite", registry=tmp_path / "results", progress=False)
     manifest = json.loads((root / "manifest.json").read_text())
-    assert manifest["command"] == "metadagger reproduce --task carracing --preset ci --out runs/carracing-ci-diagnosed --diagnose"
+    assert (
+        manifest["command"]
+        == "metadagger reproduce --task carracing --preset ci --out runs/carracing-ci-diagnosed --diagnose"
+    )
     assert "diagnose" in manifest["stages"] and "diagnostics/mapping.json" in manifest["files"]
     context = BlockContext(load_registry(tmp_path / "results", [diagnosed.name]), tmp_path)
     assert "minus mean-DA's (95%)" in report_section(context, diagnosed.name, "Does a mapper learn anything?")
@@ -108,11 +113,13 @@ def test_a_run_whose_config_departs_from_its_canonical_command_is_refused(carrac
 def test_blocks_are_written_from_the_registry_and_check_names_a_stale_one(registry, canonical, tmp_path):
     (tmp_path / "docs").mkdir()
     page = tmp_path / "docs" / "page.md"
-    page.write_text("# Page\n\n<!-- results: report carracing-ci \"Success against expert queries\" -->\n<!-- /results -->\n\n"
-                    "<!-- results: manifest carracing-ci -->\nold text\n<!-- /results -->\n"
-                    "<!-- results: runs -->\n<!-- /results -->\n<!-- results: glance -->\n<!-- /results -->\n"
-                    "<!-- results: figure carracing-ci report/figures/mdm_vs_bc.png \"MDM against BC\" -->\n<!-- /results -->\n"
-                    "```\n<!-- results: runs -->\nan example of the syntax, left alone\n<!-- /results -->\n```\n")
+    page.write_text(
+        '# Page\n\n<!-- results: report carracing-ci "Success against expert queries" -->\n<!-- /results -->\n\n'
+        "<!-- results: manifest carracing-ci -->\nold text\n<!-- /results -->\n"
+        "<!-- results: runs -->\n<!-- /results -->\n<!-- results: glance -->\n<!-- /results -->\n"
+        '<!-- results: figure carracing-ci report/figures/mdm_vs_bc.png "MDM against BC" -->\n<!-- /results -->\n'
+        "```\n<!-- results: runs -->\nan example of the syntax, left alone\n<!-- /results -->\n```\n"
+    )
     written = build(tmp_path, registry=registry)
     assert len(written) == 5
     text = page.read_text()
@@ -126,27 +133,45 @@ def test_blocks_are_written_from_the_registry_and_check_names_a_stale_one(regist
 
     page.write_text(text.replace("| MDM mean-DA (control) |", "| MDM mean-DA |"))
     stale = build(tmp_path, registry=registry, check=True)
-    assert len(stale) == 1 and stale[0].endswith(":3 report carracing-ci \"Success against expert queries\"")
+    assert len(stale) == 1 and stale[0].endswith(':3 report carracing-ci "Success against expert queries"')
 
     result = runner.invoke(app, ["results", "check", "--root", str(tmp_path), "--results", str(registry)])
     assert result.exit_code == 1 and "stale: " in result.output
 
 
 def _entry(method: str, setting: str, successes: int, queries: float) -> dict:
-    return {"method": method, "setting": setting, "demo_fraction": 1.0, "successes": successes, "seeds": 10,
-            "success_rate": successes / 10, "success_ci_low": 0.0, "success_ci_high": 1.0, "mean_queries": queries}
+    return {
+        "method": method,
+        "setting": setting,
+        "demo_fraction": 1.0,
+        "successes": successes,
+        "seeds": 10,
+        "success_rate": successes / 10,
+        "success_ci_low": 0.0,
+        "success_ci_high": 1.0,
+        "mean_queries": queries,
+    }
 
 
 def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the_gates(tmp_path):
     run = tmp_path / "fetch-quick"
     (run / "benchmark").mkdir(parents=True)
-    entries = [_entry("mdm-dm", "", 0, 50), _entry("mdm-pistar-head", "", 5, 0), _entry("mdm-mean-da", "", 1, 0),
-               _entry("dagger", "3", 4, 182), _entry("dagger-thrifty", "0.025", 6, 55),
-               _entry("dagger-mdi", "two-shot", 8, 60), _entry("dagger-xavier", "two-shot", 9, 61),
-               _entry("dagger-bc-init", "two-shot", 9, 70)]
+    entries = [
+        _entry("mdm-dm", "", 0, 50),
+        _entry("mdm-pistar-head", "", 5, 0),
+        _entry("mdm-mean-da", "", 1, 0),
+        _entry("dagger", "3", 4, 182),
+        _entry("dagger-thrifty", "0.025", 6, 55),
+        _entry("dagger-mdi", "two-shot", 8, 60),
+        _entry("dagger-xavier", "two-shot", 9, 61),
+        _entry("dagger-bc-init", "two-shot", 9, 70),
+    ]
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
-    row = next(line for line in glance(BlockContext({"fetch-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
-               if line.startswith("| `fetch-quick`"))
+    row = next(
+        line
+        for line in glance(BlockContext({"fetch-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
+        if line.startswith("| `fetch-quick`")
+    )
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[2] == "DAgger-MDI two-shot: 80.0% (8/10; 0.0%-100.0%) at 60"
     assert cells[5] == "-"  # no bc-refit row
@@ -158,18 +183,29 @@ def test_glance_shows_bc_refitted_beside_the_controls(tmp_path):
     (run / "benchmark").mkdir(parents=True)
     entries = [_entry("mdm-dm", "", 0, 745), _entry("bc-refit", "3", 9, 745), _entry("dagger", "3", 9, 3340)]
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
-    row = next(line for line in glance(BlockContext({"carracing-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
-               if line.startswith("| `carracing-quick`"))
+    row = next(
+        line
+        for line in glance(BlockContext({"carracing-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
+        if line.startswith("| `carracing-quick`")
+    )
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[5] == "90.0% (9/10; 0.0%-100.0%) at 745" and cells[6].startswith("90.0% (9/10") and cells[7] == "-"
 
 
 def test_the_manifest_line_shows_a_call_from_an_uncommitted_tree(tmp_path):
     stage = {"commits": ["a" * 40, "a" * 40 + "+dirty"], "cpus": ["CPU"]}
-    manifest = {"command": "metadagger reproduce", "wall_seconds": 60.0, "beside": "nothing", "commit": "a" * 40 + "+dirty",
-                "stages": {"pairs": stage}, "machine": {"cpu": "CPU", "instruction_sets": ["avx2"], "kernels": "native", "cores": 2, "numerics": NUMERICS}}
+    manifest = {
+        "command": "metadagger reproduce",
+        "wall_seconds": 60.0,
+        "beside": "nothing",
+        "commit": "a" * 40 + "+dirty",
+        "stages": {"pairs": stage},
+        "machine": {"cpu": "CPU", "instruction_sets": ["avx2"], "kernels": "native", "cores": 2, "numerics": NUMERICS},
+    }
     line = manifest_line(BlockContext({"fetch-quick": RegistryRun(tmp_path, manifest)}, tmp_path), "fetch-quick")
-    assert line.endswith(f"Stages made by {'a' * 10}, {'a' * 10}+dirty; checked current at {'a' * 10}+dirty; numerics current.")
+    assert line.endswith(
+        f"Stages made by {'a' * 10}, {'a' * 10}+dirty; checked current at {'a' * 10}+dirty; numerics current."
+    )
 
 
 def test_a_run_made_with_older_numerics_is_marked_stale_where_its_numbers_show(tmp_path):
@@ -182,14 +218,19 @@ def test_a_run_made_with_older_numerics_is_marked_stale_where_its_numbers_show(t
     row = next(line for line in runs_table(context).splitlines() if line.startswith("| `carracing-quick`"))
     assert f"| stale ({NUMERICS - 1}; now {NUMERICS}) |" in row
     current = BlockContext({"carracing-quick": RegistryRun(run, CURRENT | {"wall_seconds": 60.0})}, tmp_path)
-    assert "| current |" in next(line for line in runs_table(current).splitlines() if line.startswith("| `carracing-quick`"))
+    assert "| current |" in next(
+        line for line in runs_table(current).splitlines() if line.startswith("| `carracing-quick`")
+    )
 
 
 def test_an_unknown_block_kind_is_one_line(registry, tmp_path):
     (tmp_path / "README.md").write_text("<!-- results: tabel -->\n<!-- /results -->\n")
     result = runner.invoke(app, ["results", "build", "--root", str(tmp_path), "--results", str(registry)])
     assert result.exit_code == 2
-    assert result.output.strip().splitlines()[-1].startswith("error: ") and "block kind 'tabel' is unknown" in result.output
+    assert (
+        result.output.strip().splitlines()[-1].startswith("error: ")
+        and "block kind 'tabel' is unknown" in result.output
+    )
 
 
 def test_the_repositorys_readme_and_docs_are_what_build_writes():

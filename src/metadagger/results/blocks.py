@@ -24,7 +24,9 @@ from metadagger.results.tables import BLOCKS, BlockContext
 from metadagger.utils.io import write_text
 
 #: A block: its opening comment (kind and arguments), its generated body, its closing comment.
-BLOCK = re.compile(r"^(?P<open><!-- results: (?P<spec>[^\n]*?) -->\n)(?P<body>.*?)(?P<close><!-- /results -->)", re.S | re.M)
+BLOCK = re.compile(
+    r"^(?P<open><!-- results: (?P<spec>[^\n]*?) -->\n)(?P<body>.*?)(?P<close><!-- /results -->)", re.S | re.M
+)
 
 #: A fenced code block, whose text is never a block (a page may show the syntax).
 FENCE = re.compile(r"^```.*?^```", re.S | re.M)
@@ -50,8 +52,10 @@ def render_file(path: Path, context: BlockContext) -> tuple[str, list[str]]:
         words = shlex.split(spec)
         line = text.count("\n", 0, match.start()) + 1
         if not words or words[0] not in BLOCKS:
-            raise UserError(f"{path}:{line}: block kind {words[0] if words else ''!r} is unknown; "
-                            f"expected one of {', '.join(sorted(BLOCKS))}")
+            raise UserError(
+                f"{path}:{line}: block kind {words[0] if words else ''!r} is unknown; "
+                f"expected one of {', '.join(sorted(BLOCKS))}"
+            )
         try:
             body = BLOCKS[words[0]](context.at(path), *words[1:]).rstrip("\n") + "\n"
         except (TypeError, ValueError) as exc:
@@ -63,8 +67,13 @@ def render_file(path: Path, context: BlockContext) -> tuple[str, list[str]]:
     return BLOCK.sub(regenerate, text), changed
 
 
-def build(root: str | Path = ".", *, registry: str | Path | None = None, check: bool = False,
-          files: Sequence[Path] | None = None) -> list[str]:
+def build(
+    root: str | Path = ".",
+    *,
+    registry: str | Path | None = None,
+    check: bool = False,
+    files: Sequence[Path] | None = None,
+) -> list[str]:
     """Regenerate every block of README.md and docs/ under ``root`` from the registry (default
     ``root/results``); with ``check``, write nothing. Returns the blocks that differed."""
     root = Path(root)

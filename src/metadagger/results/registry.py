@@ -29,9 +29,20 @@ from metadagger.version import source_revision
 REGISTRY = Path("results")
 
 #: The files of a run folder a registry run keeps (globs relative to the run folder).
-KEPT_FILES = ("config.yaml", "stage_times.json", "groundtruth/metrics.json", "pairs/summary.json",
-              "mappers/*/curves.csv", "eval/*.csv", "benchmark/queries.csv", "benchmark/summary.json",
-              "diagnostics/mapping.json", "report/report.md", "report/figures/*.png", "videos/*.gif")
+KEPT_FILES = (
+    "config.yaml",
+    "stage_times.json",
+    "groundtruth/metrics.json",
+    "pairs/summary.json",
+    "mappers/*/curves.csv",
+    "eval/*.csv",
+    "benchmark/queries.csv",
+    "benchmark/summary.json",
+    "diagnostics/mapping.json",
+    "report/report.md",
+    "report/figures/*.png",
+    "videos/*.gif",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,11 +73,22 @@ CANONICAL_RUNS = (
     CanonicalRun("fetch-family-quick", "fetch-family", "quick", shows="a Fetch task family, small"),
     CanonicalRun("carracing-paper", "carracing", "paper", shows="the paper's CarRacing setup"),
     CanonicalRun("fetch-paper", "fetch", "paper", shows="the paper's FetchPickAndPlace setup"),
-    CanonicalRun("carracing-family-paper", "carracing-family", "paper", diagnose=True,
-                 shows="the CarRacing family at paper scale, every head from one shared initialisation"),
+    CanonicalRun(
+        "carracing-family-paper",
+        "carracing-family",
+        "paper",
+        diagnose=True,
+        shows="the CarRacing family at paper scale, every head from one shared initialisation",
+    ),
     CanonicalRun("fetch-family-paper", "fetch-family", "paper", shows="the Fetch family at paper scale"),
-    CanonicalRun("carracing-family-paper-per-seed-init", "carracing-family", "paper", ("pairs.bc.head_init=seed",),
-                 shows="the CarRacing family with the paper's per-seed head initialisation", diagnose=True),
+    CanonicalRun(
+        "carracing-family-paper-per-seed-init",
+        "carracing-family",
+        "paper",
+        ("pairs.bc.head_init=seed",),
+        shows="the CarRacing family with the paper's per-seed head initialisation",
+        diagnose=True,
+    ),
 )
 
 
@@ -75,7 +97,9 @@ def canonical_run(name: str) -> CanonicalRun:
     for run in CANONICAL_RUNS:
         if run.name == name:
             return run
-    raise UserError(f"--name {name!r} is not a canonical run; expected one of {', '.join(r.name for r in CANONICAL_RUNS)}")
+    raise UserError(
+        f"--name {name!r} is not a canonical run; expected one of {', '.join(r.name for r in CANONICAL_RUNS)}"
+    )
 
 
 def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = REGISTRY, progress: bool = True) -> Path:
@@ -92,18 +116,32 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
     """
     canonical = canonical_run(name)
     if not beside.strip():
-        raise UserError("--beside is empty; say what else ran on the machine while the run was made (\"nothing\" if nothing)")
+        raise UserError(
+            '--beside is empty; say what else ran on the machine while the run was made ("nothing" if nothing)'
+        )
     config = load_run(run, canonical.overrides)
     if (config.task, config.preset) != (canonical.task, canonical.preset):
-        raise UserError(f"{run} is a run of task {config.task!r}, preset {config.preset!r}; {name} is task "
-                        f"{canonical.task!r}, preset {canonical.preset!r}: pass the run folder made by `{canonical.command}`")
-    departures = config_departures(config, resolve_config(canonical.task, canonical.preset, overrides=canonical.overrides))
+        raise UserError(
+            f"{run} is a run of task {config.task!r}, preset {config.preset!r}; {name} is task "
+            f"{canonical.task!r}, preset {canonical.preset!r}: pass the run folder made by `{canonical.command}`"
+        )
+    departures = config_departures(
+        config, resolve_config(canonical.task, canonical.preset, overrides=canonical.overrides)
+    )
     if departures:
-        raise UserError(f"{run}'s config.yaml departs from what `{canonical.command}` makes ({'; '.join(departures[:4])}"
-                        f"{'; ...' if len(departures) > 4 else ''}): the preset changed since the run was made, or the run "
-                        "had other --set values; run that command again with the --set that brings each back")
-    reproduce(canonical.task, canonical.preset, run, overrides=canonical.overrides, diagnose=canonical.diagnose,
-              options=StageOptions(progress=progress))
+        raise UserError(
+            f"{run}'s config.yaml departs from what `{canonical.command}` makes ({'; '.join(departures[:4])}"
+            f"{'; ...' if len(departures) > 4 else ''}): the preset changed since the run was made, or the run "
+            "had other --set values; run that command again with the --set that brings each back"
+        )
+    reproduce(
+        canonical.task,
+        canonical.preset,
+        run,
+        overrides=canonical.overrides,
+        diagnose=canonical.diagnose,
+        options=StageOptions(progress=progress),
+    )
     target = Path(registry) / name
     staging = target.with_name(f".{name}.tmp")
     shutil.rmtree(staging, ignore_errors=True)
@@ -117,6 +155,7 @@ def add_run(run: str | Path, name: str, *, beside: str, registry: str | Path = R
 def config_departures(config: RunConfig, canonical: RunConfig) -> list[str]:
     """``key: run's -> canonical`` for every setting where a run's config departs from its
     canonical command's (the package version and the ``log`` key aside: neither changes a number)."""
+
     def settings(c: RunConfig) -> dict[str, Any]:
         return {k: v for k, v in dataclasses.asdict(c).items() if k not in ("metadagger_version", "log")}
 
@@ -189,7 +228,9 @@ def load_registry(registry: str | Path = REGISTRY, names: Sequence[str] | None =
         for relative, digest in manifest.get("files", {}).items():
             path = root / relative
             if not path.is_file() or hashlib.sha256(path.read_bytes()).hexdigest() != digest:
-                raise UserError(f"{path} is {'missing' if not path.is_file() else 'changed'} since the run was added; "
-                                f"run `metadagger results add --out runs/{name} --name {name}` again")
+                raise UserError(
+                    f"{path} is {'missing' if not path.is_file() else 'changed'} since the run was added; "
+                    f"run `metadagger results add --out runs/{name} --name {name}` again"
+                )
         runs[name] = RegistryRun(root, manifest)
     return runs

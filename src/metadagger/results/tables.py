@@ -62,16 +62,20 @@ class BlockContext:
 
 def _missing(name: str) -> str:
     run = canonical_run(name)
-    return (f"*Not in the registry yet: `{run.command}`, then `metadagger results add --out runs/{run.name} "
-            f"--name {run.name} --beside \"...\"`.*")
+    return (
+        f"*Not in the registry yet: `{run.command}`, then `metadagger results add --out runs/{run.name} "
+        f'--name {run.name} --beside "..."`.*'
+    )
 
 
 def _cell(entry: dict[str, Any] | None) -> str:
     """success (interval) @ queries per seed."""
     if entry is None:
         return "-"
-    return (f"{pct(entry['success_rate'])} ({entry['successes']}/{entry['seeds']}; {pct(entry['success_ci_low'])}-"
-            f"{pct(entry['success_ci_high'])}) at {entry['mean_queries']:,.0f}")
+    return (
+        f"{pct(entry['success_rate'])} ({entry['successes']}/{entry['seeds']}; {pct(entry['success_ci_low'])}-"
+        f"{pct(entry['success_ci_high'])}) at {entry['mean_queries']:,.0f}"
+    )
 
 
 def _best(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -88,33 +92,69 @@ def _labelled(entry: dict[str, Any] | None) -> str:
 
 def glance(context: BlockContext) -> str:
     """The at-a-glance table of the paper-preset runs, then of the quick ones."""
-    header = ("run", "the paper", "best MetaL DAgger", "control: pi*-head", "control: mean-DA", "control: BC refitted",
-              "DAgger (last round)", "best gate")
+    header = (
+        "run",
+        "the paper",
+        "best MetaL DAgger",
+        "control: pi*-head",
+        "control: mean-DA",
+        "control: BC refitted",
+        "DAgger (last round)",
+        "best gate",
+    )
     rows = []
     for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
         found = context.runs.get(run.name)
         if found is None or not found.path("benchmark/summary.json").is_file():
-            rows.append((f"`{run.name}`", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", "not run yet", "", "", "", "", ""))
+            rows.append(
+                (
+                    f"`{run.name}`",
+                    PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "",
+                    "not run yet",
+                    "",
+                    "",
+                    "",
+                    "",
+                    "",
+                )
+            )
             continue
-        entries = [e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0]
+        entries = [
+            e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0
+        ]
         by_method = {e["method"]: e for e in entries}
-        mappers = [e for e in entries if (e["method"].startswith(MDM_PREFIX) and e["method"] not in CONTROLS)
-                   or e["method"] == MDI_METHODS["dagger-mdi"]]
+        mappers = [
+            e
+            for e in entries
+            if (e["method"].startswith(MDM_PREFIX) and e["method"] not in CONTROLS)
+            or e["method"] == MDI_METHODS["dagger-mdi"]
+        ]
         dagger = [e for e in entries if e["method"] == "dagger"]
         gates = [e for e in entries if e["method"] in GATED]
         stale = "" if _made_with_current_numerics(found.manifest) else " (older numerics)"
-        rows.append((f"`{run.name}`{stale}", PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "", _labelled(_best(mappers)),
-                     _cell(by_method.get(CONTROLS[0])), _cell(by_method.get(CONTROLS[1])), _cell(by_method.get(BC_REFIT)),
-                     _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None), _labelled(_best(gates))))
-    note = ("Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
-            "demonstration's included; the controls use none), every method on the whole demonstration (the shorter ones of "
-            "`benchmark.demo_fractions` are in each run's report), one benchmark rollout per seed under the pairs' early stop "
-            "(`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, so an MDM row can stand "
-            "below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as DAgger refits it, on the "
-            "demonstration alone (`bc-refit`; '-' for a run that has no such row). Best MetaL DAgger: the best MDM mapper "
-            "or DAgger-MDI. A run marked 'older numerics' was made before this code's `NUMERICS` (docs/results.md). It "
-            "and the best gate are chosen on these same seeds, which favours them; paired comparisons are in each run's "
-            "report.")
+        rows.append(
+            (
+                f"`{run.name}`{stale}",
+                PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "",
+                _labelled(_best(mappers)),
+                _cell(by_method.get(CONTROLS[0])),
+                _cell(by_method.get(CONTROLS[1])),
+                _cell(by_method.get(BC_REFIT)),
+                _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None),
+                _labelled(_best(gates)),
+            )
+        )
+    note = (
+        "Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
+        "demonstration's included; the controls use none), every method on the whole demonstration (the shorter "
+        "ones of `benchmark.demo_fractions` are in each run's report), one benchmark rollout per seed under the "
+        "pairs' early stop (`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, "
+        "so an MDM row can stand below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as "
+        "DAgger refits it, on the demonstration alone (`bc-refit`; '-' for a run that has no such row). Best "
+        "MetaL DAgger: the best MDM mapper or DAgger-MDI. A run marked 'older numerics' was made before this "
+        "code's `NUMERICS` (docs/results.md). It and the best gate are chosen on these same seeds, which favours "
+        "them; paired comparisons are in each run's report."
+    )
     return "\n".join([note, "", *markdown_table(header, rows)])
 
 
@@ -125,11 +165,15 @@ def runs_table(context: BlockContext) -> str:
         found = context.runs.get(run.name)
         wall = duration(found.manifest["wall_seconds"]) if found else "not run yet"
         cpu = found.manifest["machine"]["cpu"] if found else "-"
-        rows.append((f"`{run.name}`", f"`{run.command}`", wall, cpu, _numerics(found.manifest) if found else "-", run.shows))
-    note = ("Wall time as measured, on the CPU named, with the other work the run's manifest names running beside it "
-            "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less. Numerics: "
-            "whether the run was made with this code's numerics (`NUMERICS`); a stale run's numbers are those of older "
-            "code, and `metadagger results add` on its folder brings it up to date.")
+        rows.append(
+            (f"`{run.name}`", f"`{run.command}`", wall, cpu, _numerics(found.manifest) if found else "-", run.shows)
+        )
+    note = (
+        "Wall time as measured, on the CPU named, with the other work the run's manifest names running beside it "
+        "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less. Numerics: "
+        "whether the run was made with this code's numerics (`NUMERICS`); a stale run's numbers are those of older "
+        "code, and `metadagger results add` on its folder brings it up to date."
+    )
     return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "numerics", "shows"), rows)])
 
 
@@ -139,7 +183,7 @@ def _made_with_current_numerics(manifest: dict[str, Any]) -> bool:
 
 
 def _numerics(manifest: dict[str, Any]) -> str:
-    """"current", or which ``NUMERICS`` a stale registry run was made with."""
+    """ "current", or which ``NUMERICS`` a stale registry run was made with."""
     if _made_with_current_numerics(manifest):
         return "current"
     return f"stale ({manifest['machine'].get('numerics')}; now {NUMERICS})"
@@ -153,15 +197,26 @@ def report_section(context: BlockContext, name: str, heading: str) -> str:
     if found is None:
         return _missing(name)
     lines = found.path("report/report.md").read_text().splitlines()
-    start = next((i for i, line in enumerate(lines) if line.lstrip("#").strip().startswith(heading) and line.startswith("#")), None)
+    start = next(
+        (i for i, line in enumerate(lines) if line.lstrip("#").strip().startswith(heading) and line.startswith("#")),
+        None,
+    )
     if start is None:
         raise ValueError(f"registry run {name}'s report has no heading {heading!r}")
     level = len(lines[start]) - len(lines[start].lstrip("#"))
-    end = next((i for i in range(start + 1, len(lines))
-                if lines[i].startswith("#") and len(lines[i]) - len(lines[i].lstrip("#")) <= level), len(lines))
+    end = next(
+        (
+            i
+            for i in range(start + 1, len(lines))
+            if lines[i].startswith("#") and len(lines[i]) - len(lines[i].lstrip("#")) <= level
+        ),
+        len(lines),
+    )
     figures = found.path("report")
-    body = [re.sub(r"\]\((figures/[^)]+)\)", lambda m: f"]({context.link(figures / m.group(1))})", line)
-            for line in lines[start + 1:end]]
+    body = [
+        re.sub(r"\]\((figures/[^)]+)\)", lambda m: f"]({context.link(figures / m.group(1))})", line)
+        for line in lines[start + 1 : end]
+    ]
     return "\n".join(body).strip("\n")
 
 
@@ -190,10 +245,12 @@ def manifest_line(context: BlockContext, name: str) -> str:
     commits = sorted({c for stage in m["stages"].values() for c in stage.get("commits", [])})
     kernels = m["machine"]["kernels"]
     pins = "native kernels" if kernels == "native" else "pinned kernels"
-    return (f"`{m['command']}`: {duration(m['wall_seconds'])} on {m['machine']['cpu']} "
-            f"({', '.join(m['machine']['instruction_sets'])}; {pins}), {m['machine']['cores']} cores; beside it: "
-            f"{m['beside']}. Stages made by {', '.join(_short(c) for c in commits) or 'unrecorded commits'}; "
-            f"checked current at {_short(m['commit'])}; numerics {_numerics(m)}.")
+    return (
+        f"`{m['command']}`: {duration(m['wall_seconds'])} on {m['machine']['cpu']} "
+        f"({', '.join(m['machine']['instruction_sets'])}; {pins}), {m['machine']['cores']} cores; beside it: "
+        f"{m['beside']}. Stages made by {', '.join(_short(c) for c in commits) or 'unrecorded commits'}; "
+        f"checked current at {_short(m['commit'])}; numerics {_numerics(m)}."
+    )
 
 
 #: Block kinds by name.
