@@ -12,6 +12,7 @@ from toy_task import CorridorTask
 
 from metadagger.errors import UserError
 from metadagger.evaluation import benchmark as bench
+from metadagger.evaluation import benchmark_figure as figure
 from metadagger.evaluation.benchmark import BenchmarkConfig, method_keys, run_benchmark
 from metadagger.evaluation.methods import GateKey
 from metadagger.evaluation.report_benchmark import benchmark_section
@@ -33,6 +34,7 @@ CONFIG = BenchmarkConfig(
         "dagger-novelty": [0.5],
         "dagger-thrifty": [0.25],
         "dagger-conformal": [0.5],
+        "dagger-oracle": [0.0],
     },
     demo_fractions=(0.5, 1.0),
 )
@@ -70,6 +72,7 @@ def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
         "dagger-novelty@0.5",
         "dagger-thrifty@0.25",
         "dagger-conformal@0.5",
+        "dagger-oracle@0",  # the ceiling, last
     ]
     # the shorter demonstration for BC and the gates; pi*'s head never reads it, DAgger keeps the whole one
     assert [key.id for key in keys] == [
@@ -172,11 +175,13 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
         gate = real(name, setting, **options)
 
         class Counting:
-            def select(self, *args, memory, **kwargs):
+            reads_expert = False
+
+            def choose(self, *args, memory, **kwargs):
                 remembered.append([(len(e.features), e.succeeded) for e in memory.episodes])
-                mask = gate.select(*args, memory=memory, **kwargs)
-                selected.append(int(mask.sum()))
-                return mask
+                chosen = gate.choose(*args, memory=memory, **kwargs)
+                selected.append(chosen.mask.nonzero().flatten().tolist())
+                return chosen
 
         return Counting()
 
@@ -185,10 +190,18 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
     job = _one_key_job(toy_run, key, SEEDS[0], CONFIG)
     [row] = bench.benchmark_seed(job)["entries"][key.id]  # in this process: the patch applies
     demo = collect(CorridorTask(), SEEDS[:1], policy=None)[0]
-    assert len(selected) == ROUNDS and row["expert_queries"] == demo.steps + sum(selected)
-    bc_row = bench.benchmark_seed(dataclasses.replace(job, methods=("bc@",), keys=(bench.MethodKey("bc", ""),)))[
-        "entries"
-    ]["bc@"][0]
+    assert len(selected) == ROUNDS and row["expert_queries"] == demo.steps + sum(map(len, selected))
+    # the ledger: the demonstration, then each round's labelled steps exactly, as runs of consecutive steps
+    assert [r["round"] for r in row["labels"]] == list(range(ROUNDS + 1))
+    assert row["labels"][0]["runs"] == [[0, demo.steps]]
+    for record, steps in zip(row["labels"][1:], selected):
+        assert [s for a, b in record["runs"] for s in range(a, b)] == steps
+        assert all(b2 > a2 > b1 for (_, b1), (a2, b2) in zip(record["runs"], record["runs"][1:]))
+    assert row["takeovers"] == sum(len(r["runs"]) for r in row["labels"])
+    assert row["episodes_asked"] == 1 + sum(1 for steps in selected if steps)
+    bc_row = bench.benchmark_seed(dataclasses.replace(job, methods=("bc@",), keys=(bench.BCKey("bc", ""),)))["entries"][
+        "bc@"
+    ][0]
     assert remembered == [
         [(demo.steps, demo.success)],
         [(demo.steps, demo.success), (bc_row["steps"], bc_row["success"])],
@@ -246,7 +259,7 @@ def test_rows_made_alone_are_not_reused_for_lanes(toy_run, tmp_path):
 
 def test_a_round_that_labels_nothing_rolls_nothing_out_again(toy_run, monkeypatch):
     """A gate that chooses no state leaves the head as it was, so the round's rollout is the last one."""
-    from metadagger.imitation.gates import make_gate
+    from metadagger.imitation.gate_registry import make_gate
     from metadagger.metal.method import dagger_rounds
 
     with SeedLearner(CorridorTask(), str(toy_run.groundtruth), SEEDS[0], head_init_seed=SEEDS[0]) as learner:
@@ -284,13 +297,17 @@ def test_summary_figure_and_report_section(toy_run, rows):
 def test_config_errors():
     with pytest.raises(UserError, match="benchmark.methods has unknown method"):
         BenchmarkConfig(methods=("dagger-magic",))
-    with pytest.raises(UserError, match="benchmark.grids.dagger-ensemble is missing"):
-        BenchmarkConfig(grids={"dagger-random": [0.1]})
+    # a gate left out of the grids sweeps its declared grid
+    assert BenchmarkConfig(grids={"dagger-random": [0.1]}).grid("dagger-ensemble") == [0.5, 0.8, 0.95]
+    with pytest.raises(UserError, match="benchmark.gate_options has unknown"):
+        BenchmarkConfig(gate_options={"dagger-x": {"k": 1}})
+    with pytest.raises(UserError, match="unknown option.* q for gate 'novelty'"):
+        BenchmarkConfig(gate_options={"dagger-novelty": {"q": 1}})
     with pytest.raises(UserError, match="benchmark.grids has unknown"):
         BenchmarkConfig(grids={**CONFIG.grids, "dagger-x": [0.5]})
     with pytest.raises(UserError, match="benchmark.methods must not be empty; allowed: bc, mdm, dagger"):
         BenchmarkConfig(methods=())
-    with pytest.raises(UserError, match="benchmark.grids.dagger-random is missing or empty"):
+    with pytest.raises(UserError, match="benchmark.grids.dagger-random is empty"):
         dataclasses.replace(CONFIG, methods=("dagger-random",), grids={"dagger-random": []})
 
 
@@ -399,46 +416,10 @@ def test_only_a_method_that_succeeds_as_often_as_dagger_repays_meta_training(tmp
     assert "| MDM DM | 0.0% | 40.0 | never (success 0%) |" in lines
 
 
-def _figure(monkeypatch, summary: dict):
-    """The figure plot_queries draws for ``summary``, kept open to be read."""
-    figures = []
-    monkeypatch.setattr(bench, "save_figure", lambda fig, path: figures.append(fig) or path)
-    bench.plot_queries(summary, None)
-    return figures[0]
-
-
-def test_points_at_one_query_count_are_spread_and_ticked(monkeypatch):
-    from metadagger.utils.plotting import plt
-
-    mdm = ["mdm-dm", "mdm-sam", "mdm-tam", "mdm-ridge", "mdm-mean-da", "mdm-pistar-head"]
-    entries = [
-        _entry("bc", "", 0.0, 40),
-        *(_entry(m, "", 0.0, 40) for m in mdm),
-        _entry("dagger", "1", 0.0, 80),
-        _entry("dagger-random", "0.5", 0.0, 56.5),
-        _entry("dagger-ensemble", "0.5", 0.0, 60),
-        _entry("dagger-novelty", "0.5", 0.0, 60),
-    ]
-    fig = _figure(monkeypatch, {"entries": entries, "meta_training_queries": {}})
-    ax = fig.axes[0]
-    assert list(ax.get_xticks()) == [40, 56.5, 60, 80] and [t.get_text() for t in ax.get_xticklabels()] == [
-        "40",
-        "56.5",
-        "60",
-        "80",
-    ]
-    assert all(c.has_yerr for c in ax.containers) and len(ax.containers) == len(entries)
-    xs = [x for c in ax.containers for x in c.lines[0].get_xdata()]
-    assert len(set(xs)) == len(entries)  # no point hides another
-    assert all(abs(x / e["mean_queries"] - 1) < 0.05 for x, e in zip(xs, entries))  # each near its own count
-    assert "points at one count are spread sideways" in ax.get_xlabel()
-    plt.close(fig)
-
-
 def test_query_ticks_and_dodge():
-    assert bench.query_ticks([40.0, 41.0, 80.0]) == [40.0, 80.0]  # 41 would print over 40
-    assert bench.query_ticks([10, 15, 23, 35, 52, 80, 120, 180, 270, 400]) == [10, 20, 50, 100, 200]
-    assert bench.dodge([40.0, 80.0, 40.0], 0.01) == [40.0 * 10**-0.005, 80.0, 40.0 * 10**0.005]
+    assert figure.query_ticks([40.0, 41.0, 80.0]) == [40.0, 80.0]  # 41 would print over 40
+    assert figure.query_ticks([10, 15, 23, 35, 52, 80, 120, 180, 270, 400]) == [10, 20, 50, 100, 200]
+    assert figure.dodge([40.0, 80.0, 40.0], 0.01) == [40.0 * 10**-0.005, 80.0, 40.0 * 10**0.005]
 
 
 def test_every_wilson_interval_draws(tmp_path):
@@ -452,6 +433,7 @@ def test_every_wilson_interval_draws(tmp_path):
                 {
                     "method": method,
                     "setting": str(n),
+                    "demo_fraction": 1.0,
                     "seeds": n,
                     "successes": k,
                     "success_rate": k / n,
@@ -461,7 +443,7 @@ def test_every_wilson_interval_draws(tmp_path):
                     "mean_queries": float(n),
                 }
             )
-    path = bench.plot_queries({"entries": entries, "meta_training_queries": {}}, tmp_path / "queries.png")
+    path = figure.plot_queries({"entries": entries, "meta_training_queries": {}}, tmp_path / "queries.png")
     assert path.read_bytes()[:4] == b"\x89PNG"
 
 
@@ -489,16 +471,9 @@ def test_a_failing_figure_is_a_line_in_the_report_section(tmp_path, monkeypatch)
     assert "| MDM DM | 50.0% | 500.0 | 50 |" in lines
 
 
-def test_controls_sit_at_a_zero_tick_and_shorter_demonstrations_are_named(toy_run, rows, monkeypatch):
-    from metadagger.utils.plotting import plt
-
+def test_shorter_demonstrations_are_named(toy_run, rows):
     summary = json.loads(toy_run.benchmark_summary.read_text())
-    text = "\n".join(benchmark_section(toy_run))  # before the figure is patched to stay open
-    fig = _figure(monkeypatch, summary)
-    ax = fig.axes[0]
-    labels = [t.get_text() for t in ax.get_xticklabels()]
-    assert labels[0] == "0" and ax.get_xticks()[0] < ax.get_xticks()[1]
-    plt.close(fig)
+    text = "\n".join(benchmark_section(toy_run))
     assert (
         "| BC | 50% of the demonstration |" in text
         and "| DAgger, random gate | 0.5, 50% of the demonstration |" in text

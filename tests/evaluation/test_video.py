@@ -9,7 +9,7 @@ from toy_task import CorridorTask
 from metadagger.errors import UserError
 from metadagger.evaluation import benchmark as bench
 from metadagger.evaluation.benchmark import BenchmarkConfig
-from metadagger.evaluation.methods import MapperKey, MethodKey, RoundKey
+from metadagger.evaluation.methods import BCKey, MapperKey, RoundKey
 from metadagger.evaluation.video import BAND, check_methods, compose, learner_view, seed_clips, write_video
 from metadagger.imitation.bc import BCConfig
 from metadagger.mapping.mappers import MapperFile
@@ -38,7 +38,7 @@ def clips(toy_run):
 
 def test_each_clip_is_the_rollout_its_benchmark_row_is_made_of(toy_run, clips):
     keys = (
-        MethodKey("bc", ""),
+        BCKey("bc", ""),
         MapperKey("mdm-pistar-head", "", kind="pistar-head"),
         RoundKey("dagger", str(ROUNDS), round=ROUNDS),
     )

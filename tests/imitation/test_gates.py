@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from metadagger.errors import UserError
+from metadagger.imitation.gate_registry import gated_names, make_gate
 from metadagger.imitation.gates import (
-    GATES,
     ConformalGate,
     EnsembleGate,
     Episode,
@@ -19,7 +19,6 @@ from metadagger.imitation.gates import (
     ThriftyGate,
     above_quantile,
     conformal_threshold,
-    make_gate,
 )
 
 F = 32
@@ -65,7 +64,7 @@ def mismatch_scene(discrete: bool) -> tuple[torch.Tensor, torch.Tensor, Labelled
 
 
 both = pytest.mark.parametrize("discrete", [True, False], ids=["discrete", "box"])
-every_gate = pytest.mark.parametrize("name", list(GATES))
+every_gate = pytest.mark.parametrize("name", gated_names())  # the oracle reads expert labels: tested apart
 
 
 @both
@@ -231,7 +230,8 @@ def test_make_gate_maps_the_sweep_value_and_options():
 
 def test_bad_names_settings_and_options_are_user_errors():
     with pytest.raises(
-        UserError, match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty, thrifty, conformal"
+        UserError,
+        match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty, thrifty, conformal, oracle",
     ):
         make_gate("dropout", 0.5)
     with pytest.raises(UserError, match=r"RandomGate.p must be in \[0, 1\], got 1.5"):
@@ -269,3 +269,31 @@ def test_mismatched_inputs_are_user_errors():
         Labelled(labelled.features, labelled.labels, labelled.labels[:5])
     with pytest.raises(UserError, match=r"Labelled.labels must be int64 \[M\] or float32 \[M, d\]"):
         Labelled(labelled.features, labelled.labels.double(), labelled.labels.double())
+
+
+@both
+def test_the_oracle_labels_exactly_the_states_where_the_learner_is_wrong(discrete):
+    features, learner, labelled = mismatch_scene(discrete)
+    expert = learner.clone()
+    wrong = torch.zeros(len(features), dtype=torch.bool)
+    wrong[::7] = True
+    expert[wrong] = actions(torch.ones(int(wrong.sum()), dtype=torch.int64), discrete)
+    chosen = make_gate("oracle", 0.0).choose(features, learner, labelled, generator=gen(), expert_labels=expert)
+    assert torch.equal(chosen.mask, wrong)  # at 0 every wrong state, and nothing else
+    assert torch.equal(chosen.scores > 0, wrong)
+    if not discrete:  # with action vectors a higher setting keeps the larger errors only
+        expert[wrong] = expert[wrong] * torch.arange(1, int(wrong.sum()) + 1).float()[:, None]
+        top = make_gate("oracle", 0.5).choose(features, learner, labelled, generator=gen(), expert_labels=expert)
+        assert top.mask.sum() < wrong.sum() and (top.mask & ~wrong).sum() == 0
+    with pytest.raises(UserError, match="the oracle gate needs the expert's labels"):
+        make_gate("oracle", 0.0).choose(features, learner, labelled, generator=gen())
+
+
+@both
+def test_score_gates_report_the_scores_they_chose_by(discrete):
+    features, learner, labelled = mismatch_scene(discrete)
+    for name in ("ensemble", "safe", "novelty", "conformal"):
+        chosen = make_gate(name, 0.5).choose(features, learner, labelled, generator=gen())
+        assert chosen.scores is not None and chosen.scores.shape == (len(features),)
+        assert torch.equal(chosen.mask, make_gate(name, 0.5).select(features, learner, labelled, generator=gen()))
+    assert make_gate("random", 0.5).choose(features, learner, labelled, generator=gen()).scores is None

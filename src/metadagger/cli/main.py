@@ -37,10 +37,12 @@ from metadagger.cli.options import (
     SET,
     TASK,
     WORKERS,
+    listed,
     stage_options,
     user_errors,
 )
 from metadagger.cli.results_commands import results_app
+from metadagger.evaluation.methods import benchmark_methods
 from metadagger.mapping.registry import kind_names, trained_names
 
 app = typer.Typer(
@@ -216,7 +218,7 @@ def pairs(
 @user_errors
 def train_mapper_cmd(
     out: Path = OUT,
-    kind: str = typer.Option("all", "--kind", help=f"A mapper kind ({', '.join(kind_names())}) or all."),
+    kind: str = typer.Option("all", "--kind", help=f"A mapper kind ({listed(kind_names)}) or all."),
     overrides: list[str] = SET,
     rebuild: bool = REBUILD,
     executor: str = EXECUTOR,
@@ -241,7 +243,7 @@ def tune(
     kind: str = typer.Option(
         ...,
         "--kind",
-        help=f"The mapper kind to tune: {', '.join(trained_names())} (the kinds "
+        help=f"The mapper kind to tune: {listed(trained_names)} (the kinds "
         "trained by Adam; ridge and the controls have nothing to tune).",
     ),
     trials: int = typer.Option(
@@ -344,9 +346,8 @@ def benchmark(
     methods: Optional[str] = typer.Option(
         None,
         "--methods",
-        help="Comma-separated: bc, mdm, dagger, bc-refit, dagger-random, "
-        "dagger-ensemble, dagger-safe, dagger-novelty, dagger-thrifty, dagger-conformal, mdi "
-        "(default: benchmark.methods).",
+        help=f"Comma-separated, of: {listed(benchmark_methods)} (default: benchmark.methods; "
+        "`metadagger config methods` says what each is).",
     ),
     overrides: list[str] = SET,
     rebuild: bool = REBUILD,
@@ -533,6 +534,30 @@ def reproduce(
     if load_run(out).log == "tensorboard":
         tb = RunLayout(out).tb_dir
         typer.echo(f"wrote TensorBoard scalars to {tb}; view them with `tensorboard --logdir {tb}`")
+
+
+@config_app.command("methods")
+@user_errors
+def config_methods() -> None:
+    """List every benchmark method, gate and mapper kind metadagger knows, installed plug-ins' included."""
+    from metadagger.imitation.gate_registry import gate_declarations
+    from metadagger.mapping.registry import get_kind
+
+    typer.echo("benchmark methods (benchmark.methods, --methods):")
+    for method in benchmark_methods().values():
+        typer.echo(f"  {method.name}: {method.summary}{' [reference, never ranked]' if method.reference else ''}")
+    typer.echo("gates (method dagger-<gate>; default grid; options shared with the benchmark):")
+    for gate in gate_declarations().values():
+        shared = ", ".join(f"{field}={option}" for field, option in gate.shared.items())
+        typer.echo(
+            f"  {gate.name}: {gate.label}; {gate.gate.setting} in {list(gate.grid)}"
+            + (f"; {shared}" if shared else "")
+            + f"; {gate.summary}"
+        )
+    typer.echo("mapper kinds (evaluate.methods, mdm-<kind>):")
+    for name in kind_names():
+        kind = get_kind(name)
+        typer.echo(f"  {name}: {kind.label}; {kind.summary}")
 
 
 @config_app.command("show")

@@ -15,6 +15,15 @@ if TYPE_CHECKING:
 F = TypeVar("F", bound=Callable[..., object])
 
 
+def listed(names: Callable[[], object]) -> str:
+    """``names()`` joined by commas for a help text; where a plug-in fails to load, a pointer to the
+    command that says why (the help must not fail: the command then prints the one-line error)."""
+    try:
+        return ", ".join(names())  # type: ignore[call-overload]
+    except UserError:
+        return "(an installed plug-in fails to load: run the command to see which)"
+
+
 def user_errors(fn: F) -> F:
     """Turn a UserError raised by ``fn`` into one clear line and exit code 2."""
 

@@ -1,21 +1,26 @@
-"""Every method the query benchmark compares, declared once: a typed key per row.
+"""Every method the query benchmark compares, declared once, and a typed key per row.
+
+A benchmark method is a :class:`BenchmarkMethod`: its name in ``benchmark.methods``, its label,
+one doc line and the keys of its rows. The built-in ones are below; every gate of
+:mod:`metadagger.imitation.gate_registry` (plug-ins included) adds ``dagger-<gate>``. Every list,
+label and help text of the benchmark is read from :func:`benchmark_methods`.
 
 A row of ``benchmark/queries.csv`` is one method at one setting, from one share of the
-demonstration, on one seed. The key of that method and setting is a :class:`MethodKey` built by
-the method's entry in :data:`METHODS`, never parsed back from text: its subclasses carry what the
-method needs (the mapper kind, the DAgger round, the gate and its value, the MDI test), and
-:func:`with_demo_fractions` adds the keys of the methods that start from a shorter
-demonstration. ``MethodKey.id`` names its rows in the run's logs and stamps; it is written, never
-read back into a key.
+demonstration, on one seed. The key of that method and setting is a :class:`MethodKey`, never
+parsed back from text: its subclasses carry what the method needs (the mapper kind, the DAgger
+round, the gate and its value, the MDI test) and what differs per method (which chain of
+rollouts makes its row, what its rows are stamped with, whether it reads the demonstration).
+``MethodKey.id`` names its rows in the run's logs and stamps; it is written, never read back.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
-from metadagger.imitation.gates import GATES
+from metadagger.errors import UserError
+from metadagger.imitation.gate_registry import GATED_PREFIX, gate_declarations
 from metadagger.mapping.registry import control_names
 
 #: Prefix of the MDM methods: ``mdm-<mapper kind>``.
@@ -27,6 +32,18 @@ BC_REFIT = "bc-refit"
 MDI_METHODS = {"dagger-mdi": "dagger-mdi", "dagger-bc": "dagger-bc-init", "dagger": "dagger-xavier"}
 #: The MDI protocol's two tests and their settings in the benchmark.
 MDI_SHOTS = {"oneshot": "one-shot", "twoshot": "two-shot"}
+#: The mapper kind of the MDI rows: whichever the run's ``mdi.mapper`` names.
+MDI_MAPPER = "mdi"
+
+
+@dataclass(frozen=True)
+class StampInputs:
+    """What a key's own stamp may read of the run: its gate's options, the MDI protocol's settings."""
+
+    gate_options: Callable[[str], dict[str, Any]]
+    """A gated method's gate options."""
+    mdi: dict[str, Any] | None
+    """The MDI protocol's settings as stamped, where the run has one."""
 
 
 @dataclass(frozen=True)
@@ -44,6 +61,39 @@ class MethodKey:
         full = f"{self.method}@{self.setting}"
         return full if self.demo_fraction == 1.0 else f"{full}@demo{self.demo_fraction:g}"
 
+    @property
+    def chain(self) -> str:
+        """Which chain of rollouts makes its row: keys that share one are made by one chain."""
+        return self.id
+
+    @property
+    def reads_demonstration(self) -> bool:
+        """Whether its head depends on the demonstration (its queries are charged)."""
+        return True
+
+    @property
+    def starts_from_demonstration(self) -> bool:
+        """Whether it also runs from a shorter demonstration (``benchmark.demo_fractions``)."""
+        return False
+
+    @property
+    def mapper_kind(self) -> str | None:
+        """The mapper kind whose file its rows read, if any."""
+        return None
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        """What its rows are made from beyond what every row shares; a mapper's fingerprint is added by the caller."""
+        return {} if self.demo_fraction == 1.0 else {"demo_fraction": self.demo_fraction}
+
+
+@dataclass(frozen=True)
+class BCKey(MethodKey):
+    """w_BC rolled out."""
+
+    @property
+    def starts_from_demonstration(self) -> bool:
+        return True
+
 
 @dataclass(frozen=True)
 class MapperKey(MethodKey):
@@ -51,12 +101,33 @@ class MapperKey(MethodKey):
 
     kind: str
 
+    @property
+    def reads_demonstration(self) -> bool:
+        # the controls (pi*'s head, mean-DA) ask the expert nothing and are charged no query
+        return self.kind not in control_names()
+
+    @property
+    def starts_from_demonstration(self) -> bool:
+        return self.reads_demonstration
+
+    @property
+    def mapper_kind(self) -> str | None:
+        return self.kind
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        charged = {} if self.reads_demonstration else {"charged": "no query"}
+        return {**super().own_stamp(inputs), **charged}
+
 
 @dataclass(frozen=True)
 class RoundKey(MethodKey):
     """Plain DAgger after ``round`` rounds (every visited state labelled)."""
 
     round: int
+
+    @property
+    def chain(self) -> str:
+        return f"{self.method}@demo{self.demo_fraction:g}"  # one chain makes every round's row
 
 
 @dataclass(frozen=True)
@@ -73,48 +144,74 @@ class GateKey(MethodKey):
     gate: str
     value: float
 
+    @property
+    def starts_from_demonstration(self) -> bool:
+        return True
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        return {**super().own_stamp(inputs), "gate": inputs.gate_options(self.method)}
+
 
 @dataclass(frozen=True)
 class ShotKey(MethodKey):
-    """One MDI method (Table 6) at one of its tests."""
+    """One MDI method (Table 6) at one of its tests; made by the MDI protocol, not by a chain."""
 
     mdi_method: str
     shot: str
 
+    @property
+    def mapper_kind(self) -> str | None:
+        return MDI_MAPPER
 
-def bc_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
-    """w_BC rolled out: the demonstration's queries only."""
-    return [MethodKey("bc", "")]
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        return {} if inputs.mdi is None else {"mdi": inputs.mdi}
 
 
-def mdm_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
-    """Every mapper kind (and control) applied to w_BC."""
+KeyMaker = Callable[[int, tuple[str, ...], dict[str, list[float]], bool], list[MethodKey]]
+"""``keys(rounds, mapper kinds, grids by method, has mdi) -> the method's keys``."""
+
+
+@dataclass(frozen=True)
+class BenchmarkMethod:
+    """One benchmark method as configs, help texts, reports and figures know it."""
+
+    name: str
+    """Its name in ``benchmark.methods`` and the ``method`` column."""
+    label: str
+    """How tables and figures name it."""
+    summary: str
+    """One line for help texts and docs."""
+    keys: KeyMaker
+    """The keys of its rows on one seed."""
+    reference: bool = False
+    """A reference (the oracle ceiling): drawn and tabled beside the methods, never ranked."""
+
+
+def _bc(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    return [BCKey("bc", "")]
+
+
+def _mdm(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     return [MapperKey(MDM_PREFIX + kind, "", kind=kind) for kind in kinds]
 
 
-def dagger_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
-    """The pairs' DAgger after each of its rounds."""
+def _dagger(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     return [RoundKey("dagger", str(r), round=r) for r in range(1, rounds + 1)]
 
 
-def bc_refit_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
-    """The control for how much of DAgger's gain is training, not labels: w_BC refitted as often
-    and as long as DAgger refits it, on the demonstration alone."""
+def _bc_refit(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     return [RefitKey(BC_REFIT, str(rounds), rounds=rounds)]
 
 
-def gate_keys(gate: str) -> Callable[[int, tuple[str, ...], dict[str, list[float]], bool], list[MethodKey]]:
-    """DAgger gated by ``gate``, after the last round, at each value of its grid."""
-
+def _gated(gate: str) -> KeyMaker:
     def keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
-        method = f"dagger-{gate}"
+        method = GATED_PREFIX + gate
         return [GateKey(method, f"{value:g}", gate=gate, value=float(value)) for value in grids[method]]
 
     return keys
 
 
-def mdi_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
-    """Table 6's one- and two-shot tests of DAgger-MDI, DAgger-BC and DAgger (runs with an mdi section)."""
+def _mdi(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     if not mdi:
         return []
     return [
@@ -124,42 +221,62 @@ def mdi_keys(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]],
     ]
 
 
-#: Every benchmark method by its name in ``benchmark.methods``: the keys of its rows, given the
-#: pairs' DAgger rounds, the MDM mapper kinds, the gate grids and whether the run has MDI.
-METHODS: dict[str, Callable[[int, tuple[str, ...], dict[str, list[float]], bool], list[MethodKey]]] = {
-    "bc": bc_keys,
-    "mdm": mdm_keys,
-    "dagger": dagger_keys,
-    BC_REFIT: bc_refit_keys,
-    **{f"dagger-{gate}": gate_keys(gate) for gate in GATES},
-    "mdi": mdi_keys,
+_BUILT_IN = (
+    BenchmarkMethod("bc", "BC", "w_BC rolled out: the demonstration's queries only", _bc),
+    BenchmarkMethod("mdm", "MDM", "every mapper kind of evaluate.methods (and control) applied to w_BC", _mdm),
+    BenchmarkMethod("dagger", "DAgger", "the pairs' DAgger after each round, every visited state labelled", _dagger),
+    BenchmarkMethod(
+        BC_REFIT,
+        "BC refitted as DAgger, no new label (control)",
+        "w_BC refitted as often and as long as DAgger refits it, on the demonstration alone (a control)",
+        _bc_refit,
+    ),
+)
+_MDI = BenchmarkMethod(
+    "mdi", "MDI", "Table 6's one- and two-shot tests of DAgger-MDI, DAgger-BC, DAgger (needs an mdi section)", _mdi
+)
+#: Labels of the MDI protocol's rows, which ``mdi`` makes under these names.
+MDI_LABELS = {
+    "dagger-mdi": "DAgger-MDI",
+    "dagger-bc-init": "DAgger-BC (MDI protocol)",
+    "dagger-xavier": "DAgger from Xavier (MDI protocol)",
 }
-#: The gated methods and the gate each one uses.
-GATED = {f"dagger-{gate}": gate for gate in GATES}
 
 
-def reads_demonstration(key: MethodKey) -> bool:
-    """Whether the method's head depends on the demonstration: every method but the MDM controls
-    (pi*'s head, mean-DA), which ask the expert nothing and are charged no query."""
-    return not (isinstance(key, MapperKey) and key.kind in control_names())
+def benchmark_methods() -> dict[str, BenchmarkMethod]:
+    """Every benchmark method by name, in table order: the built-in ones, one per gate (plug-ins
+    included), then ``mdi``."""
+    gated = [
+        BenchmarkMethod(d.method, d.label, d.summary, _gated(d.name), reference=d.reference)
+        for d in gate_declarations().values()
+    ]
+    return {m.name: m for m in (*_BUILT_IN, *gated, _MDI)}
 
 
-def starts_from_demonstration(key: MethodKey) -> bool:
-    """Whether the method also runs from a shorter demonstration: BC, the learned MDM kinds and the
-    gated DAgger settings (plain DAgger and MDI keep the whole one, the reference they are read against)."""
-    return (
-        (type(key) is MethodKey and key.method == "bc")
-        or isinstance(key, GateKey)
-        or (isinstance(key, MapperKey) and reads_demonstration(key))
-    )
+def gated_methods(*, references: bool = False) -> dict[str, str]:
+    """The gated methods and the gate each runs; the reference ones (the oracle) only with ``references``."""
+    return {d.method: d.name for d in gate_declarations().values() if references or not d.reference}
+
+
+def reference_methods() -> tuple[str, ...]:
+    """The methods that are references, never ranked: the oracle ceiling."""
+    return tuple(m.name for m in benchmark_methods().values() if m.reference)
+
+
+def check_methods(names: Sequence[str], what: str) -> None:
+    """Raise a :class:`UserError` naming the known methods unless every one of ``names`` is one."""
+    known = benchmark_methods()
+    unknown = [m for m in names if m not in known]
+    if unknown:
+        raise UserError(f"{what} has unknown method(s) {unknown}; allowed: {', '.join(known)}")
 
 
 def with_demo_fractions(keys: Sequence[MethodKey], fractions: Sequence[float]) -> list[MethodKey]:
     """``keys`` (each on the whole demonstration), each followed by its keys on every shorter
-    share in ``fractions`` (ascending) where :func:`starts_from_demonstration`."""
+    share in ``fractions`` (ascending) where it :attr:`~MethodKey.starts_from_demonstration`."""
     shorter = sorted(f for f in fractions if f < 1.0)
     return [
         k
         for key in keys
-        for k in (key, *(dataclasses.replace(key, demo_fraction=f) for f in shorter if starts_from_demonstration(key)))
+        for k in (key, *(dataclasses.replace(key, demo_fraction=f) for f in shorter if key.starts_from_demonstration))
     ]

@@ -30,6 +30,33 @@ def _mean_difference(a: np.ndarray, b: np.ndarray, axis: int = -1) -> np.ndarray
     return np.mean(a - b, axis=axis)
 
 
+def _interval(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """The percentile bootstrap interval of the mean paired difference ``a - b`` (one seed: the difference)."""
+    if a.size == 1:  # one seed: nothing to resample
+        return float(a[0] - b[0]), float(a[0] - b[0])
+    interval = stats.bootstrap(
+        (a, b),
+        _mean_difference,
+        paired=True,
+        vectorized=True,
+        n_resamples=RESAMPLES,
+        confidence_level=LEVEL,
+        method="percentile",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    ).confidence_interval
+    return float(interval.low), float(interval.high)
+
+
+def paired_difference(a: Sequence[float], b: Sequence[float]) -> dict[str, Any]:
+    """The mean of ``a - b`` over the same seeds (one order) with its 95% bootstrap interval: for
+    per-seed numbers that are not outcomes (an area under a curve)."""
+    x, y = np.asarray(a, float), np.asarray(b, float)
+    if x.shape != y.shape or x.ndim != 1 or x.size == 0:
+        raise ValueError(f"a paired difference needs two sequences of one length >= 1, got {x.shape}, {y.shape}")
+    low, high = _interval(x, y)
+    return {"seeds": int(x.size), "difference": float(np.mean(x - y)), "ci_low": low, "ci_high": high}
+
+
 def paired_comparison(
     success_a: Sequence[bool], success_b: Sequence[bool], reward_a: Sequence[float], reward_b: Sequence[float]
 ) -> dict[str, Any]:
@@ -43,20 +70,7 @@ def paired_comparison(
             f"{a.shape}, {b.shape}, {ra.shape}, {rb.shape}"
         )
     only_a, only_b = int(np.sum((a == 1) & (b == 0))), int(np.sum((a == 0) & (b == 1)))
-    if a.size > 1:
-        interval = stats.bootstrap(
-            (a, b),
-            _mean_difference,
-            paired=True,
-            vectorized=True,
-            n_resamples=RESAMPLES,
-            confidence_level=LEVEL,
-            method="percentile",
-            rng=np.random.default_rng(BOOTSTRAP_SEED),
-        ).confidence_interval
-        low, high = float(interval.low), float(interval.high)
-    else:  # one seed: nothing to resample
-        low = high = float(a[0] - b[0])
+    low, high = _interval(a, b)
     discordant = only_a + only_b
     return {
         "seeds": int(a.size),

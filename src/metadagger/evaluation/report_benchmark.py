@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from metadagger.evaluation.benchmark import plot_queries
-from metadagger.evaluation.methods import MDM_PREFIX
+from metadagger.evaluation.benchmark_figure import plot_queries
+from metadagger.evaluation.methods import MDM_PREFIX, reference_methods
 from metadagger.evaluation.paired import verdict
 from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
 from metadagger.runfolder.layout import RunLayout
@@ -41,6 +41,7 @@ def benchmark_section(layout: RunLayout) -> list[str]:
     lines += figure_lines(
         layout.figures, FIGURE, "success against expert queries", lambda path: plot_queries(summary, path)
     ) + [""]
+    ledger = all("mean_takeovers" in e for e in entries)
     cells = [
         (
             method_label(e["method"]),
@@ -49,16 +50,24 @@ def benchmark_section(layout: RunLayout) -> list[str]:
             f"{pct(e['success_ci_low'])}-{pct(e['success_ci_high'])})",
             f"{e['mean_reward']:.1f}",
             f"{e['mean_queries']:.1f}",
+            *((f"{e['mean_takeovers']:.1f}", f"{e['mean_episodes_asked']:.1f}") if ledger else ()),
         )
         for e in entries
     ]
-    lines += markdown_table(
-        ("method", "setting", "success (95% Wilson interval)", "mean reward", "mean queries per seed"), cells
-    )
+    header = ("method", "setting", "success (95% Wilson interval)", "mean reward", "mean queries per seed")
+    lines += markdown_table(header + (("takeovers per seed", "episodes asked per seed") if ledger else ()), cells)
+    if ledger:
+        lines += [
+            "",
+            "A takeover is a run of consecutive labelled steps in one episode (a context switch for the expert); "
+            "an episode asked is one with at least one label; the demonstration is one of each. Every labelled "
+            "state of every row, with the gate's score, is in `benchmark/labels.jsonl`.",
+        ]
     return (
         lines
         + [""]
         + _paired(entries, summary.get("references", []), summary.get("comparisons", []))
+        + _budgets(summary.get("budgets"))
         + _matching(entries)
         + _amortisation(entries, summary["meta_training_queries"])
     )
@@ -129,6 +138,8 @@ def _conclusions(
     """Which methods the paired intervals show better than every reference, and which not."""
     above_all = []
     for e in entries:
+        if e["method"] in reference_methods():
+            continue  # the oracle is a ceiling, never ranked
         cs = [found.get((_key(e), _key(r))) for r in refs]
         if all(c is not None and verdict(c) == "better" for c in cs):
             above_all.append(_reference_label(e))
@@ -139,6 +150,76 @@ def _conclusions(
         f"No method is shown better than every one of {against}: no paired 95% interval lies above 0 against all of "
         "them."
     ]
+
+
+def _curve_label(entry: dict[str, Any], side: str = "method") -> str:
+    """A method read at budgets (``side`` ``method``), or the reference of a comparison (``against``)."""
+    method = entry[side]
+    share = float(entry["demo_fraction" if side == "method" else "against_demo_fraction"])
+    label = method_label(method)
+    return label if share == 1.0 else f"{label}, {share:.0%} of the demonstration"
+
+
+def _budgets(reading: dict[str, Any] | None) -> list[str]:
+    """Every method at equal budgets and by its area under the curve, and the best at each, paired."""
+    if not reading:
+        return []
+    budgets = reading["budgets"]
+    auc = {(a["method"], float(a["demo_fraction"])): a for a in reading["auc"]}
+    by_curve: dict[tuple[str, float], list[str]] = {}
+    for b in budgets:
+        for e in b["entries"]:
+            by_curve.setdefault((e["method"], float(e["demo_fraction"])), []).append(
+                f"{pct(e['success_rate'])} ({pct(e['success_ci_low'])}-{pct(e['success_ci_high'])})"
+            )
+    cells = [
+        (_curve_label({"method": m, "demo_fraction": f}), *row, f"{auc[(m, f)]['mean']:.3f}")
+        for (m, f), row in by_curve.items()
+    ]
+    header = (
+        "method",
+        *(f"success at demonstration + {b['share']:.0%} ({b['mean_budget']:.0f})" for b in budgets),
+        "area under the curve",
+    )
+    lines = [
+        "### At equal budgets",
+        "",
+        f"Every method read at the same spend on each of {len(reading['seeds'])} seeds: the demonstration's "
+        "queries plus a share of plain DAgger's final queries beyond them on that seed (mean budget in "
+        "brackets). A method is read at its last row within the budget (by queries), else at BC's outcome if "
+        "the demonstration fits, else as a failure. The area under the curve is the mean of that success over "
+        f"{reading['auc_points']} log-spaced budgets from the demonstration's queries to DAgger's final queries "
+        "(docs/benchmark.md, 'Equal budgets').",
+        "",
+        *markdown_table(header, cells),
+        "",
+    ]
+    for b in budgets:
+        if b["best"] is None:
+            continue
+        best = _curve_label(b["best"])
+        lines.append(f"- At {b['share']:.0%}: best {best}; " + _budget_comparisons(b["comparisons"]) + ".")
+    if reading["best_auc"] is not None:
+        parts = [
+            f"{_curve_label(c, 'against')}: {c['difference']:+.3f} ({c['ci_low']:+.3f} to {c['ci_high']:+.3f})"
+            for c in reading["auc_comparisons"]
+        ]
+        lines.append(
+            f"- By the area under the curve: best {_curve_label(reading['best_auc'])}; against "
+            + ("; ".join(parts) if parts else "nothing")
+            + "."
+        )
+    return lines + [""]
+
+
+def _budget_comparisons(comparisons: list[dict[str, Any]]) -> str:
+    if not comparisons:
+        return "no reference to compare with"
+    return "against " + "; ".join(
+        f"{_curve_label(c, 'against')} {_points(c['difference'])} points "
+        f"({_points(c['ci_low'])} to {_points(c['ci_high'])}), {verdict(c)}"
+        for c in comparisons
+    )
 
 
 def _dagger_final(entries: list[dict[str, Any]]) -> dict[str, Any] | None:

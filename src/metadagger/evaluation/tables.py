@@ -7,33 +7,26 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
+from metadagger.evaluation.methods import MDI_LABELS, benchmark_methods
 from metadagger.imitation.metrics import summarize
 from metadagger.mapping.registry import get_kind, kind_names
 from metadagger.utils.plotting import draw_figure
 
-#: Labels of the methods that are not mapper kinds.
-PROTOCOL_LABELS = {
-    "bc": "BC",
-    "bc-refit": "BC refitted as DAgger, no new label (control)",
-    "dagger-mdi": "DAgger-MDI",
-    "dagger-bc": "DAgger-BC",
-    "dagger": "DAgger",
-    "dagger-bc-init": "DAgger-BC (MDI protocol)",
-    "dagger-xavier": "DAgger from Xavier (MDI protocol)",
-    "dagger-random": "DAgger, random gate",
-    "dagger-ensemble": "DAgger, ensemble gate",
-    "dagger-safe": "DAgger, SafeDAgger gate",
-    "dagger-novelty": "DAgger, novelty gate",
-    "dagger-thrifty": "DAgger, ThriftyDAgger gate",
-    "dagger-conformal": "DAgger, conformal gate",
-}
+#: Labels of the MDI protocol's own method names (its report's rows).
+MDI_PROTOCOL_LABELS = {"dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger"}
 
 
 def method_label(method: str) -> str:
-    """How tables name a method: a mapper kind's registry label, BC, a one-shot refit
-    (``oneshot-<kind>``), a Table 6 method, or DAgger-MDI initialised by a control."""
-    if method in PROTOCOL_LABELS:
-        return PROTOCOL_LABELS[method]
+    """How tables name a method: a benchmark method's declared label (gates' included), an MDI
+    protocol row, MDM with a mapper kind's registry label, a one-shot refit (``oneshot-<kind>``),
+    or DAgger-MDI initialised by a control."""
+    declared = benchmark_methods()
+    if method in declared:
+        return declared[method].label
+    if method in MDI_LABELS:
+        return MDI_LABELS[method]
+    if method in MDI_PROTOCOL_LABELS:
+        return MDI_PROTOCOL_LABELS[method]
     if method.startswith("mdm-"):
         return f"MDM {get_kind(method.removeprefix('mdm-')).label}"
     if method.startswith("oneshot-"):

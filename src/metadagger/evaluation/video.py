@@ -16,7 +16,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from metadagger.errors import UserError
-from metadagger.evaluation.methods import MDM_PREFIX, MapperKey, reads_demonstration
+from metadagger.evaluation.methods import MDM_PREFIX, MapperKey
 from metadagger.evaluation.tables import method_label
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import Trajectory
@@ -91,7 +91,7 @@ def seed_clips(
             clips[kind] = Clip(
                 method_label(key.method),
                 learner.roll(map_head(mapper, w_bc, context), early_stop=early_stop),
-                len(data) if reads_demonstration(key) else 0,
+                len(data) if key.reads_demonstration else 0,
             )
         if "dagger" in methods:
             *_, last = dagger_rounds(

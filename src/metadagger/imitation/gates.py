@@ -20,6 +20,10 @@ The gates:
 - ``conformal(alpha)``: CRSAIL's rule (arXiv 2512.00453): the distance to the ``k``-th nearest
   labelled state, above one threshold calibrated by conformal prediction on the first round's
   states (the first policy's rollout) at miscoverage ``alpha``, then kept for the whole run.
+- ``oracle(quantile)``: the ceiling, not a method: it reads the expert's labels of the round's
+  states and labels exactly those where the learner is wrong (:class:`OracleGate`).
+
+Each is declared once, with its label and default grid, in :mod:`metadagger.imitation.gate_registry`.
 
 Score-based gates label a state when its score is strictly above the ``quantile``-quantile of
 this round's scores (:func:`above_quantile`), so about a ``1 - quantile`` share of distinct
@@ -37,7 +41,6 @@ label + 1.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
@@ -190,11 +193,46 @@ def _check_ridge(owner: str, ridge: float) -> None:
         raise UserError(f"{owner}.ridge must be > 0, got {ridge!r}")
 
 
+@dataclass(frozen=True)
+class Selection:
+    """A gate's choice in one round: the states to label, and each state's score where the gate has one."""
+
+    mask: Tensor
+    """Bool [N]: True for a state to label."""
+    scores: Tensor | None = None
+    """The score [N] the choice was made on (higher: more worth a query); None for a gate without one."""
+
+
 class Gate(ABC):
-    """A query rule of gated DAgger: which of a round's visited states get an expert label."""
+    """A query rule of gated DAgger: which of a round's visited states get an expert label.
+
+    A gate of your own subclasses this (or :class:`ScoreGate`), names the field its sweep sets in
+    ``setting``, implements ``_select`` and is declared once in
+    :mod:`metadagger.imitation.gate_registry` (docs/benchmark.md, "Adding a gate").
+    """
 
     setting: ClassVar[str]
-    """The field set by the sweep value of :func:`make_gate`."""
+    """The field set by the sweep value of :func:`~metadagger.imitation.gate_registry.make_gate`."""
+    reads_expert: ClassVar[bool] = False
+    """Whether the gate reads the expert's labels of the round's states: only a reference may (the oracle)."""
+
+    def choose(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        *,
+        generator: torch.Generator,
+        memory: GateMemory | None = None,
+        expert_labels: Tensor | None = None,
+    ) -> Selection:
+        """As :meth:`select`, with the scores the choice was made on; ``expert_labels`` (this round's
+        states' labels, laid out as ``labelled.labels``) is read by a reference gate alone."""
+        _check_round(features, learner_actions, labelled)
+        chosen = self._select(
+            features, learner_actions, labelled, generator, GateMemory() if memory is None else memory
+        )
+        return chosen if isinstance(chosen, Selection) else Selection(chosen)
 
     def select(
         self,
@@ -218,8 +256,7 @@ class Gate(ABC):
         Returns:
             A bool mask [N]: True for a state to label.
         """
-        _check_round(features, learner_actions, labelled)
-        return self._select(features, learner_actions, labelled, generator, GateMemory() if memory is None else memory)
+        return self.choose(features, learner_actions, labelled, generator=generator, memory=memory).mask
 
     @abstractmethod
     def _select(
@@ -229,7 +266,8 @@ class Gate(ABC):
         labelled: Labelled,
         generator: torch.Generator,
         memory: GateMemory,
-    ) -> Tensor: ...
+    ) -> Tensor | Selection:
+        """The states to label: a bool mask [N], or a :class:`Selection` with the scores behind it."""
 
 
 @dataclass(frozen=True)
@@ -269,7 +307,8 @@ class ScoreGate(Gate):
         generator: torch.Generator,
         memory: GateMemory,
     ) -> Tensor:
-        return above_quantile(self.scores(features, learner_actions, labelled, generator), self.quantile)
+        scores = self.scores(features, learner_actions, labelled, generator)
+        return Selection(above_quantile(scores, self.quantile), scores)
 
     @abstractmethod
     def scores(
@@ -515,41 +554,55 @@ class ConformalGate(Gate):
         scores = neighbour_distance(features, labelled, self.k, "ConformalGate")
         if "conformal" not in memory.notes:
             memory.notes["conformal"] = conformal_threshold(scores, self.alpha)
-        return scores.double() > memory.notes["conformal"]
+        return Selection(scores.double() > memory.notes["conformal"], scores)
 
 
-GATES: dict[str, type[Gate]] = {
-    "random": RandomGate,
-    "ensemble": EnsembleGate,
-    "safe": SafeGate,
-    "novelty": NoveltyGate,
-    "thrifty": ThriftyGate,
-    "conformal": ConformalGate,
-}
-"""Every gate by name."""
+def learner_error(learner_actions: Tensor, expert_labels: Tensor) -> Tensor:
+    """The learner's true error at each state [N]: 1 where its class differs from the expert's and 0
+    elsewhere (class indices), or the squared distance between the two actions (action vectors)."""
+    if expert_labels.dtype == torch.int64:
+        return (learner_actions != expert_labels).double()
+    return (learner_actions.double() - expert_labels.double()).square().sum(dim=1)
 
 
-def make_gate(name: str, setting: float, **options: Any) -> Gate:
-    """The gate called ``name`` at one value of its sweep.
+@dataclass(frozen=True)
+class OracleGate(Gate):
+    """The ceiling of every gate, not a method: it reads the expert's labels of the round's states
+    and labels exactly the states where the learner is wrong (:func:`learner_error` above 0), those
+    whose error is at least the ``quantile``-quantile of the round's positive errors. With class
+    labels every wrong state has error 1, so every setting labels all of them; with action vectors
+    the setting keeps the largest errors. It is charged for the states it labels alone."""
 
-    Args:
-        name: a key of :data:`GATES`.
-        setting: ``p`` for ``random``, ``rate`` for ``thrifty``, ``alpha`` for ``conformal``,
-            ``quantile`` for the others.
-        **options: the gate's other fields (``K`` and ``ridge`` for ``ensemble``, ``ridge`` for
-            ``safe``, ``k`` for ``novelty`` and ``conformal``, ``K``, ``ridge`` and ``risk_ridge``
-            for ``thrifty``), left at their defaults when not given.
+    setting: ClassVar[str] = "quantile"
+    reads_expert: ClassVar[bool] = True
+    quantile: float
+    """In [0, 1): which share of the wrong states' errors is too small to ask about."""
 
-    Returns:
-        The gate.
-    """
-    if name not in GATES:
-        raise UserError(f"unknown gate {name!r}: expected one of {', '.join(GATES)}")
-    cls = GATES[name]
-    allowed = [f.name for f in dataclasses.fields(cls) if f.name != cls.setting]
-    unknown = sorted(set(options) - set(allowed))
-    if unknown:
-        raise UserError(
-            f"unknown option(s) {', '.join(unknown)} for gate {name!r}: expected {', '.join(allowed) or 'none'}"
-        )
-    return cls(**{cls.setting: setting}, **options)
+    def __post_init__(self) -> None:
+        _check_quantile("OracleGate", self.quantile)
+
+    def choose(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        *,
+        generator: torch.Generator,
+        memory: GateMemory | None = None,
+        expert_labels: Tensor | None = None,
+    ) -> Selection:
+        _check_round(features, learner_actions, labelled)
+        if expert_labels is None or expert_labels.shape != learner_actions.shape:
+            raise UserError(
+                "the oracle gate needs the expert's labels of this round's states, laid out as the learner's actions "
+                f"{tuple(learner_actions.shape)}; pass expert_labels"
+            )
+        errors = learner_error(learner_actions, expert_labels)
+        wrong = errors > 0
+        if not wrong.any():
+            return Selection(wrong, errors)
+        threshold = torch.quantile(errors[wrong], self.quantile)
+        return Selection(wrong & (errors >= threshold), errors)
+
+    def _select(self, features, learner_actions, labelled, generator, memory) -> Tensor:  # noqa: ANN001
+        raise UserError("the oracle gate reads the expert's labels: call choose(..., expert_labels=...)")

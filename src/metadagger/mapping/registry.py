@@ -3,12 +3,16 @@
 A kind is either *learned* (networks fitted on the training pairs, by Adam or in closed form,
 reached through a :class:`Route`) or a *control* (a constant head that ignores w_BC, computed from the training
 pairs or pi*). Adding a kind takes a module with its builder (see :mod:`metadagger.mapping.networks`)
-and one :func:`register_kind` line; docs/mapping.md shows an example.
+and one :func:`register_kind` line; docs/mapping.md shows an example. An installed package adds
+one with an entry point in the group ``metadagger.mappers`` naming its :class:`MapperKind`
+(``mykind = "mypkg.mapper:KIND"``), loaded on first use; a broken one is one
+:class:`~metadagger.errors.UserError` naming its package.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from typing import Callable, NamedTuple
 
 import torch
@@ -94,7 +98,10 @@ class MapperKind:
         )
 
 
+#: Entry-point group through which installed packages add mapper kinds.
+ENTRY_POINT_GROUP = "metadagger.mappers"
 _KINDS: dict[str, MapperKind] = {}
+_plugins_loaded = False
 
 
 def register_kind(kind: MapperKind) -> MapperKind:
@@ -103,32 +110,60 @@ def register_kind(kind: MapperKind) -> MapperKind:
     return kind
 
 
+def _kinds() -> dict[str, MapperKind]:
+    """Every kind: the built-in and registered ones, then those of installed packages (loaded once)."""
+    global _plugins_loaded
+    if not _plugins_loaded:
+        _plugins_loaded = True
+        for ep in entry_points(group=ENTRY_POINT_GROUP):
+            _register_plugin(ep)
+    return _KINDS
+
+
+def _register_plugin(ep) -> None:  # noqa: ANN001 (an importlib.metadata.EntryPoint)
+    package = ep.dist.name if ep.dist is not None else "an unknown package"
+    where = f"mapper plug-in {ep.name!r} of package {package} ({ep.value})"
+    fix = f"fix or uninstall {package}"
+    try:
+        kind = ep.load()
+    except Exception as exc:  # a plug-in's import may fail any way: one line, never a traceback
+        raise UserError(f"{where} fails to load ({type(exc).__name__}: {exc}); {fix}") from None
+    if not isinstance(kind, MapperKind):
+        raise UserError(f"{where} names a {type(kind).__name__}, not a MapperKind; {fix}")
+    if kind.name != ep.name:
+        raise UserError(f"{where} declares a kind named {kind.name!r}; name the entry point the same; {fix}")
+    if kind.name in _KINDS and _KINDS[kind.name] is not kind:
+        raise UserError(f"{where}: metadagger already has a mapper kind called {kind.name!r}; rename it; {fix}")
+    register_kind(kind)
+
+
 def get_kind(name: str) -> MapperKind:
     """The kind called ``name``; an unknown name is a :class:`UserError` listing the known ones."""
-    if name not in _KINDS:
-        raise UserError(f"unknown mapper kind {name!r}: expected one of {', '.join(_KINDS)}")
-    return _KINDS[name]
+    kinds = _kinds()
+    if name not in kinds:
+        raise UserError(f"unknown mapper kind {name!r}: expected one of {', '.join(kinds)}")
+    return kinds[name]
 
 
 def kind_names() -> tuple[str, ...]:
     """Every kind, learned ones first, in registration order."""
-    return tuple(k.name for k in _KINDS.values() if k.learned) + control_names()
+    return learned_names() + control_names()
 
 
 def learned_names() -> tuple[str, ...]:
     """The learned kinds."""
-    return tuple(k.name for k in _KINDS.values() if k.learned)
+    return tuple(k.name for k in _kinds().values() if k.learned)
 
 
 def trained_names() -> tuple[str, ...]:
     """The learned kinds trained by Adam (not fitted in closed form): those with hyperparameters
     to tune (:mod:`metadagger.mapping.tune`)."""
-    return tuple(k.name for k in _KINDS.values() if k.learned and k.closed_form is None)
+    return tuple(k.name for k in _kinds().values() if k.learned and k.closed_form is None)
 
 
 def control_names() -> tuple[str, ...]:
     """The controls."""
-    return tuple(k.name for k in _KINDS.values() if not k.learned)
+    return tuple(k.name for k in _kinds().values() if not k.learned)
 
 
 def context_inputs(kind: str, early_stop: float | None) -> dict[str, float | None]:

@@ -214,6 +214,10 @@ class Round:
     """That head's rollout (the one the next round labels)."""
     queries: int
     """Expert queries so far, the demonstration's included."""
+    asked: np.ndarray
+    """Which steps of the labelled rollout were labelled: int64 step indices, ascending (the query ledger)."""
+    scores: np.ndarray | None
+    """The gate's score at each of those steps, where the gate has one (float64); None otherwise."""
 
 
 def dagger_rounds(
@@ -255,10 +259,11 @@ def dagger_rounds(
     learner.load(start)
     trajectory = first
     for index in range(1, rounds + 1):
+        scores = None
         if gate is None:
             keep = np.ones(trajectory.steps, dtype=bool)
         else:
-            keep = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory)
+            keep, scores = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory)
         labelled = None
         if keep.any():
             labelled = Dataset(obs=trajectory.obs[keep], labels=trajectory.expert_labels[keep])
@@ -271,7 +276,16 @@ def dagger_rounds(
             trajectory = learner.roll(head, early_stop=early_stop)
         # else the head is the one ``trajectory`` was rolled out with, and an episode depends only
         # on its seed and head: rolling it out again would give the same episode
-        yield Round(index=index, labelled=labelled, head=head, rollout=trajectory, queries=queries)
+        asked = np.flatnonzero(keep)
+        yield Round(
+            index=index,
+            labelled=labelled,
+            head=head,
+            rollout=trajectory,
+            queries=queries,
+            asked=asked,
+            scores=None if scores is None else scores[asked],
+        )
 
 
 def _gate_mask(
@@ -282,16 +296,24 @@ def _gate_mask(
     trajectory: Trajectory,
     generator: torch.Generator,
     memory: GateMemory,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far
-    and the run's finished episodes (``memory``), to which ``trajectory`` is then added."""
+    and the run's finished episodes (``memory``), to which ``trajectory`` is then added; and the
+    scores it chose them by, where it has some. Only a reference gate (the oracle) sees the
+    expert's labels of the round's states."""
     labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
     features = cache.features(trajectory.obs)
-    keep = gate.select(
-        features, _tensor(trajectory.learner_actions), labelled, generator=generator, memory=memory
-    ).numpy()
+    chosen = gate.choose(
+        features,
+        _tensor(trajectory.learner_actions),
+        labelled,
+        generator=generator,
+        memory=memory,
+        expert_labels=_tensor(trajectory.expert_labels) if gate.reads_expert else None,
+    )
     memory.episodes.append(Episode(features=features, succeeded=bool(trajectory.success)))
-    return keep
+    scores = None if chosen.scores is None else chosen.scores.double().numpy()
+    return chosen.mask.numpy(), scores
 
 
 def _tensor(values: np.ndarray) -> torch.Tensor:

@@ -24,7 +24,7 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
-from metadagger.evaluation.methods import BC_REFIT, GATED, MDI_METHODS, MDM_PREFIX
+from metadagger.evaluation.methods import BC_REFIT, MDI_METHODS, MDM_PREFIX, gated_methods, reference_methods
 from metadagger.evaluation.report_run import duration
 from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
@@ -101,6 +101,7 @@ def glance(context: BlockContext) -> str:
         "control: BC refitted",
         "DAgger (last round)",
         "best gate",
+        "ceiling: oracle",
     )
     rows = []
     for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
@@ -111,6 +112,7 @@ def glance(context: BlockContext) -> str:
                     f"`{run.name}`",
                     PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "",
                     "not run yet",
+                    "",
                     "",
                     "",
                     "",
@@ -130,7 +132,8 @@ def glance(context: BlockContext) -> str:
             or e["method"] == MDI_METHODS["dagger-mdi"]
         ]
         dagger = [e for e in entries if e["method"] == "dagger"]
-        gates = [e for e in entries if e["method"] in GATED]
+        gates = [e for e in entries if e["method"] in gated_methods()]
+        oracle = [e for e in entries if e["method"] in reference_methods()]
         stale = "" if _made_with_current_numerics(found.manifest) else " (older numerics)"
         rows.append(
             (
@@ -142,6 +145,7 @@ def glance(context: BlockContext) -> str:
                 _cell(by_method.get(BC_REFIT)),
                 _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None),
                 _labelled(_best(gates)),
+                _labelled(_best(oracle)),
             )
         )
     note = (
@@ -151,7 +155,8 @@ def glance(context: BlockContext) -> str:
         "pairs' early stop (`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, "
         "so an MDM row can stand below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as "
         "DAgger refits it, on the demonstration alone (`bc-refit`; '-' for a run that has no such row). Best "
-        "MetaL DAgger: the best MDM mapper or DAgger-MDI. A run marked 'older numerics' was made before this "
+        "MetaL DAgger: the best MDM mapper or DAgger-MDI. Ceiling: the oracle rule, which labels exactly the states "
+        "where the learner is wrong ('-' for a run made before it). A run marked 'older numerics' was made before this "
         "code's `NUMERICS` (docs/results.md). It and the best gate are chosen on these same seeds, which favours "
         "them; paired comparisons are in each run's report."
     )

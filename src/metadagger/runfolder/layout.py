@@ -139,6 +139,11 @@ class RunLayout:
         return self.benchmark_dir / "queries.csv"
 
     @property
+    def benchmark_labels(self) -> Path:
+        """The query ledger: one line per benchmark row and round, the states it labelled."""
+        return self.benchmark_dir / "labels.jsonl"
+
+    @property
     def benchmark_summary(self) -> Path:
         """Per (method, setting): success with its interval, mean reward and queries."""
         return self.benchmark_dir / "summary.json"

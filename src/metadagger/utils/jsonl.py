@@ -7,9 +7,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 from metadagger.errors import CheckpointError
+from metadagger.utils.io import atomic_write
 
 
 def append_line(path: str | Path, line: bytes) -> None:
@@ -26,6 +27,11 @@ def append_line(path: str | Path, line: bytes) -> None:
 def dumps_line(record: dict[str, Any]) -> bytes:
     """A record as one JSON line with sorted keys (identical records give identical bytes)."""
     return (json.dumps(record, sort_keys=True, separators=(",", ":")) + "\n").encode()
+
+
+def write_lines(path: str | Path, records: Iterable[dict[str, Any]]) -> Path:
+    """Write ``records`` as a whole JSON-lines file at once, atomically (:func:`dumps_line` each)."""
+    return atomic_write(path, lambda tmp: tmp.write_bytes(b"".join(dumps_line(r) for r in records)))
 
 
 def read_lines(path: str | Path, *, what: str) -> list[dict[str, Any]]:

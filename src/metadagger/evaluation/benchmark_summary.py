@@ -1,0 +1,263 @@
+"""The benchmark's summary: success by method and setting, paired comparisons with the references,
+and every method read at equal budgets.
+
+A method's own settings spend their own queries, so "better" at those settings mixes success with
+spending. The budget reading (docs/benchmark.md, "Equal budgets") fixes the spend instead, per
+seed: the demonstration's queries plus a share of plain DAgger's queries beyond them on that seed
+(a share of DAgger's whole count would fall below the demonstration itself at small shares, where
+every method but the zero-query controls reads as a failure):
+
+- **Success at budget B**: the outcome of the method's last row (by queries, then table order)
+  whose queries are at most B; with no row within B, BC's outcome at the demonstration's queries,
+  or failure if even that exceeds B.
+- **Area under the curve**: the mean success at budget over :data:`AUC_POINTS` log-spaced budgets
+  from the demonstration's queries to plain DAgger's final queries; in [0, 1].
+
+At each budget the best method (references aside) is named, with paired intervals against each
+reference: the zero-query controls, BC refitted and the best gate at that budget. The oracle is a
+ceiling: tabled, never ranked.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from metadagger.evaluation.methods import BC_REFIT, MDM_PREFIX, gated_methods, reference_methods
+from metadagger.evaluation.paired import paired_comparison, paired_difference
+from metadagger.imitation.metrics import summarize, wilson_interval
+from metadagger.mapping.registry import control_names
+
+#: What a summary entry is keyed by: (method, setting, demonstration share).
+Group = tuple[str, str, float]
+#: The equal budgets: the demonstration's queries plus these shares of plain DAgger's final per-seed
+#: queries beyond the demonstration.
+BUDGET_SHARES = (0.05, 0.1, 0.25)
+#: Budgets of the area under the success-against-queries curve, log-spaced.
+AUC_POINTS = 16
+
+
+def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]) -> dict[str, Any]:
+    """Per (method, setting, demonstration share): success rate with its 95% Wilson interval, mean
+    reward, mean queries, takeovers and episodes asked per seed; the queries spent on
+    meta-training; the references (:func:`references`), every method's paired comparison with each
+    (:func:`comparisons`), and the reading at equal budgets (:func:`budget_reading`)."""
+    groups: dict[Group, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["method"], str(r["setting"]), float(r["demo_fraction"])), []).append(r)
+    entries = []
+    for (method, setting, fraction), group in groups.items():
+        s = summarize(group)
+        entries.append(
+            {
+                "method": method,
+                "setting": setting,
+                "demo_fraction": fraction,
+                "seeds": s["episodes"],
+                "successes": s["successes"],
+                "success_rate": s["success_rate"],
+                "success_ci_low": s["success_ci_low"],
+                "success_ci_high": s["success_ci_high"],
+                "mean_reward": s["mean_reward"],
+                "mean_queries": s["expert_queries"] / s["episodes"],
+                **{
+                    f"mean_{name}": float(np.mean([r[name] for r in group]))
+                    for name in ("takeovers", "episodes_asked")
+                    if all(name in r for r in group)
+                },
+            }
+        )
+    refs = references(entries)
+    return {
+        "entries": entries,
+        "meta_training_queries": dict(meta_queries),
+        "references": refs,
+        "comparisons": comparisons(groups, refs),
+        "budgets": budget_reading(rows),
+    }
+
+
+def _controls() -> set[str]:
+    return {MDM_PREFIX + name for name in control_names()} | {BC_REFIT}
+
+
+def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """What every method is compared with: each MDM control, BC refitted as DAgger (``bc-refit``),
+    and the best gate (the gated DAgger setting with the highest success, the fewest queries on a
+    tie; the oracle is a ceiling, not a gate), as ``method``/``setting``/``demo_fraction``."""
+    controls, gated = _controls(), gated_methods()
+    refs = [e for e in entries if e["method"] in controls]
+    gates = [e for e in entries if e["method"] in gated]
+    if gates:
+        refs.append(max(gates, key=lambda e: (e["success_rate"], -e["mean_queries"])))
+    return [{"method": e["method"], "setting": e["setting"], "demo_fraction": e["demo_fraction"]} for e in refs]
+
+
+def comparisons(groups: dict[Group, list[dict[str, Any]]], refs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every (method, setting, demonstration share) against every reference but itself, paired on
+    the seeds both ran (:func:`metadagger.evaluation.paired.paired_comparison`)."""
+    by_seed = {key: {r["seed"]: r for r in group} for key, group in groups.items()}
+    out = []
+    for ref in refs:
+        against = (ref["method"], ref["setting"], ref["demo_fraction"])
+        other = by_seed[against]
+        for (method, setting, fraction), mine in by_seed.items():
+            if (method, setting, fraction) == against:
+                continue
+            seeds = sorted(set(mine) & set(other))
+            if not seeds:
+                continue
+            a, b = [mine[s] for s in seeds], [other[s] for s in seeds]
+            stats = paired_comparison(
+                [r["success"] for r in a], [r["success"] for r in b], [r["reward"] for r in a], [r["reward"] for r in b]
+            )
+            out.append(
+                {
+                    "method": method,
+                    "setting": setting,
+                    "demo_fraction": fraction,
+                    "against": ref["method"],
+                    "against_setting": ref["setting"],
+                    "against_demo_fraction": ref["demo_fraction"],
+                    **stats,
+                }
+            )
+    return out
+
+
+Curve = tuple[str, float]
+"""A method read at budgets: (method, demonstration share); its rows on a seed are its settings."""
+
+
+def success_at_budget(rows: Sequence[dict[str, Any]], fallback: dict[str, Any] | None, budget: float) -> dict[str, Any]:
+    """The row a method is read at within ``budget`` queries on one seed: its last row (``rows`` in
+    table order, sorted by queries) within it, else ``fallback`` (BC's row) within it, else a
+    failure that spent nothing (``reward`` 0)."""
+    within = [r for r in sorted(rows, key=lambda r: r["expert_queries"]) if r["expert_queries"] <= budget]
+    if within:
+        return within[-1]
+    if fallback is not None and fallback["expert_queries"] <= budget:
+        return fallback
+    return {"success": False, "reward": 0.0, "expert_queries": 0}
+
+
+def budget_reading(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """Every method at the equal budgets :data:`BUDGET_SHARES` and by the area under its curve, per
+    seed, with the best method at each and its paired comparisons; None without plain DAgger rows
+    (budgets are shares of its queries) or BC rows (the demonstration's queries)."""
+    final = _dagger_final(rows)
+    start = {r["seed"]: r for r in rows if r["method"] == "bc" and float(r["demo_fraction"]) == 1.0}
+    seeds = sorted(set(final) & set(start))
+    if not seeds:
+        return None
+    curves: dict[Curve, dict[int, list[dict[str, Any]]]] = {}
+    for r in rows:
+        curves.setdefault((r["method"], float(r["demo_fraction"])), {}).setdefault(r["seed"], []).append(r)
+    bc = {
+        fraction: {r["seed"]: r for r in rows if r["method"] == "bc" and float(r["demo_fraction"]) == fraction}
+        for fraction in {c[1] for c in curves}
+    }
+
+    def read(curve: Curve, seed: int, budget: float) -> dict[str, Any]:
+        return success_at_budget(curves[curve].get(seed, []), bc[curve[1]].get(seed), budget)
+
+    grid = {s: np.geomspace(max(start[s]["expert_queries"], 1), max(final[s], 1), AUC_POINTS) for s in seeds}
+    ran = [c for c in curves if all(s in curves[c] for s in seeds)]
+    auc = {c: [float(np.mean([read(c, s, b)["success"] for b in grid[s]])) for s in seeds] for c in ran}
+    budget = {
+        share: {s: start[s]["expert_queries"] + share * (final[s] - start[s]["expert_queries"]) for s in seeds}
+        for share in BUDGET_SHARES
+    }
+    at: dict[float, dict[Curve, list[dict[str, Any]]]] = {
+        share: {c: [read(c, s, budget[share][s]) for s in seeds] for c in ran} for share in BUDGET_SHARES
+    }
+    ranked = [c for c in ran if c[0] not in reference_methods() and c[0] not in _controls()]
+    gated = gated_methods()
+    budgets = []
+    for share, read_at in at.items():
+        table = [_budget_entry(c, outcomes) for c, outcomes in read_at.items()]
+        best = max(ranked, key=lambda c: (_rate(read_at[c]), _auc_mean(auc[c])), default=None)
+        gates = [c for c in ran if c[0] in gated]
+        best_gate = max(gates, key=lambda c: (_rate(read_at[c]), _auc_mean(auc[c])), default=None)
+        refs = [c for c in ran if c[0] in _controls()] + ([best_gate] if best_gate is not None else [])
+        budgets.append(
+            {
+                "share": share,
+                "mean_budget": float(np.mean(list(budget[share].values()))),
+                "entries": table,
+                "best": None if best is None else _curve_dict(best),
+                "best_gate": None if best_gate is None else _curve_dict(best_gate),
+                "comparisons": []
+                if best is None
+                else [
+                    {**_curve_dict(best), **_against(ref), **_paired(read_at[best], read_at[ref])}
+                    for ref in refs
+                    if ref != best
+                ],
+            }
+        )
+    best_auc = max(ranked, key=lambda c: _auc_mean(auc[c]), default=None)
+    return {
+        "seeds": seeds,
+        "shares": list(BUDGET_SHARES),
+        "auc_points": AUC_POINTS,
+        "budgets": budgets,
+        "auc": [{**_curve_dict(c), "mean": _auc_mean(auc[c]), "per_seed": auc[c]} for c in ran],
+        "best_auc": None if best_auc is None else _curve_dict(best_auc),
+        "auc_comparisons": []
+        if best_auc is None
+        else [
+            {**_curve_dict(best_auc), **_against(ref), **paired_difference(auc[best_auc], auc[ref])}
+            for ref in ran
+            if ref != best_auc and (ref[0] in _controls() or ref[0] in gated or ref[0] in reference_methods())
+        ],
+    }
+
+
+def _dagger_final(rows: list[dict[str, Any]]) -> dict[int, int]:
+    """Plain DAgger's queries after its last round, per seed."""
+    last: dict[int, dict[str, Any]] = {}
+    for r in rows:
+        if r["method"] == "dagger" and (r["seed"] not in last or int(r["setting"]) > int(last[r["seed"]]["setting"])):
+            last[r["seed"]] = r
+    return {seed: int(r["expert_queries"]) for seed, r in last.items()}
+
+
+def _rate(outcomes: list[dict[str, Any]]) -> float:
+    return float(np.mean([bool(o["success"]) for o in outcomes]))
+
+
+def _auc_mean(values: list[float]) -> float:
+    return float(np.mean(values))
+
+
+def _curve_dict(curve: Curve) -> dict[str, Any]:
+    """A curve as ``method``/``demo_fraction`` fields."""
+    return {"method": curve[0], "demo_fraction": curve[1]}
+
+
+def _against(curve: Curve) -> dict[str, Any]:
+    """A reference curve as ``against``/``against_demo_fraction`` fields."""
+    return {"against": curve[0], "against_demo_fraction": curve[1]}
+
+
+def _budget_entry(curve: Curve, outcomes: list[dict[str, Any]]) -> dict[str, Any]:
+    wins = sum(bool(o["success"]) for o in outcomes)
+    low, high = wilson_interval(wins, len(outcomes))
+    return {
+        "method": curve[0],
+        "demo_fraction": curve[1],
+        "seeds": len(outcomes),
+        "successes": wins,
+        "success_rate": wins / len(outcomes),
+        "success_ci_low": low,
+        "success_ci_high": high,
+        "mean_queries": float(np.mean([o["expert_queries"] for o in outcomes])),
+    }
+
+
+def _paired(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, Any]:
+    return paired_comparison(
+        [o["success"] for o in a], [o["success"] for o in b], [o["reward"] for o in a], [o["reward"] for o in b]
+    )

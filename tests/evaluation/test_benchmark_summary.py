@@ -1,0 +1,75 @@
+"""The benchmark read at equal budgets and by the area under the curve, on hand-made rows."""
+
+from __future__ import annotations
+
+import pytest
+
+from metadagger.evaluation.benchmark_summary import AUC_POINTS, budget_reading, success_at_budget
+
+
+def _row(method: str, setting: str, seed: int, success: bool, queries: int, fraction: float = 1.0) -> dict:
+    return {
+        "method": method,
+        "setting": setting,
+        "demo_fraction": fraction,
+        "seed": seed,
+        "success": success,
+        "reward": float(success),
+        "expert_queries": queries,
+    }
+
+
+def _rows() -> list[dict]:
+    """Six seeds: a demonstration of 100 queries, DAgger to 500; a safe gate at 180 (every other seed) and
+    120 (every seed); the mean-DA control at 0 (seeds 0, 1); the oracle at 110 (every seed)."""
+    rows = []
+    for seed in range(6):
+        rows += [
+            _row("bc", "", seed, False, 100),
+            _row("dagger", "1", seed, False, 300),
+            _row("dagger", "2", seed, True, 500),
+            _row("dagger-safe", "0.5", seed, seed % 2 == 0, 180),
+            _row("dagger-safe", "0.8", seed, True, 120),
+            _row("mdm-mean-da", "", seed, seed < 2, 0),
+            _row("dagger-oracle", "0", seed, True, 110),
+        ]
+    return rows
+
+
+def test_a_method_is_read_at_its_last_row_within_the_budget_else_bc_else_a_failure():
+    rows = [_row("m", "a", 0, True, 50), _row("m", "b", 0, False, 80)]
+    bc = _row("bc", "", 0, True, 40)
+    assert success_at_budget(rows, bc, 90)["expert_queries"] == 80  # the last within, not the best
+    assert success_at_budget(rows, bc, 60)["expert_queries"] == 50
+    assert success_at_budget(rows, bc, 45) is bc
+    assert success_at_budget(rows, bc, 30) == {"success": False, "reward": 0.0, "expert_queries": 0}
+
+
+def test_budgets_are_the_demonstration_plus_shares_of_daggers_queries_beyond_it():
+    reading = budget_reading(_rows())
+    assert reading["seeds"] == list(range(6))
+    successes = {b["share"]: {e["method"]: e["successes"] for e in b["entries"]} for b in reading["budgets"]}
+    # budgets 100 + share * 400: 120, 140, 200
+    assert [b["mean_budget"] for b in reading["budgets"]] == [120.0, 140.0, 200.0]
+    assert successes[0.05] == {"bc": 0, "dagger": 0, "dagger-safe": 6, "mdm-mean-da": 2, "dagger-oracle": 6}
+    assert successes[0.25]["dagger-safe"] == 3  # its 180-query setting, the last within 200
+    # the oracle is a ceiling and the control a reference: neither is ranked
+    assert all(b["best"] == {"method": "dagger-safe", "demo_fraction": 1.0} for b in reading["budgets"])
+    against = {c["against"] for c in reading["budgets"][0]["comparisons"]}
+    assert against == {"mdm-mean-da"}  # the best gate is the best method itself here
+
+
+def test_the_area_under_the_curve_is_the_mean_success_over_log_spaced_budgets():
+    reading = budget_reading(_rows())
+    auc = {a["method"]: a for a in reading["auc"]}
+    assert auc["mdm-mean-da"]["per_seed"] == [1.0, 1.0, 0.0, 0.0, 0.0, 0.0]  # zero queries: every budget
+    assert auc["dagger"]["per_seed"] == [1 / AUC_POINTS] * 6  # only the last budget reaches round 2
+    assert 0.0 <= auc["dagger-safe"]["mean"] <= auc["dagger-oracle"]["mean"] <= 1.0
+    assert reading["best_auc"] == {"method": "dagger-safe", "demo_fraction": 1.0}
+    oracle = next(c for c in reading["auc_comparisons"] if c["against"] == "dagger-oracle")
+    assert oracle["difference"] < 0 and oracle["ci_high"] < 0
+
+
+@pytest.mark.parametrize("drop", ["dagger", "bc"])
+def test_no_budget_reading_without_dagger_or_bc(drop):
+    assert budget_reading([r for r in _rows() if r["method"] != drop]) is None
