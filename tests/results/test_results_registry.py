@@ -246,3 +246,17 @@ def test_every_registry_run_is_what_its_canonical_command_makes_now():
             config = load_run(folder, run.overrides)
             expected = resolve_config(run.task, run.preset, overrides=run.overrides)
             assert registry_module.config_departures(config, expected) == [], f"make {run.name} again: `{run.command}`"
+
+
+def test_the_queries_figure_is_drawn_from_a_registry_summary_by_build_not_by_check(registry, canonical, tmp_path):
+    (tmp_path / "docs").mkdir()
+    page = tmp_path / "README.md"
+    page.write_text(
+        '<!-- results: queries-figure carracing-ci "success against expert queries" -->\n<!-- /results -->\n'
+    )
+    drawn = tmp_path / "docs" / "figures" / "carracing-ci-queries.png"
+    assert build(tmp_path, registry=registry, check=True) != [] and not drawn.exists()  # check writes nothing
+    build(tmp_path, registry=registry)
+    assert drawn.read_bytes()[:4] == b"\x89PNG"
+    assert "](docs/figures/carracing-ci-queries.png)" in page.read_text()
+    assert build(tmp_path, registry=registry, check=True) == []

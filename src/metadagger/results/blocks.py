@@ -77,7 +77,9 @@ def build(
     """Regenerate every block of README.md and docs/ under ``root`` from the registry (default
     ``root/results``); with ``check``, write nothing. Returns the blocks that differed."""
     root = Path(root)
-    context = BlockContext(runs=load_registry(registry if registry is not None else root / REGISTRY), root=root)
+    context = BlockContext(
+        runs=load_registry(registry if registry is not None else root / REGISTRY), root=root, draw=not check
+    )
     changed: list[str] = []
     for path in files if files is not None else doc_files(root):
         if not path.is_file():

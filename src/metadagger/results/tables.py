@@ -24,6 +24,7 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
+from metadagger.evaluation.benchmark_figure import plot_queries
 from metadagger.evaluation.methods import BC_REFIT, MDI_METHODS, MDM_PREFIX, gated_methods, reference_methods
 from metadagger.evaluation.report_run import duration
 from metadagger.evaluation.tables import markdown_table, method_label, pct
@@ -49,6 +50,8 @@ class BlockContext:
     runs: dict[str, RegistryRun]
     root: Path
     file: Path | None = None
+    draw: bool = False
+    """Whether blocks that draw a figure from the registry's data write it (``results build``, not ``check``)."""
 
     def at(self, file: Path) -> "BlockContext":
         """This context for a block in ``file``."""
@@ -235,6 +238,23 @@ def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
     return _missing(names.split(",")[0])
 
 
+#: Where figures drawn from the registry's data go, under the repository root.
+DRAWN_FIGURES = Path("docs") / "figures"
+
+
+def queries_figure(context: BlockContext, names: str, alt: str) -> str:
+    """The benchmark figure of the first of the registry runs ``names`` (comma-separated) that has a
+    benchmark summary, drawn in this code's style from that summary into ``docs/figures/<run>-queries.png``."""
+    for name in names.split(","):
+        found = context.runs.get(name)
+        if found is not None and found.path("benchmark/summary.json").is_file():
+            path = context.root / DRAWN_FIGURES / f"{name}-queries.png"
+            if context.draw:
+                plot_queries(found.json("benchmark/summary.json"), path)
+            return f"![{alt}]({context.link(path)})\n\n*Run `{name}`, drawn from its `benchmark/summary.json`.*"
+    return _missing(names.split(",")[0])
+
+
 def _short(commit: str) -> str:
     """A commit's first 10 hex digits, keeping the ``+dirty`` mark of an uncommitted tree."""
     sha, dirty, _ = commit.partition("+dirty")
@@ -264,5 +284,6 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "runs": runs_table,
     "report": report_section,
     "figure": figure,
+    "queries-figure": queries_figure,
     "manifest": manifest_line,
 }
