@@ -25,8 +25,10 @@ from pathlib import Path
 from typing import Any, Callable
 
 from metadagger.evaluation.benchmark_figure import plot_queries
+from metadagger.evaluation.benchmark_summary import BUDGET_SHARES, budget_reading
 from metadagger.evaluation.methods import BC_REFIT, MDI_METHODS, MDM_PREFIX, gated_methods, reference_methods
 from metadagger.evaluation.report_run import duration
+from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
 from metadagger.utils.kernels import NUMERICS
@@ -238,6 +240,70 @@ def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
     return _missing(names.split(",")[0])
 
 
+def budgets_table(context: BlockContext) -> str:
+    """Every canonical run read at equal budgets, from its ``benchmark/queries.csv``: the best method
+    (the oracle and the controls aside) at each budget and by the area under the curve, with its
+    paired difference from the best gate there, and the oracle's success beside it."""
+    rows = []
+    shares: list[float] = []
+    for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
+        found = context.runs.get(run.name)
+        reading = None
+        if found is not None and found.path("benchmark/queries.csv").is_file():
+            reading = budget_reading(read_csv(found.path("benchmark/queries.csv")))
+        if reading is None:
+            rows.append((f"`{run.name}`", "not run yet" if found is None else "no DAgger rows", "", "", ""))
+            continue
+        shares = [b["share"] for b in reading["budgets"]]
+        rows.append(
+            (f"`{run.name}`", *(_at_budget(b) for b in reading["budgets"]), _by_area(reading)),
+        )
+    header = ("run", *(f"demonstration + {s:.0%} of DAgger's queries" for s in shares or BUDGET_SHARES), "by area")
+    note = (
+        "Every method read at the same spend on each unseen seed: the demonstration's queries plus a share of plain "
+        "DAgger's final queries beyond them ([benchmark](benchmark.md), 'Equal budgets'); by area: the mean success "
+        "over 16 log-spaced budgets up to DAgger's. Each cell: the best method (the controls and the oracle aside, "
+        "chosen on these seeds) with its success, then its paired difference from the best gate at that budget (95% "
+        "bootstrap interval; '=' where the best method is a gate), then the oracle's success where the run has it."
+    )
+    return "\n".join([note, "", *markdown_table(header, rows)])
+
+
+def _at_budget(budget: dict[str, Any]) -> str:
+    if budget["best"] is None:
+        return "-"
+    entries = {(e["method"], float(e["demo_fraction"])): e for e in budget["entries"]}
+    best = entries[(budget["best"]["method"], float(budget["best"]["demo_fraction"]))]
+    cell = f"{_curve(best)} {pct(best['success_rate'])}"
+    gate = budget["best_gate"]
+    against = [c for c in budget["comparisons"] if gate and c["against"] == gate["method"]]
+    cell += f"; gate {_points(against[0])}" if against else "; gate ="
+    oracle = [e for e in budget["entries"] if e["method"] in reference_methods()]
+    return cell + (f"; oracle {pct(max(e['success_rate'] for e in oracle))}" if oracle else "")
+
+
+def _by_area(reading: dict[str, Any]) -> str:
+    if reading["best_auc"] is None:
+        return "-"
+    best = reading["best_auc"]
+    area = {(a["method"], float(a["demo_fraction"])): a["mean"] for a in reading["auc"]}
+    cell = f"{_curve(best)} {area[(best['method'], float(best['demo_fraction']))]:.2f}"
+    oracle = [v for (m, _), v in area.items() if m in reference_methods()]
+    return cell + (f"; oracle {max(oracle):.2f}" if oracle else "")
+
+
+def _curve(entry: dict[str, Any]) -> str:
+    share = float(entry["demo_fraction"])
+    return method_label(entry["method"]) + ("" if share == 1.0 else f" ({share:.0%} of the demonstration)")
+
+
+def _points(comparison: dict[str, Any]) -> str:
+    return (
+        f"{100 * comparison['difference']:+.0f} points ({100 * comparison['ci_low']:+.0f} to "
+        f"{100 * comparison['ci_high']:+.0f})"
+    )
+
+
 #: Where figures drawn from the registry's data go, under the repository root.
 DRAWN_FIGURES = Path("docs") / "figures"
 
@@ -285,5 +351,6 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "report": report_section,
     "figure": figure,
     "queries-figure": queries_figure,
+    "budgets": budgets_table,
     "manifest": manifest_line,
 }
