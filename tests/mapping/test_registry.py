@@ -94,3 +94,38 @@ def test_unregistered_kinds_are_refused_in_configs():
         EvalConfig(methods=("linear",))
     with pytest.raises(UserError, match="mappers has unknown kind"):
         resolve_config("carracing", "ci", overrides=["mappers={linear: {epochs: 2}}"])
+
+
+def _installed(tmp_path, monkeypatch, package: str, entry: str) -> None:
+    """A package installed beside metadagger whose only content is one ``metadagger.mappers`` entry point."""
+    dist = tmp_path / f"{package.replace('-', '_')}-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {package}\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text(f"[metadagger.mappers]\n{entry}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "_plugins_loaded", False)
+    monkeypatch.setattr(registry, "_KINDS", dict(registry._KINDS))
+
+
+def test_an_installed_package_adds_a_mapper_kind_through_its_entry_point(tmp_path, monkeypatch):
+    (tmp_path / "mykinds.py").write_text(
+        "from metadagger.mapping.registry import MapperKind\n"
+        "ZERO = MapperKind('zero', 'Zero', 'control: always zeros', constant=lambda w, pistar: w[0] * 0)\n"
+    )
+    _installed(tmp_path, monkeypatch, "my-kinds", "zero = mykinds:ZERO")
+    assert "zero" in kind_names() and method_label("mdm-zero") == "MDM Zero"
+
+
+@pytest.mark.parametrize(
+    "entry, says",
+    [
+        ("ghost = not_a_module:KIND", "fails to load (ModuleNotFoundError"),
+        ("ghost = os:sep", "names a str, not a MapperKind"),
+    ],
+)
+def test_a_broken_mapper_plug_in_is_one_line_naming_its_package(tmp_path, monkeypatch, entry, says):
+    _installed(tmp_path, monkeypatch, "broken-kinds", entry)
+    with pytest.raises(UserError, match="mapper plug-in 'ghost' of package broken-kinds") as info:
+        get_kind("dm")
+    assert says in str(info.value) and "fix or uninstall broken-kinds" in str(info.value)
+    assert "\n" not in str(info.value)
