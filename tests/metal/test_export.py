@@ -66,6 +66,10 @@ def test_demos_round_trip_every_image_and_label(run):
         assert episode.infos["queried"][:-1].all() and not episode.infos["queried"][-1]
         assert (episode.infos["round"] == 0).all()
         assert np.allclose(episode.rewards, demo.step_rewards) and bool(episode.terminations[-1]) == demo.terminated
+    # provenance: the algorithm, its author and the code that made it, with no Minari warning about them
+    spec = dataset.storage.metadata
+    assert spec["algorithm_name"].startswith("metadagger ") and "demos: the task's expert" in spec["algorithm_name"]
+    assert set(spec["author"]) == {"metadagger"} and spec["code_permalink"].startswith("metadagger ")
     # read back for BC: exactly the demonstrations' rows
     data = read_demonstrations("toy/demos-v0", **_spaces(task))
     assert np.array_equal(data.obs, np.concatenate([t.obs for t in demos]))

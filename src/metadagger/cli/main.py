@@ -416,6 +416,8 @@ def export(
     fmt: str = typer.Option("minari", "--format", help="minari (the only format)."),
     name: str = typer.Option(..., "--name", help="Minari dataset id, e.g. metadagger/carracing-demos-v0."),
     seeds: Optional[str] = typer.Option(None, "--seeds", help="Seeds to export (default: the run's pairs.seeds)."),
+    author: str = typer.Option("metadagger", "--author", help="The dataset's author (Minari's author)."),
+    author_email: Optional[str] = typer.Option(None, "--author-email", help="The author's email (optional)."),
     overrides: list[str] = SET,
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
@@ -432,7 +434,14 @@ def export(
     check_export(what, fmt, name)
     options = stage_options(False, executor, workers, address)
     summary = stage_export(
-        RunLayout(out), load_run(out, overrides), what=what, name=name, seeds=seed_list, options=options
+        RunLayout(out),
+        load_run(out, overrides),
+        what=what,
+        name=name,
+        seeds=seed_list,
+        author=author,
+        author_email=author_email,
+        options=options,
     )
     checked = (
         ""

@@ -111,8 +111,12 @@ def write_dataset(
     action_space: gym.Space,
     description: str,
     algorithm: str,
+    author: str,
+    author_email: str | None,
+    code_permalink: str,
 ) -> Path:
-    """Write the episodes of ``chunks`` (in order) as the Minari dataset ``name``.
+    """Write the episodes of ``chunks`` (in order) as the Minari dataset ``name``, with its
+    provenance: ``algorithm``, ``author`` (and ``author_email`` where given) and ``code_permalink``.
 
     The dataset is built in a staging folder beside the datasets and renamed into place when the
     last chunk is written, so a killed export leaves no half-written dataset under ``name``.
@@ -143,7 +147,9 @@ def write_dataset(
                 "dataset_id": name,
                 "algorithm_name": algorithm,
                 "description": description,
-                "author": {"metadagger"},
+                "author": {author},
+                **({} if author_email is None else {"author_email": {author_email}}),
+                "code_permalink": code_permalink,
                 "minari_version": minari.__version__,
             }
         )

@@ -26,9 +26,12 @@ from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks.base import Task
 from metadagger.utils.executors import in_order, make_executor
 from metadagger.utils.progress import progress_bar
+from metadagger.version import __version__, source_revision
 
 EXPORTS = ("demos", "dagger", "pairs-data")
 FORMATS = ("minari",)
+#: The dataset's author when none is given.
+DEFAULT_AUTHOR = "metadagger"
 
 
 @dataclass(frozen=True)
@@ -77,9 +80,12 @@ def export_run(
     what: str,
     name: str,
     seeds: Sequence[int],
+    author: str = DEFAULT_AUTHOR,
+    author_email: str | None = None,
     options: StageOptions = StageOptions(),
 ) -> dict[str, Any]:
-    """Write the run's ``what`` episodes of ``seeds`` as the Minari dataset ``name``.
+    """Write the run's ``what`` episodes of ``seeds`` as the Minari dataset ``name``, naming the
+    algorithm that made them, its ``author`` and the code (metadagger's version and commit).
 
     Returns:
         ``dataset`` (its folder), ``episodes``, ``steps`` and ``checked`` (seeds whose re-run pair
@@ -124,11 +130,30 @@ def export_run(
             name,
             chunks(results),
             **spaces,
-            algorithm=f"metadagger {what}",
+            algorithm=f"metadagger {__version__} {what}: {_ALGORITHMS[what]}",
             description=f"{task.name}: {_DESCRIPTIONS[what]} of seeds {seeds[0]}..{seeds[-1]} "
             f"({len(seeds)} seeds), from run {layout.root}",
+            author=author,
+            author_email=author_email,
+            code_permalink=code_permalink(),
         )
     return {"dataset": str(folder), **counts}
+
+
+#: What made each export's actions and labels (the dataset's ``algorithm_name``).
+_ALGORITHMS = {
+    "demos": "the task's expert drives every step",
+    "dagger": "MetaL DAgger's per-seed DAgger (pi*'s frozen trunk, a head per seed), every visited state labelled",
+    "pairs-data": "MetaL DAgger's pairs: the expert's demonstration, then per-seed DAgger",
+}
+
+
+def code_permalink() -> str:
+    """The code that made an export: metadagger's version and the commit it ran from."""
+    revision = source_revision()
+    return (
+        f"metadagger {__version__}, commit {revision}" if revision else f"metadagger {__version__} (not a git checkout)"
+    )
 
 
 _DESCRIPTIONS = {

@@ -43,7 +43,7 @@ from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
 from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
-from metadagger.metal.export import export_run
+from metadagger.metal.export import DEFAULT_AUTHOR, export_run
 from metadagger.metal.groundtruth import (
     check_pistar,
     groundtruth_changes,
@@ -373,10 +373,12 @@ def stage_export(
     what: str,
     name: str,
     seeds: Sequence[int] | None = None,
+    author: str = DEFAULT_AUTHOR,
+    author_email: str | None = None,
     options: StageOptions = StageOptions(),
 ) -> dict:
     """The run's ``what`` episodes (demos, dagger, pairs-data) of ``seeds`` (default: the pair
-    seeds) as the Minari dataset ``name`` (:mod:`metadagger.metal.export`)."""
+    seeds) as the Minari dataset ``name``, by ``author`` (:mod:`metadagger.metal.export`)."""
     task = run_task(config)
     if what != "demos":
         _current_groundtruth(layout, config, task)
@@ -387,6 +389,8 @@ def stage_export(
         what=what,
         name=name,
         seeds=sorted(set(config.pairs.seeds if seeds is None else seeds)),
+        author=author,
+        author_email=author_email,
         options=options,
     )
 
