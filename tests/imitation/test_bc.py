@@ -321,3 +321,27 @@ def test_a_diverging_fit_stops_with_one_line_naming_it_and_the_epoch(policy, dem
         DivergedError, match=r"the test fit diverged at epoch \d of 5 .*lower its learning rate \(now 1e\+36\)"
     ):
         fit_bc(policy, demo, config, what="the test fit")
+
+
+@pytest.mark.parametrize("weight_decay", [0.0, 1e-3])
+def test_the_head_only_fast_path_is_the_reference_epoch_to_the_bit(task, demo, monkeypatch, weight_decay):
+    from metadagger.imitation import bc
+    from metadagger.imitation.head_adam import LinearHeadAdam
+
+    config = BCConfig(lr=3e-3, epochs=4, batch_size=16, seed=11, head_only=True, weight_decay=weight_decay)
+    fast, reference = make_policy(task, seed=4, **TOY_ARCH), make_policy(task, seed=4, **TOY_ARCH)
+    chosen = []
+    real = bc._epochs
+
+    def noting(*args, **kwargs):
+        with real(*args, **kwargs) as epoch:
+            chosen.append(type(epoch).__name__)
+            yield epoch
+
+    monkeypatch.setattr(bc, "_epochs", bc.contextmanager(noting))
+    fast_losses = fit_bc(fast, demo, config)["loss"]
+    monkeypatch.setattr(LinearHeadAdam, "supports", staticmethod(lambda head: False))
+    reference_losses = fit_bc(reference, demo, config)["loss"]
+    assert chosen == ["HeadAdamEpoch", "ReferenceEpoch"]
+    assert fast_losses == reference_losses
+    assert torch.equal(fast.head_vector(), reference.head_vector())

@@ -12,12 +12,12 @@ from pathlib import Path
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
-from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.episodes import evaluate_policy
 from metadagger.imitation.metrics import summarize
 from metadagger.imitation.minari_io import read_demonstrations
 from metadagger.imitation.rollouts import collect
+from metadagger.imitation.whole_policy_dagger import DAggerConfig, run_whole_policy_dagger
 from metadagger.pipeline.run_config import load_preset
 from metadagger.policies import make_policy
 from metadagger.runfolder.layout import RunLayout
@@ -110,7 +110,7 @@ def run_demo(config: DemoConfig, out: str | Path, *, progress: bool = True) -> D
             dagger_rows.extend(rows)
 
     dagger_policy = policy.copy()
-    run_dagger(
+    run_whole_policy_dagger(
         dagger_policy,
         task,
         config.train_seeds,

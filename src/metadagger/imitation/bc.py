@@ -12,10 +12,10 @@ import math
 import time
 import weakref
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import ExitStack
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import torch
@@ -291,6 +291,13 @@ def fit_bc(
 ) -> dict[str, Any]:
     """Fit ``policy`` in place to ``data`` with Adam: cross-entropy (discrete) or MSE (continuous).
 
+    Each epoch shuffles the data with the fit's seeded generator and takes one Adam step per batch
+    (:class:`ReferenceEpoch`, BC as a textbook writes it). Two fast paths take the same steps
+    where they serve: a head-only fit of a linear head runs each epoch in one compiled call
+    (:class:`~metadagger.imitation.head_adam.LinearHeadAdam`, bit-equal to the reference), and
+    a whole-policy fit with ``batch_shards`` above 1 splits each batch's gradient over threads
+    (:class:`ShardedEpoch`, the same gradient summed in another order).
+
     Args:
         policy: the policy to train (its network is updated in place).
         data: observations and expert labels (an :class:`Aggregate`'s images are concatenated only
@@ -312,71 +319,20 @@ def fit_bc(
     """
     _check_data(policy, data)
     started = time.perf_counter()
-    net = policy.net
-    if config.head_only:
-        cache = cache if cache is not None else FeatureCache(policy)
-        if cache.policy.net.trunk is not policy.net.trunk:
-            raise UserError("the FeatureCache was built for another trunk; build one with FeatureCache(policy)")
-        inputs, model = cache.features_of(data), net.head
-    else:
-        if cache is not None:
-            raise UserError(
-                "a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache="
-            )
-        inputs, model = torch.from_numpy(data.obs), net
+    inputs, model = _inputs_and_model(policy, data, config, cache)
     targets = torch.from_numpy(data.labels)
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise UserError("the policy has no trainable parameters left to fit; do not freeze the head")
-    head_adam = (
-        LinearHeadAdam(model, lr=config.lr, weight_decay=config.weight_decay, discrete=policy.discrete)
-        if config.head_only and LinearHeadAdam.supports(model)
-        else None
-    )
     generator = torch.Generator().manual_seed(config.seed)
-    losses: list[float] = []
-    n = len(data)
-    with ExitStack() as stack:
-        optimizer = None if head_adam is not None else adam(params, lr=config.lr, weight_decay=config.weight_decay)
-        if head_adam is not None:
-            # a whole epoch of head-only steps in one call
-            def epoch_losses(order: torch.Tensor) -> list[float]:
-                return head_adam.steps(inputs, targets, order, config.batch_size).tolist()
-        else:
-            if config.batch_shards > 1:
-                # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
-                pool = stack.enter_context(
-                    ThreadPoolExecutor(
-                        config.batch_shards,
-                        thread_name_prefix="bc-shard",
-                        initializer=torch.set_num_threads,
-                        initargs=(torch.get_num_threads(),),
-                    )
-                )
-                step = _sharded_step(model, params, optimizer, policy.discrete, pool, config.batch_shards)
-            else:
-                step = _autograd_step(model, optimizer, policy.discrete)
-
-            def epoch_losses(order: torch.Tensor) -> list[float]:
-                batch_losses = []
-                for start in range(0, n, config.batch_size):
-                    batch = order[start : start + config.batch_size]
-                    x = inputs[batch]
-                    if config.augment_shift:
-                        x = random_shift(x, config.augment_shift, generator)
-                    batch_losses.append(step(x, targets[batch]).item())
-                return batch_losses
-
+    n, losses = len(data), []
+    with _epochs(model, params, inputs, targets, config, policy.discrete, generator) as run_epoch:
         bar = progress_bar(range(config.epochs), desc="bc", enabled=progress, leave=False)
         for epoch in bar:
-            if optimizer is not None:
-                for group in optimizer.param_groups:
-                    group["lr"] = config.lr_at(epoch)
             order = torch.randperm(n, generator=generator)
-            total = 0.0
-            for start, loss in zip(range(0, n, config.batch_size), epoch_losses(order), strict=True):
-                total += loss * min(config.batch_size, n - start)
-            losses.append(total / n)
+            batch_losses = run_epoch(epoch, order)
+            sizes = [min(config.batch_size, n - start) for start in range(0, n, config.batch_size)]
+            losses.append(sum(loss * size for loss, size in zip(batch_losses, sizes, strict=True)) / n)
             check_finite_loss(
                 losses[-1],
                 what=what,
@@ -386,11 +342,9 @@ def fit_bc(
             )
             bar.set_postfix(loss=f"{losses[-1]:.4f}")
             if on_epoch is not None:
-                if head_adam is not None:
-                    head_adam.write_back()
+                run_epoch.write_back()
                 on_epoch(epoch + 1)
-    if head_adam is not None:
-        head_adam.write_back()
+        run_epoch.write_back()
     if not bool(torch.isfinite(parameters_to_vector(params)).all()):
         raise DivergedError(
             f"{what} diverged: its weights are not finite after {config.epochs} epochs; "
@@ -399,59 +353,139 @@ def fit_bc(
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
 
 
-def _autograd_step(
-    model: torch.nn.Module, optimizer: torch.optim.Optimizer, discrete: bool
-) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
-    """A training step of ``model`` by autograd and ``optimizer``: returns the batch loss."""
-    loss_fn = F.cross_entropy if discrete else F.mse_loss
+def _inputs_and_model(
+    policy: Policy, data: Dataset | Aggregate, config: BCConfig, cache: FeatureCache | None
+) -> tuple[torch.Tensor, torch.nn.Module]:
+    """What a fit trains on and what it trains: cached trunk features and the head, or images and the network."""
+    if config.head_only:
+        cache = cache if cache is not None else FeatureCache(policy)
+        if cache.policy.net.trunk is not policy.net.trunk:
+            raise UserError("the FeatureCache was built for another trunk; build one with FeatureCache(policy)")
+        return cache.features_of(data), policy.net.head
+    if cache is not None:
+        raise UserError("a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache=")
+    return torch.from_numpy(data.obs), policy.net
 
-    def step(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        loss = loss_fn(model(x), y)
-        optimizer.zero_grad(set_to_none=True)
+
+class ReferenceEpoch:
+    """One epoch of BC as a textbook writes it, the reference of every fast path: for each batch
+    of the epoch's order, the mean loss, its gradient by autograd, one Adam step."""
+
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        params: list[torch.nn.Parameter],
+        inputs: torch.Tensor,
+        targets: torch.Tensor,
+        config: BCConfig,
+        discrete: bool,
+        generator: torch.Generator,
+    ) -> None:
+        self.model, self.inputs, self.targets, self.config, self.generator = model, inputs, targets, config, generator
+        self.loss_fn = F.cross_entropy if discrete else F.mse_loss
+        self.optimizer = adam(params, lr=config.lr, weight_decay=config.weight_decay)
+
+    def __call__(self, epoch: int, order: torch.Tensor) -> list[float]:
+        """The epoch's batches in ``order``; each batch's loss before its step."""
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.config.lr_at(epoch)
+        losses = []
+        for batch in order.split(self.config.batch_size):
+            x = self.inputs[batch]
+            if self.config.augment_shift:
+                x = random_shift(x, self.config.augment_shift, self.generator)
+            losses.append(self.step(x, self.targets[batch]))
+        return losses
+
+    def step(self, x: torch.Tensor, y: torch.Tensor) -> float:
+        """One Adam step on the batch's mean loss; the loss."""
+        loss = self.loss_fn(self.model(x), y)
+        self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        optimizer.step()
-        return loss.detach()
+        self.optimizer.step()
+        return loss.item()
 
-    return step
+    def write_back(self) -> None:
+        """The model holds the weights already."""
 
 
-def _sharded_step(
-    model: torch.nn.Module,
-    params: list[torch.nn.Parameter],
-    optimizer: torch.optim.Optimizer,
-    discrete: bool,
-    pool: ThreadPoolExecutor,
-    shards: int,
-) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
-    """:func:`_autograd_step` with the batch split into ``shards`` contiguous parts,
-    whose summed losses are differentiated in ``pool``'s threads; the gradients are added in shard
-    order and divided by the batch's count, so the step is the mean loss's, summed another way.
+class ShardedEpoch(ReferenceEpoch):
+    """The reference epoch with each batch's gradient computed in ``config.batch_shards`` contiguous
+    parts in ``pool``'s threads and added in shard order, then divided by the batch's count: the
+    mean loss's gradient summed another way (equal to the reference's up to rounding).
 
     Each shard differentiates with ``torch.autograd.grad``, which returns its gradients rather
     than accumulating them into the shared parameters, so the threads never write the same tensor.
     """
-    loss_fn = F.cross_entropy if discrete else F.mse_loss
 
-    def shard(xy: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
-        loss = loss_fn(model(xy[0]), xy[1], reduction="sum")
-        return loss.detach(), torch.autograd.grad(loss, params)
+    def __init__(self, *args: Any, pool: ThreadPoolExecutor, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.pool = pool
+        self.params = [p for group in self.optimizer.param_groups for p in group["params"]]
 
-    def step(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    def _shard(self, xy: tuple[torch.Tensor, torch.Tensor]) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
+        loss = self.loss_fn(self.model(xy[0]), xy[1], reduction="sum")
+        return loss.detach(), torch.autograd.grad(loss, self.params)
+
+    def step(self, x: torch.Tensor, y: torch.Tensor) -> float:
+        shards = self.config.batch_shards
         parts = [(xs, ys) for xs, ys in zip(x.tensor_split(shards), y.tensor_split(shards)) if len(xs)]
-        results = list(pool.map(shard, parts))
-        count = len(y) if discrete else y.numel()
+        results = list(self.pool.map(self._shard, parts))
+        count = len(y) if self.loss_fn is F.cross_entropy else y.numel()
         loss = results[0][0]
         for part_loss, _ in results[1:]:
             loss = loss + part_loss
-        for i, param in enumerate(params):
+        for i, param in enumerate(self.params):
             grad = results[0][1][i]
             for _, grads in results[1:]:
                 grad = grad + grads[i]
             param.grad = grad / count
-        optimizer.step()
-        return loss / count
+        self.optimizer.step()
+        return (loss / count).item()
 
-    return step
+
+class HeadAdamEpoch:
+    """The reference epoch of a head-only fit of a linear head, in one compiled call
+    (:class:`~metadagger.imitation.head_adam.LinearHeadAdam`, bit-equal to it)."""
+
+    def __init__(
+        self, head: torch.nn.Linear, features: torch.Tensor, targets: torch.Tensor, config: BCConfig, discrete: bool
+    ) -> None:
+        self.adam = LinearHeadAdam(head, lr=config.lr, weight_decay=config.weight_decay, discrete=discrete)
+        self.features, self.targets, self.batch_size = features, targets, config.batch_size
+
+    def __call__(self, epoch: int, order: torch.Tensor) -> list[float]:
+        return self.adam.steps(self.features, self.targets, order, self.batch_size).tolist()
+
+    def write_back(self) -> None:
+        """Copy the trained weights into the head."""
+        self.adam.write_back()
+
+
+@contextmanager
+def _epochs(
+    model: torch.nn.Module,
+    params: list[torch.nn.Parameter],
+    inputs: torch.Tensor,
+    targets: torch.Tensor,
+    config: BCConfig,
+    discrete: bool,
+    generator: torch.Generator,
+) -> Iterator[ReferenceEpoch | ShardedEpoch | HeadAdamEpoch]:
+    """The epoch a fit runs: a fast path where one serves it, else the reference."""
+    if config.head_only and LinearHeadAdam.supports(model):
+        yield HeadAdamEpoch(model, inputs, targets, config, discrete)  # type: ignore[arg-type]
+    elif config.batch_shards > 1:
+        # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
+        with ThreadPoolExecutor(
+            config.batch_shards,
+            thread_name_prefix="bc-shard",
+            initializer=torch.set_num_threads,
+            initargs=(torch.get_num_threads(),),
+        ) as pool:
+            yield ShardedEpoch(model, params, inputs, targets, config, discrete, generator, pool=pool)
+    else:
+        yield ReferenceEpoch(model, params, inputs, targets, config, discrete, generator)
 
 
 def fit_or_resume(

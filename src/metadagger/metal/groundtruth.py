@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, fit_or_resume
-from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.episodes import evaluate_policy
 from metadagger.imitation.metrics import summarize, wilson_interval
 from metadagger.imitation.rollouts import collect
 from metadagger.imitation.selection import EpochSelector
+from metadagger.imitation.whole_policy_dagger import DAggerConfig, run_whole_policy_dagger
 from metadagger.policies import Policy, load_policy, make_policy
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import describe_changes, stamp_of
@@ -118,10 +118,10 @@ def train_groundtruth(
 ) -> dict:
     """Train pi* (or reuse a finished one made from the same config) and return its metrics:
     ``own_seeds`` and ``unseen_seeds`` (:func:`~metadagger.imitation.metrics.summarize`), ``rounds``
-    (:func:`~metadagger.imitation.dagger.run_dagger`'s records), ``bc_epoch_losses`` (the BC fit's
-    loss per epoch; None when resumed from its checkpoint), ``expert_queries`` and, with
-    ``select_seeds``, ``bc_selection`` (:attr:`~metadagger.imitation.selection.EpochSelector.choice`;
-    None when resumed). Its rollouts
+    (:func:`~metadagger.imitation.whole_policy_dagger.run_whole_policy_dagger`'s records),
+    ``bc_epoch_losses`` (the BC fit's loss per epoch; None when resumed from its checkpoint),
+    ``expert_queries`` and, with ``select_seeds``, ``bc_selection``
+    (:attr:`~metadagger.imitation.selection.EpochSelector.choice`; None when resumed). Its rollouts
     (demonstrations, DAgger rounds, the success checks) run in a pool of ``workers`` processes;
     the fits run in this one, on one thread (docs/architecture.md, "Determinism").
 
@@ -172,7 +172,7 @@ def train_groundtruth(
     )
     history = []
     if config.dagger_rounds:
-        result = run_dagger(
+        result = run_whole_policy_dagger(
             policy,
             task,
             config.seeds,

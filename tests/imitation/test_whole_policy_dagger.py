@@ -8,8 +8,8 @@ import torch
 from toy_task import TOY_ARCH
 
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.dagger import DAggerConfig, run_dagger
 from metadagger.imitation.rollouts import collect
+from metadagger.imitation.whole_policy_dagger import DAggerConfig, run_whole_policy_dagger
 from metadagger.policies import make_policy
 
 FIT = BCConfig(lr=3e-3, epochs=20, batch_size=16)
@@ -26,7 +26,7 @@ def test_dagger_improves_over_bc_on_unseen_roads(discrete_task, discrete_demo):
     bc_success = success_rate(discrete_task, policy, HELD_OUT)
 
     calls = []
-    result = run_dagger(
+    result = run_whole_policy_dagger(
         policy,
         discrete_task,
         range(6),
@@ -48,7 +48,7 @@ def test_dagger_improves_over_bc_on_unseen_roads(discrete_task, discrete_demo):
 def test_expert_queries_are_cumulative(discrete_task, discrete_demo):
     policy = make_policy(discrete_task, seed=0, **TOY_ARCH)
     config = DAggerConfig(rounds=2, bc=BCConfig(lr=3e-3, epochs=1, head_only=True))
-    result = run_dagger(policy, discrete_task, [0, 1], initial=discrete_demo, config=config)
+    result = run_whole_policy_dagger(policy, discrete_task, [0, 1], initial=discrete_demo, config=config)
     first, second = result.rounds
     assert first["dagger/expert_queries"] == first["dagger/dataset_size"] > len(discrete_demo)
     assert second["dagger/expert_queries"] == second["dagger/dataset_size"] == len(result.dataset)
@@ -63,7 +63,7 @@ def test_head_only_dagger_computes_each_image_once(discrete_task, discrete_demo)
     bc = BCConfig(lr=3e-3, epochs=2, head_only=True)
     cache = FeatureCache(policy)
     fit_bc(policy, discrete_demo, bc, cache=cache)
-    result = run_dagger(
+    result = run_whole_policy_dagger(
         policy, discrete_task, [0, 1, 2], initial=discrete_demo, config=DAggerConfig(rounds=3, bc=bc), cache=cache
     )
     distinct = len({image.tobytes() for image in result.dataset.obs})
@@ -74,7 +74,7 @@ def test_reset_each_round_refits_from_a_fresh_head(discrete_task, discrete_demo)
     bc = BCConfig(lr=3e-3, epochs=3, head_only=True, seed=3)
     policy = make_policy(discrete_task, seed=0, **TOY_ARCH)
     fit_bc(policy, discrete_demo, FIT)
-    result = run_dagger(
+    result = run_whole_policy_dagger(
         policy,
         discrete_task,
         [0, 1],
@@ -100,4 +100,4 @@ def test_config_validation(kwargs, match):
 def test_needs_a_seed(discrete_task, discrete_demo):
     policy = make_policy(discrete_task, seed=0, **TOY_ARCH)
     with pytest.raises(ValueError, match="at least one seed"):
-        run_dagger(policy, discrete_task, [], initial=discrete_demo, config=DAggerConfig(rounds=1))
+        run_whole_policy_dagger(policy, discrete_task, [], initial=discrete_demo, config=DAggerConfig(rounds=1))

@@ -1,4 +1,11 @@
-"""DAgger, composed from behavioural cloning: roll out, let the expert label, aggregate, refit."""
+"""DAgger of a whole policy over many seeds, composed from behavioural cloning: roll out on every
+seed, let the expert label every visited state, aggregate, refit the whole network.
+
+This is the DAgger that trains pi* (:mod:`metadagger.metal.groundtruth`) and the plain DAgger of
+``metadagger demo``. MetaL DAgger's own DAgger, on one seed with pi*'s trunk frozen and a head
+refitted each round, with or without a gate, is
+:func:`metadagger.metal.method.dagger_rounds`.
+"""
 
 from __future__ import annotations
 
@@ -41,7 +48,7 @@ class DAggerResult:
     """What a DAgger run produced.
 
     Attributes:
-        rounds: one metrics dict per round (see :func:`run_dagger`).
+        rounds: one metrics dict per round (see :func:`run_whole_policy_dagger`).
         dataset: the final aggregated dataset (initial data first, then each round's rollouts,
             one part per rollout).
     """
@@ -50,7 +57,7 @@ class DAggerResult:
     dataset: Aggregate
 
 
-def run_dagger(
+def run_whole_policy_dagger(
     policy: Policy,
     task: Task,
     seeds: Iterable[int],
@@ -100,7 +107,7 @@ def run_dagger(
     """
     seeds = list(seeds)
     if not seeds:
-        raise ValueError("run_dagger needs at least one seed")
+        raise ValueError("run_whole_policy_dagger needs at least one seed")
     if cache is None and config.bc.head_only:
         cache = FeatureCache(policy)
     dataset = Aggregate([initial])
