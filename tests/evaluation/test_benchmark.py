@@ -418,7 +418,9 @@ def test_only_a_method_that_succeeds_as_often_as_dagger_repays_meta_training(tmp
 
 def test_query_ticks_and_dodge():
     assert figure.query_ticks([40.0, 41.0, 80.0]) == [40.0, 80.0]  # 41 would print over 40
-    assert figure.query_ticks([10, 15, 23, 35, 52, 80, 120, 180, 270, 400]) == [10, 20, 50, 100, 200]
+    # thinned to a ninth of the span apart, then a 1-2-5 sequence only if still too many
+    assert figure.query_ticks([10, 15, 23, 35, 52, 80, 120, 180, 270, 400]) == [10, 23, 35, 80, 180, 400]
+    assert figure.query_ticks([10 * 10 ** (2 * k / 9) for k in range(10)]) == [10, 20, 50, 100, 200, 500, 1000]
     assert figure.dodge([40.0, 80.0, 40.0], 0.01) == [40.0 * 10**-0.005, 80.0, 40.0 * 10**0.005]
 
 

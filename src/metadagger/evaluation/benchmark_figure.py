@@ -127,11 +127,16 @@ def panel_title(fraction: float) -> str:
 
 
 def query_ticks(values: Sequence[float]) -> list[float]:
-    """Ticks of the query axis: the points' own counts (those within 4% of a smaller one left out)
-    when there are at most :data:`MAX_TICKS`, else the 1-2-5 sequence across their range."""
+    """Ticks of the query axis: the points' own counts when there are at most :data:`MAX_TICKS`,
+    each at least a ninth of their span (in decades, and 4%) above the last one kept, so that no
+    two labels print over each other; else the 1-2-5 sequence across their range."""
+    counts = sorted(set(values))
+    if not counts:
+        return []
+    gap = max(math.log10(1.04), math.log10(counts[-1] / counts[0]) / 9)
     ticks: list[float] = []
-    for v in sorted(set(values)):
-        if not ticks or v > 1.04 * ticks[-1]:
+    for v in counts:
+        if not ticks or math.log10(v / ticks[-1]) >= gap * (1 - 1e-9):  # equal gaps count as wide enough
             ticks.append(v)
     if len(ticks) <= MAX_TICKS:
         return ticks

@@ -125,7 +125,7 @@ _BUILT_IN = (
     GateDeclaration(
         "oracle",
         OracleGate,
-        "oracle: labels exactly where the learner is wrong (ceiling)",
+        "Oracle: the learner's mistakes (ceiling)",
         (0.5, 0.8, 0.95),
         "the ceiling, not a method: the states where the learner's action differs from the expert's",
         reference=True,
