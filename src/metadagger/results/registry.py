@@ -38,6 +38,7 @@ KEPT_FILES = (
     "eval/*.csv",
     "benchmark/queries.csv",
     "benchmark/summary.json",
+    "benchmark/labels.jsonl",
     "diagnostics/mapping.json",
     "report/report.md",
     "report/figures/*.png",
