@@ -254,12 +254,6 @@ def test_a_broken_plugin_is_one_line_naming_its_package(plugins, value, says):
     assert message.endswith("fix or uninstall metadagger-brokengate")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="gate_registry._load_plugins marks the plug-ins loaded before loading them: the help text's "
-    "method list (cli.options.listed) swallows the first UserError, and every later call then runs without "
-    "the broken plug-in instead of naming it",
-)
 def test_the_command_line_names_a_broken_plugin(plugins):
     site = plugins("metadagger-brokengate", {"lazy": "metadagger_lazydagger_nope:LAZY"})
     result = _command_line(site, "config", "methods")

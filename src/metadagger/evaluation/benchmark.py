@@ -63,7 +63,7 @@ from metadagger.evaluation.methods import (
 )
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
-from metadagger.imitation.gate_registry import built_in_grids, get_gate, make_gate
+from metadagger.imitation.gate_registry import built_in_grids, gate_of_method, get_gate, make_gate
 from metadagger.imitation.gates import Gate
 from metadagger.imitation.lanes import Lanes, check_lanes
 from metadagger.imitation.rollouts import Trajectory
@@ -189,11 +189,11 @@ class BenchmarkConfig:
         """A gated method's sweep: ``grids``' entry, else its gate's declared grid."""
         if method in self.grids:
             return list(self.grids[method])
-        return list(get_gate(gated_methods(references=True)[method]).grid)
+        return list(gate_of_method(method).grid)
 
     def options_of(self, method: str) -> dict[str, Any]:
         """Keyword options of a gated method's gate: the shared options it declares, then ``gate_options``."""
-        declaration = get_gate(gated_methods(references=True)[method])
+        declaration = gate_of_method(method)
         shared = {name: getattr(self, option) for name, option in declaration.shared.items()}
         return {**shared, **self.gate_options.get(method, {})}
 

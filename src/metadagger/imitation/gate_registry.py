@@ -143,11 +143,11 @@ def register_gate(declaration: GateDeclaration) -> GateDeclaration:
 
 
 def _load_plugins() -> None:
-    """Register the gates of installed packages (group ``metadagger.gates``), once."""
+    """Register the gates of installed packages (group ``metadagger.gates``), once they all load: a
+    broken one is named again by every later call, never left out in silence."""
     global _plugins_loaded
     if _plugins_loaded:
         return
-    _plugins_loaded = True
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         package = ep.dist.name if ep.dist is not None else "an unknown package"
         where = f"gate plug-in {ep.name!r} of package {package} ({ep.value})"
@@ -165,6 +165,7 @@ def _load_plugins() -> None:
         if declaration.name in _GATES and _GATES[declaration.name] is not declaration:
             raise UserError(f"{where}: metadagger already has a gate called {declaration.name!r}; rename it; {fix}")
         register_gate(declaration)
+    _plugins_loaded = True
 
 
 def gate_declarations() -> dict[str, GateDeclaration]:
@@ -184,6 +185,18 @@ def get_gate(name: str) -> GateDeclaration:
 def gated_names() -> list[str]:
     """The gates that are methods (every gate but the references), by name."""
     return [name for name, d in gate_declarations().items() if not d.reference]
+
+
+def gate_of_method(method: str) -> GateDeclaration:
+    """The gate a gated method ``dagger-<gate>`` runs; an unknown one is a :class:`UserError`."""
+    gates = {d.method: d for d in gate_declarations().values()}
+    if method not in gates:
+        raise UserError(
+            f"unknown gated method {method!r}: expected one of {', '.join(gates)}; a gate added by register_gate in "
+            "one process is not known to worker processes: declare it as an entry point (docs/benchmark.md, "
+            "'Adding a gate') or run with --executor inline"
+        )
+    return gates[method]
 
 
 def built_in_grids() -> dict[str, list[float]]:

@@ -114,9 +114,9 @@ def _kinds() -> dict[str, MapperKind]:
     """Every kind: the built-in and registered ones, then those of installed packages (loaded once)."""
     global _plugins_loaded
     if not _plugins_loaded:
-        _plugins_loaded = True
         for ep in entry_points(group=ENTRY_POINT_GROUP):
             _register_plugin(ep)
+        _plugins_loaded = True  # only once every one loaded: a broken one is named by every later call
     return _KINDS
 
 
