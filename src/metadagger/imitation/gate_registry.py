@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from typing import Any
 
 from metadagger.errors import UserError
@@ -26,6 +25,7 @@ from metadagger.imitation.gates import (
     SafeGate,
     ThriftyGate,
 )
+from metadagger.utils.plugins import load_plugins
 
 #: Entry-point group through which installed packages add gates.
 ENTRY_POINT_GROUP = "metadagger.gates"
@@ -148,22 +148,9 @@ def _load_plugins() -> None:
     global _plugins_loaded
     if _plugins_loaded:
         return
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
-        package = ep.dist.name if ep.dist is not None else "an unknown package"
-        where = f"gate plug-in {ep.name!r} of package {package} ({ep.value})"
-        fix = f"fix or uninstall {package}"
-        try:
-            declaration = ep.load()
-        except UserError as exc:
-            raise UserError(f"{where}: {exc}; {fix}") from None
-        except Exception as exc:  # a plug-in's import may fail any way: one line, never a traceback
-            raise UserError(f"{where} fails to load ({type(exc).__name__}: {exc}); {fix}") from None
-        if not isinstance(declaration, GateDeclaration):
-            raise UserError(f"{where} names a {type(declaration).__name__}, not a GateDeclaration; {fix}")
-        if declaration.name != ep.name:
-            raise UserError(f"{where} declares a gate named {declaration.name!r}; name the entry point the same; {fix}")
-        if declaration.name in _GATES and _GATES[declaration.name] is not declaration:
-            raise UserError(f"{where}: metadagger already has a gate called {declaration.name!r}; rename it; {fix}")
+    for declaration in load_plugins(
+        ENTRY_POINT_GROUP, plugin="gate", thing="gate", expected=GateDeclaration, known=_GATES
+    ):
         register_gate(declaration)
     _plugins_loaded = True
 

@@ -12,7 +12,6 @@ one with an entry point in the group ``metadagger.mappers`` naming its :class:`M
 from __future__ import annotations
 
 from dataclasses import dataclass
-from importlib.metadata import entry_points
 from typing import Callable, NamedTuple
 
 import torch
@@ -20,6 +19,7 @@ from torch import nn
 
 from metadagger.errors import UserError
 from metadagger.mapping import modes, networks, ridge
+from metadagger.utils.plugins import load_plugins
 
 
 class Route(NamedTuple):
@@ -114,27 +114,12 @@ def _kinds() -> dict[str, MapperKind]:
     """Every kind: the built-in and registered ones, then those of installed packages (loaded once)."""
     global _plugins_loaded
     if not _plugins_loaded:
-        for ep in entry_points(group=ENTRY_POINT_GROUP):
-            _register_plugin(ep)
+        for kind in load_plugins(
+            ENTRY_POINT_GROUP, plugin="mapper", thing="mapper kind", expected=MapperKind, known=_KINDS
+        ):
+            register_kind(kind)
         _plugins_loaded = True  # only once every one loaded: a broken one is named by every later call
     return _KINDS
-
-
-def _register_plugin(ep) -> None:  # noqa: ANN001 (an importlib.metadata.EntryPoint)
-    package = ep.dist.name if ep.dist is not None else "an unknown package"
-    where = f"mapper plug-in {ep.name!r} of package {package} ({ep.value})"
-    fix = f"fix or uninstall {package}"
-    try:
-        kind = ep.load()
-    except Exception as exc:  # a plug-in's import may fail any way: one line, never a traceback
-        raise UserError(f"{where} fails to load ({type(exc).__name__}: {exc}); {fix}") from None
-    if not isinstance(kind, MapperKind):
-        raise UserError(f"{where} names a {type(kind).__name__}, not a MapperKind; {fix}")
-    if kind.name != ep.name:
-        raise UserError(f"{where} declares a kind named {kind.name!r}; name the entry point the same; {fix}")
-    if kind.name in _KINDS and _KINDS[kind.name] is not kind:
-        raise UserError(f"{where}: metadagger already has a mapper kind called {kind.name!r}; rename it; {fix}")
-    register_kind(kind)
 
 
 def get_kind(name: str) -> MapperKind:
