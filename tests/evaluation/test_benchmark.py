@@ -508,3 +508,36 @@ def test_a_demonstration_share_is_its_first_steps():
         assert part.reward == pytest.approx(float(demo.step_rewards[:n].sum()))
     with pytest.raises(ValueError, match="a demonstration share must be in"):
         demonstration_share(demo, 0.0)
+
+
+def test_a_method_added_as_docs_benchmark_md_says_runs_beside_the_others(toy_run, tmp_path, monkeypatch):
+    """'Adding a method': a BenchmarkMethod with its keys in evaluation/methods.py, its chain in
+    evaluation/benchmark.py's _CHAINS; here the expert's own demonstration as a row."""
+    from metadagger.evaluation import methods
+
+    @dataclasses.dataclass(frozen=True)
+    class ExpertKey(methods.MethodKey):
+        pass
+
+    def expert_keys(rounds, kinds, grids, mdi):
+        return [ExpertKey("expert", "")]
+
+    def expert_row(job, start, keys, learner):
+        return {key: bench._row(key, job.seed, start.demo, start.queries, start.labels()) for key in keys}
+
+    declared = methods.BenchmarkMethod("expert", "the expert", "the demonstration itself", expert_keys)
+    monkeypatch.setattr(methods, "_BUILT_IN", (*methods._BUILT_IN, declared))
+    monkeypatch.setitem(bench._CHAINS, ExpertKey, expert_row)
+    layout = RunLayout(tmp_path / "run")
+    shutil.copytree(toy_run.root, layout.root)
+    config = dataclasses.replace(CONFIG, methods=("bc", "expert"), ceiling=False, demo_fractions=(1.0,))
+    rows = _run(layout, config, executor="inline")  # a method added in this process: the workers would not know it
+    expert = [r for r in rows if r["method"] == "expert"]
+    demos = collect(CorridorTask(), SEEDS, policy=None)
+    assert [(r["seed"], r["expert_queries"], r["success"]) for r in expert] == [
+        (seed, demo.steps, demo.success) for seed, demo in zip(SEEDS, demos)
+    ]
+    assert all(r["takeovers"] == r["episodes_asked"] == 1 for r in expert)
+    from metadagger.evaluation.tables import method_label
+
+    assert method_label("expert") == "the expert"
