@@ -604,5 +604,12 @@ class OracleGate(Gate):
         threshold = torch.quantile(errors[wrong], self.quantile)
         return Selection(wrong & (errors >= threshold), errors)
 
-    def _select(self, features, learner_actions, labelled, generator, memory) -> Tensor:  # noqa: ANN001
+    def _select(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+    ) -> Tensor:
         raise UserError("the oracle gate reads the expert's labels: call choose(..., expert_labels=...)")
