@@ -22,7 +22,7 @@ class DivergedError(UserError):
     """A fit's loss or weights became non-finite (NaN or infinite): nothing of it is kept."""
 
 
-def check_finite_loss(loss: float, *, what: str, epoch: int, epochs: int, fix: str) -> None:
+def check_finite_loss(loss: float, *, called: str, epoch: int, epochs: int, fix: str) -> None:
     """Raise :class:`DivergedError` naming the fit, the epoch and the fix if ``loss`` is not finite."""
     if not math.isfinite(loss):
-        raise DivergedError(f"{what} diverged at epoch {epoch} of {epochs} (mean training loss {loss}); {fix}")
+        raise DivergedError(f"{called} diverged at epoch {epoch} of {epochs} (mean training loss {loss}); {fix}")

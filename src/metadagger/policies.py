@@ -314,8 +314,8 @@ def load_policy(path: str | Path) -> Policy:
     Raises:
         CheckpointError: the file is missing, corrupt, or its metadata/tensors do not rebuild.
     """
-    metadata = read_metadata(path, what="policy checkpoint")
-    tensors = load_tensors(path, what="policy checkpoint")
+    metadata = read_metadata(path, called="policy checkpoint")
+    tensors = load_tensors(path, called="policy checkpoint")
     if metadata.get("format") != _FORMAT:
         raise CheckpointError(
             f"{path} is not a metadagger policy (format {metadata.get('format')!r}, expected {_FORMAT!r}); pass a "

@@ -269,7 +269,9 @@ def test_a_round_that_labels_nothing_rolls_nothing_out_again(toy_run, monkeypatc
         rolled = []
         monkeypatch.setattr(SeedLearner, "roll", lambda self, *a, **k: rolled.append(1))
         rounds = list(
-            dagger_rounds(learner, start=w_bc, first=first, demo=demo, rounds=3, fit=BC, gate=make_gate("random", 0.0))
+            dagger_rounds(
+                learner, start=w_bc, first_rollout=first, demo=demo, rounds=3, fit=BC, gate=make_gate("random", 0.0)
+            )
         )
     assert rolled == [] and all(r.rollout is first and r.labelled is None for r in rounds)
     assert [r.queries for r in rounds] == [demo.steps] * 3

@@ -320,7 +320,7 @@ def test_a_diverging_fit_stops_with_one_line_naming_it_and_the_epoch(policy, dem
     with pytest.raises(
         DivergedError, match=r"the test fit diverged at epoch \d of 5 .*lower its learning rate \(now 1e\+36\)"
     ):
-        fit_bc(policy, demo, config, what="the test fit")
+        fit_bc(policy, demo, config, called="the test fit")
 
 
 @pytest.mark.parametrize("weight_decay", [0.0, 1e-3])

@@ -164,7 +164,7 @@ def read_fingerprint(path: Path) -> dict[str, Any]:
     if not Path(path).is_file():
         raise UserError(f"no kernel fingerprint at {path}: {fix}")
     try:
-        data = read_json(path, what="a kernel fingerprint")
+        data = read_json(path, called="a kernel fingerprint")
     except UserError:
         raise UserError(f"{path} is not a kernel fingerprint (it does not read as JSON); {fix}") from None
     ops = data.get("ops") if isinstance(data, dict) else None

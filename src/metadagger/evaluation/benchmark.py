@@ -89,7 +89,7 @@ from metadagger.utils.io import write_json
 from metadagger.utils.jsonl import write_lines
 from metadagger.utils.kernels import kernel_stamp
 from metadagger.utils.plotting import draw_figure
-from metadagger.utils.yaml_config import LATER_OPTION
+from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 #: Columns of ``benchmark/queries.csv`` (docs/benchmark.md); the query ledger's two are the last.
 FIELDS = (
@@ -131,7 +131,7 @@ class BenchmarkConfig:
     """K, the bootstrap heads of the ensemble and ThriftyDAgger gates."""
     novelty_k: int = 1
     """k, the neighbour of the novelty and conformal gates."""
-    gate_options: dict = field(default_factory=dict, metadata=LATER_OPTION)
+    gate_options: dict = field(default_factory=dict, metadata=STAMPED_UNLESS_DEFAULT)
     """Further fields of a gate by method, e.g. ``{dagger-lazy: {low: 0.5}}`` (a plug-in's options)."""
     ceiling: bool = True
     """Run the oracle rule (``dagger-oracle``) beside the methods: the ceiling of what a gate could do."""
@@ -139,7 +139,7 @@ class BenchmarkConfig:
     """Shares of the demonstration's steps that BC, the learned MDM kinds and the gated settings
     start from, in (0, 1], 1 (the whole demonstration) among them; plain DAgger and MDI always
     start from the whole one."""
-    lanes: int = field(default=1, metadata=LATER_OPTION)
+    lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
     """Episodes of a seed stepped in lockstep, one trunk forward per step for all of them, at this
     batch shape (:mod:`metadagger.imitation.lanes`); 1 rolls each episode out alone. The numbers
     depend on it (a batch of one rounds the last bits otherwise), never on the workers."""
@@ -341,7 +341,7 @@ def _rounds(job: BenchmarkJob, start: _Start, learner: SeedLearner, gate: Gate |
     return dagger_rounds(
         learner,
         start=start.w_bc,
-        first=start.first,
+        first_rollout=start.first,
         demo=start.demo,
         rounds=job.rounds,
         fit=seeded(job.dagger_bc, job.seed),
@@ -376,7 +376,7 @@ def _refit_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner:
     data = start.demo.to_dataset()
     learner.load(start.w_bc)
     for index in range(1, key.rounds + 1):
-        bc_head(learner, data, seeded(job.dagger_bc, job.seed), what=f"BC's refit {index}")
+        bc_head(learner, data, seeded(job.dagger_bc, job.seed), called=f"BC's refit {index}")
     return {key: _row(key, job.seed, learner.roll(early_stop=job.early_stop), len(data), start.labels())}
 
 
@@ -500,7 +500,7 @@ def run_benchmark(
         )
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
-    if config.lanes != 1:  # a later option: rows made alone stay current
+    if config.lanes != 1:  # stamped unless default: rows made alone stay current
         settings["lanes"] = config.lanes
     mdi_mapper = mdi.mapper if with_mdi and mdi is not None else None
     stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi_mapper)
@@ -510,7 +510,7 @@ def run_benchmark(
         stamps,
         log,
         rebuild=options.rebuild,
-        what="the benchmark",
+        called="the benchmark",
         fix=f"run `metadagger benchmark --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`",
     )
     # each mapper file as its stamps fingerprinted it: a worker refuses other bytes

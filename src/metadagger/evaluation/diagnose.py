@@ -122,7 +122,7 @@ def collect_seed_data(
     stamps = {"states": {**base, "states": config.states}, "noise": {**base, "refits": config.noise_refits}}
     log = RowLog(layout.diagnostics_log)
     noise = set(split.val_seeds[: config.noise_seeds])
-    todo = plan(split.val_seeds, stamps, log, rebuild=True, what="the diagnostics", fix="")
+    todo = plan(split.val_seeds, stamps, log, rebuild=True, called="the diagnostics", fix="")
     jobs = [
         DiagnoseJob(
             task=task,
@@ -163,7 +163,7 @@ def collect_seed_data(
 
 
 def _features(layout: RunLayout, seed: int) -> torch.Tensor:
-    return load_tensors(layout.diagnostics_seed("states", seed), what=f"state sample of seed {seed}")["features"]
+    return load_tensors(layout.diagnostics_seed("states", seed), called=f"state sample of seed {seed}")["features"]
 
 
 def _function_errors(
@@ -228,7 +228,7 @@ def noise_ceiling(
     seeds = split.val_seeds[: config.noise_seeds]
     weights, functions = [], []
     for seed in seeds:
-        refits = load_tensors(layout.diagnostics_seed("noise", seed), what=f"refits of seed {seed}")["w_da"]
+        refits = load_tensors(layout.diagnostics_seed("noise", seed), called=f"refits of seed {seed}")["w_da"]
         heads = torch.cat([split.w_da_val[split.val_seeds.index(seed)][None], refits])
         weight, function = pairwise_spread(heads, _features(layout, seed), outputs=outputs, discrete=discrete)
         weights.append(weight)

@@ -224,7 +224,13 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                 # saved initialisation (Table 6) or from the one-shot head
                 start = inits[method] if config.dagger_init == "saved" else one_shot_heads[method]
                 (round_,) = dagger_rounds(
-                    learner, start=start, first=first, demo=demo, rounds=1, fit=refit, early_stop=config.early_stop
+                    learner,
+                    start=start,
+                    first_rollout=first,
+                    demo=demo,
+                    rounds=1,
+                    fit=refit,
+                    early_stop=config.early_stop,
                 )
                 heads[method, "twoshot"], final = round_.head, round_.rollout
             cosine_total, cosine_mean = _cosine(job.task, final)
@@ -330,7 +336,7 @@ def evaluate_mdi(
         stamps,
         log,
         rebuild=options.rebuild,
-        what="MDI evaluation",
+        called="MDI evaluation",
         fix=f"run `metadagger evaluate --out {layout.root} --protocol mdi --rebuild` to redo it, or `metadagger "
         "reproduce`",
     )

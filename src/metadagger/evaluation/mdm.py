@@ -170,7 +170,7 @@ def evaluate_run(
         stamps,
         log,
         rebuild=options.rebuild,
-        what="MDM evaluation",
+        called="MDM evaluation",
         fix=f"run `metadagger evaluate --out {layout.root} --rebuild` to redo it, or `metadagger reproduce`",
     )
     mappers = {m: MapperFile(str(layout.mapper(m)), stamps[m]["mapper_fingerprint"]) for m in config.methods}

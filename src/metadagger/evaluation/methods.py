@@ -263,12 +263,12 @@ def reference_methods() -> tuple[str, ...]:
     return tuple(m.name for m in benchmark_methods().values() if m.reference)
 
 
-def check_methods(names: Sequence[str], what: str) -> None:
+def check_methods(names: Sequence[str], called: str) -> None:
     """Raise a :class:`UserError` naming the known methods unless every one of ``names`` is one."""
     known = benchmark_methods()
     unknown = [m for m in names if m not in known]
     if unknown:
-        raise UserError(f"{what} has unknown method(s) {unknown}; allowed: {', '.join(known)}")
+        raise UserError(f"{called} has unknown method(s) {unknown}; allowed: {', '.join(known)}")
 
 
 def with_demo_fractions(keys: Sequence[MethodKey], fractions: Sequence[float]) -> list[MethodKey]:

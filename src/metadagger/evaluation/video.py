@@ -97,7 +97,7 @@ def seed_clips(
             *_, last = dagger_rounds(
                 learner,
                 start=w_bc,
-                first=first,
+                first_rollout=first,
                 demo=demo,
                 rounds=rounds,
                 fit=seeded(dagger_bc, seed),

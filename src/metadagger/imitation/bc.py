@@ -29,7 +29,7 @@ from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
 from metadagger.utils.optim import adam
 from metadagger.utils.progress import progress_bar
-from metadagger.utils.yaml_config import LATER_OPTION
+from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 #: How a seed's fresh head starts (:attr:`BCConfig.head_init`).
 HEAD_INITS = ("seed", "shared")
@@ -60,17 +60,17 @@ class BCConfig:
     and random crop). Offsets come from the fit's seeded generator, so fits stay deterministic.
     0 (the default) turns it off and leaves the fit exactly as without it. Head-only fits train
     on cached trunk features, which cannot be augmented, so they need 0."""
-    head_init: str = field(default="seed", metadata=LATER_OPTION)
+    head_init: str = field(default="seed", metadata=STAMPED_UNLESS_DEFAULT)
     """How the fresh head of a seed's head-only BC fit (the pairs', the evaluations') starts:
     ``seed``, Xavier drawn from the env seed (the paper's); ``shared``, one Xavier draw (seed 0)
     for every seed, so that heads differ between seeds only by what their data taught them
     (docs/families.md)."""
-    lr_schedule: str = field(default="constant", metadata=LATER_OPTION)
+    lr_schedule: str = field(default="constant", metadata=STAMPED_UNLESS_DEFAULT)
     """Whole-policy fits: ``constant`` keeps ``lr`` for every epoch; ``cosine`` anneals it over
     the epochs, epoch e (from 0) taking ``lr * (1 + cos(pi * e / epochs)) / 2``, so a fit ends
     with small steps instead of swinging between policies (docs/fetch.md). Head-only fits need
     ``constant``."""
-    batch_shards: int = field(default=1, metadata=LATER_OPTION)
+    batch_shards: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
     """Whole-policy fits: each batch's gradient is computed in this many contiguous parts, each
     in its own thread, and the parts' gradients are summed in a fixed order. The arithmetic
     depends on this number alone, never on the cores there are, so a fit with 2 shards gives the
@@ -287,7 +287,7 @@ def fit_bc(
     progress: bool = False,
     cache: FeatureCache | None = None,
     on_epoch: Callable[[int], None] | None = None,
-    what: str = "the BC fit",
+    called: str = "the BC fit",
 ) -> dict[str, Any]:
     """Fit ``policy`` in place to ``data`` with Adam: cross-entropy (discrete) or MSE (continuous).
 
@@ -308,7 +308,7 @@ def fit_bc(
         cache: features to reuse across calls (head-only fits only); a fresh one if None.
         on_epoch: called with the epoch's number (1, 2, ...) after each epoch, the policy holding
             that epoch's weights (an :class:`~metadagger.imitation.selection.EpochSelector`, say).
-        what: how an error names this fit.
+        called: how an error names this fit.
 
     Returns:
         ``{"loss": [mean training loss per epoch], "samples": N, "seconds": wall time}``.
@@ -335,7 +335,7 @@ def fit_bc(
             losses.append(sum(loss * size for loss, size in zip(batch_losses, sizes, strict=True)) / n)
             check_finite_loss(
                 losses[-1],
-                what=what,
+                called=called,
                 epoch=epoch + 1,
                 epochs=config.epochs,
                 fix=f"lower its learning rate (now {config.lr:g}) or check its data",
@@ -347,7 +347,7 @@ def fit_bc(
         run_epoch.write_back()
     if not bool(torch.isfinite(parameters_to_vector(params)).all()):
         raise DivergedError(
-            f"{what} diverged: its weights are not finite after {config.epochs} epochs; "
+            f"{called} diverged: its weights are not finite after {config.epochs} epochs; "
             f"lower its learning rate (now {config.lr:g}) or check its data"
         )
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
@@ -497,7 +497,7 @@ def fit_or_resume(
     cache: FeatureCache | None = None,
     progress: bool = False,
     selector: EpochSelector | None = None,
-    what: str = "the BC fit",
+    called: str = "the BC fit",
 ) -> list[float] | None:
     """:func:`fit_bc`, then save the policy at ``checkpoint``; if that checkpoint already exists
     (a killed run being resumed) load its weights instead of fitting. With a ``selector`` the
@@ -509,7 +509,7 @@ def fit_or_resume(
     if checkpoint is not None and Path(checkpoint).is_file():
         policy.net.load_state_dict(load_policy(checkpoint).net.state_dict())
         return None
-    losses = fit_bc(policy, data, config, progress=progress, cache=cache, on_epoch=selector, what=what)["loss"]
+    losses = fit_bc(policy, data, config, progress=progress, cache=cache, on_epoch=selector, called=called)["loss"]
     if selector is not None:
         selector.restore()
     if checkpoint is not None:

@@ -131,7 +131,7 @@ def run_whole_policy_dagger(
             config.bc,
             _checkpoint(checkpoints, round_idx),
             cache=cache,
-            what=f"DAgger round {round_idx}'s fit",
+            called=f"DAgger round {round_idx}'s fit",
         )
         metrics = {
             "dagger/round": round_idx,

@@ -271,8 +271,8 @@ def load_mapper(path: str | Path) -> Mapper:
         CheckpointError: the file is missing, corrupt, not a mapper, or its tensors do not fit
             the architecture its metadata describes.
     """
-    tensors = load_tensors(path, what="mapper", masks=MASKED_TENSORS)
-    meta = read_metadata(path, what="mapper")
+    tensors = load_tensors(path, called="mapper", masks=MASKED_TENSORS)
+    meta = read_metadata(path, called="mapper")
     if meta.get("format") != _FORMAT:
         raise CheckpointError(
             f"{path} is not a mapper file (no {_FORMAT!r} metadata); pass a mapper.safetensors written by train-mapper"

@@ -459,7 +459,7 @@ def _fit(
         rows.append(_row(name, epoch, float(total) / len(x_tr), val_loss, *weights))
         check_finite_loss(
             rows[-1]["train_loss"],
-            what=f"{owner}'s network {name}",
+            called=f"{owner}'s network {name}",
             epoch=epoch,
             epochs=epochs,
             fix=f"lower its learning rate (now {lr:g})",
@@ -471,10 +471,10 @@ def _fit(
     return rows
 
 
-def _check_weights(net: nn.Module, what: str, fix: str) -> None:
+def _check_weights(net: nn.Module, called: str, fix: str) -> None:
     """Raise :class:`DivergedError` if a weight of ``net`` is not finite."""
     if not all(bool(torch.isfinite(p).all()) for p in net.parameters()):
-        raise DivergedError(f"{what} diverged: its weights are not finite; {fix}")
+        raise DivergedError(f"{called} diverged: its weights are not finite; {fix}")
 
 
 def _batches(order: torch.Tensor, batch_size: int) -> list[torch.Tensor]:

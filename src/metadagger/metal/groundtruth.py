@@ -27,7 +27,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import read_json, write_json
 from metadagger.utils.kernels import kernel_stamp
-from metadagger.utils.yaml_config import LATER_OPTION
+from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 
 @dataclass(frozen=True)
@@ -44,12 +44,12 @@ class GroundTruthConfig:
     """The whole-policy fit done on the demos and again after every round."""
     seed: int = 0
     """Seed of pi*'s initial weights."""
-    select_seeds: tuple[int, ...] = field(default=(), metadata=LATER_OPTION)
+    select_seeds: tuple[int, ...] = field(default=(), metadata=STAMPED_UNLESS_DEFAULT)
     """Early stopping on held-out seeds of pi*'s own: every ``select_every`` epochs of the BC fit
     (and after its last) pi* is rolled out on these seeds, and the epoch with the most successes
     (the later on a tie) is pi*. They must be none of ``seeds`` and ``eval_seeds``. Empty (the
     default): pi* is the last epoch's. Needs ``dagger_rounds: 0``."""
-    select_every: int = field(default=4, metadata=LATER_OPTION)
+    select_every: int = field(default=4, metadata=STAMPED_UNLESS_DEFAULT)
     """Epochs between the checks of ``select_seeds``."""
     min_success: float = 0.2
     """The least success rate pi* must reach on ``eval_seeds`` before pairs are collected. With
@@ -168,7 +168,7 @@ def train_groundtruth(
         layout.groundtruth_rounds / "round_0.safetensors",
         progress=progress,
         selector=selector,
-        what="pi*'s BC fit (groundtruth.bc)",
+        called="pi*'s BC fit (groundtruth.bc)",
     )
     history = []
     if config.dagger_rounds:

@@ -174,9 +174,9 @@ def demonstration_share(demo: Trajectory, fraction: float) -> Trajectory:
     )
 
 
-def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig, *, what: str = "the BC head's fit") -> np.ndarray:
+def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig, *, called: str = "the BC head's fit") -> np.ndarray:
     """Step 2: fit the learner's current head (a fresh one: w_BC) by BC on the demonstration."""
-    fit_bc(learner.policy, demo, fit, cache=learner.cache, what=what)
+    fit_bc(learner.policy, demo, fit, cache=learner.cache, called=called)
     return learner.head()
 
 
@@ -224,14 +224,14 @@ def dagger_rounds(
     learner: SeedLearner,
     *,
     start: np.ndarray,
-    first: Trajectory,
+    first_rollout: Trajectory,
     demo: Trajectory,
     rounds: int,
     fit: BCConfig,
     gate: Gate | None = None,
     early_stop: float | None = None,
 ) -> Iterator[Round]:
-    """Step 4: ``rounds`` DAgger rounds from head ``start``, whose rollout ``first`` round 1 labels.
+    """Step 4: ``rounds`` DAgger rounds from head ``start``, whose rollout ``first_rollout`` round 1 labels.
 
     Each round labels the states of the last rollout that ``gate`` selects (all of them without
     one: plain DAgger), adds them to the demonstration and the earlier rounds' labels, refits the
@@ -240,7 +240,7 @@ def dagger_rounds(
     Args:
         learner: the seed's learner.
         start: the head the rounds start from (w_BC for the pairs).
-        first: ``start``'s rollout, made with the same ``early_stop``.
+        first_rollout: ``start``'s rollout, made with the same ``early_stop``.
         demo: the demonstration (on its states the learner's action is the expert's label).
         rounds: R >= 1.
         fit: the head-only refit of every round (its ``seed`` orders the batches).
@@ -257,7 +257,7 @@ def dagger_rounds(
         GateMemory() if gate is None else GateMemory([Episode(learner.cache.features(demo.obs), bool(demo.success))])
     )
     learner.load(start)
-    trajectory = first
+    trajectory = first_rollout
     for index in range(1, rounds + 1):
         scores = None
         if gate is None:
@@ -270,7 +270,7 @@ def dagger_rounds(
             data = data.append(labelled)
             actions = np.concatenate([actions, trajectory.learner_actions[keep]])
             queries += int(keep.sum())
-            fit_bc(learner.policy, data, fit, cache=learner.cache, what=f"DAgger round {index}'s refit")
+            fit_bc(learner.policy, data, fit, cache=learner.cache, called=f"DAgger round {index}'s refit")
         head = learner.head()
         if labelled is not None:
             trajectory = learner.roll(head, early_stop=early_stop)
@@ -323,7 +323,7 @@ def _tensor(values: np.ndarray) -> torch.Tensor:
 def one_shot(learner: SeedLearner, init: np.ndarray, demo: Dataset, fit: BCConfig) -> np.ndarray:
     """Step 5: the head ``init`` refitted by BC on the demonstration (no further query)."""
     learner.load(init)
-    return bc_head(learner, demo, fit, what="the one-shot refit")
+    return bc_head(learner, demo, fit, called="the one-shot refit")
 
 
 def seeded(fit: BCConfig, seed: int) -> BCConfig:

@@ -42,7 +42,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import write_json
 from metadagger.utils.kernels import kernel_stamp
-from metadagger.utils.yaml_config import LATER_OPTION
+from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 KEEP_RULES = ("bc_fail_da_success", "da_success", "all")
 
@@ -77,7 +77,7 @@ class PairConfig:
     """Share of the kept pairs held out for validation (75 of 375 in the paper)."""
     early_stop: float | None = None
     """Cosine early-stop threshold of the learner's rollouts (paper 3.4.2, Fetch); None: off."""
-    lanes: int = field(default=1, metadata=LATER_OPTION)
+    lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
     """Pair seeds made together, in blocks of this many, their episodes stepped in lockstep at this
     batch shape (:func:`~metadagger.metal.lane_blocks.in_blocks`); 1 makes each seed alone. The pairs
     depend on it (a batch of one rounds the trunk's last bits otherwise), never on the workers."""
@@ -161,7 +161,7 @@ def run_pair(
             dagger_rounds(
                 learner,
                 start=w_bc,
-                first=first,
+                first_rollout=first,
                 demo=demo,
                 rounds=config.dagger_rounds,
                 fit=seeded(config.dagger_bc, fit_seed),
@@ -240,7 +240,7 @@ def collect_pairs(
         stamps,
         store,
         rebuild=options.rebuild,
-        what="the pair",
+        called="the pair",
         fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`",
     )
     jobs = [

@@ -323,7 +323,7 @@ class PairStore:
 
     def _latest_records(self) -> dict[int, dict[str, Any]]:
         latest: dict[int, dict[str, Any]] = {}
-        for record in read_lines(self.jsonl_path, what="pair record"):
+        for record in read_lines(self.jsonl_path, called="pair record"):
             try:
                 seed = _check_seed(record.get("seed") if isinstance(record, Mapping) else None)
                 _record_line(seed, record)

@@ -4,7 +4,7 @@
 pairs --out RUN`` and the later stages read it back, so a run is described by its folder alone.
 The stage commands also take ``--set section.key=value`` overrides (the value read as YAML), validated
 by the same builder as the presets; the config a stage runs with is written back to the folder
-(:func:`records_config`), and put back as it was when the stage refuses.
+(:func:`~metadagger.pipeline.stage_runs.records_config`), and put back as it was when the stage refuses.
 
 ``config.yaml`` records the metadagger version that created the folder (``metadagger_version``, in
 no stamp); a folder made by another major.minor version, or before versions were recorded (0.2),
@@ -14,13 +14,10 @@ is refused with one line (:func:`check_version`).
 from __future__ import annotations
 
 import dataclasses
-import datetime
-import functools
-import time
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Concatenate, ParamSpec, Sequence, TypeVar
+from typing import Any, Sequence
 
 import yaml
 
@@ -37,10 +34,10 @@ from metadagger.metal.pairs import PairConfig
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
 from metadagger.tasks import check_task
-from metadagger.utils.io import atomic_write, read_json, write_json, write_text
-from metadagger.utils.kernels import machine_description, pin_cpu_kernels
+from metadagger.utils.io import write_text
+from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
-from metadagger.version import __version__, source_revision
+from metadagger.version import __version__
 
 LOGS = ("none", "tensorboard")
 """Values of :attr:`RunConfig.log`."""
@@ -52,8 +49,6 @@ VERSION_KEY = "metadagger_version"
 """The config key that records the metadagger version a run folder was made by."""
 FIRST_RECORDED = "0.2"
 """The first version whose run folders record it: a ``config.yaml`` without it is older."""
-P = ParamSpec("P")
-R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -241,7 +236,7 @@ def init_run(
 ) -> RunConfig:
     """Create ``<run>/config.yaml`` from a preset and ``overrides``, or read the existing one (of
     the same task and preset) with ``overrides`` applied; an existing run's file is updated by the
-    stage that runs with the result (:func:`records_config`). Pins the CPU kernels first
+    stage that runs with the result (:func:`~metadagger.pipeline.stage_runs.records_config`). Pins the CPU kernels first
     (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
     pin_cpu_kernels()
     layout = RunLayout(run)
@@ -269,9 +264,9 @@ def check_log(value: str, name: str = "log") -> None:
 
 def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     """Read a run's config with ``overrides`` applied (the file is left as it is: the stage that
-    runs with the result writes it, :func:`records_config`); a missing or broken file is a
-    :class:`UserError`. Pins the CPU kernels first (:func:`~metadagger.utils.kernels.pin_cpu_kernels`),
-    as the command line does."""
+    runs with the result writes it, :func:`~metadagger.pipeline.stage_runs.records_config`); a
+    missing or broken file is a :class:`UserError`. Pins the CPU kernels first
+    (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
     pin_cpu_kernels()
     path = RunLayout(run).config
     if not path.is_file():
@@ -304,73 +299,3 @@ def _major_minor(version: str) -> tuple[str, ...]:
 def save_run(run: str | Path, config: RunConfig) -> None:
     """Write ``config`` as the run's ``config.yaml``."""
     write_text(RunLayout(run).config, dump_yaml(config))
-
-
-def _timed(stage: Callable[..., R], layout: RunLayout, config: RunConfig, *args: Any, **kwargs: Any) -> R:
-    """``stage(...)``, its wall time added to ``RUN/stage_times.json`` when it finishes or is
-    stopped (SIGTERM, Ctrl-C: the time a resumed run spent still counts); a run folder made in
-    code, without a ``config.yaml``, records none."""
-    start = time.perf_counter()
-
-    def record(stopped: bool) -> None:
-        if layout.config.is_file():
-            record_stage_time(
-                layout, stage.__name__.removeprefix("stage_"), time.perf_counter() - start, stopped=stopped
-            )
-
-    try:
-        result = stage(layout, config, *args, **kwargs)
-    except KeyboardInterrupt:
-        record(stopped=True)
-        raise
-    record(stopped=False)
-    return result
-
-
-def record_stage_time(layout: RunLayout, stage: str, seconds: float, *, stopped: bool = False) -> None:
-    """Add one call of ``stage`` to the run's stage times: ``seconds`` (this call's),
-    ``total_seconds`` (all calls'), ``finished`` (when it ended, UTC, ISO 8601), ``stopped``
-    (only while the last call was stopped before it finished), and the source commits and CPUs of
-    all its calls (``commits``, ``cpus``: each once, in order of first use)."""
-    times = read_json(layout.stage_times, "the stage times") if layout.stage_times.is_file() else {}
-    before = times.get(stage, {})
-    total = float(before.get("total_seconds", 0.0)) + seconds
-    cpu = machine_description()["cpu"]
-    times[stage] = {
-        "seconds": round(seconds, 3),
-        "total_seconds": round(total, 3),
-        "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "commits": _once(before.get("commits", []), source_revision() or "unknown"),
-        "cpus": _once(before.get("cpus", []), cpu),
-        **({"stopped": True} if stopped else {}),
-    }
-    write_json(layout.stage_times, times)
-
-
-def _once(seen: list[str], item: str) -> list[str]:
-    return list(seen) if item in seen else [*seen, item]
-
-
-def records_config(
-    stage: Callable[Concatenate[RunLayout, RunConfig, P], R],
-) -> Callable[Concatenate[RunLayout, RunConfig, P], R]:
-    """``stage(layout, config, ...)`` run with ``config`` as the run's ``config.yaml``: written first
-    when the file says otherwise (``--set`` overrides), and put back as it was when the stage
-    refuses (a :class:`UserError`), so a refused command leaves the run's config unchanged. A
-    folder without a ``config.yaml`` (a config made in code) gets none. The stage holds the run
-    folder's write lock (a second writer is refused at once)."""
-
-    @functools.wraps(stage)
-    def wrapper(layout: RunLayout, config: RunConfig, *args: P.args, **kwargs: P.kwargs) -> R:
-        with run_lock(layout.root):  # one writer per run folder (runfolder/lock.py)
-            before = layout.config.read_bytes() if layout.config.is_file() else None
-            if before is None or before == dump_yaml(config).encode():
-                return _timed(stage, layout, config, *args, **kwargs)
-            save_run(layout.root, config)
-            try:
-                return _timed(stage, layout, config, *args, **kwargs)
-            except UserError:
-                atomic_write(layout.config, lambda tmp: tmp.write_bytes(before))
-                raise
-
-    return wrapper

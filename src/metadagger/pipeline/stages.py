@@ -53,7 +53,8 @@ from metadagger.metal.groundtruth import (
 )
 from metadagger.metal.pairs import OUTCOMES, collect_pairs, negligible_change_warning, pair_status
 from metadagger.metal.store import PairSplit, PairStore, validation_size
-from metadagger.pipeline.run_config import RunConfig, init_run, load_run, records_config, save_run
+from metadagger.pipeline.run_config import RunConfig, init_run, load_run, save_run
+from metadagger.pipeline.stage_runs import records_config
 from metadagger.policies import Policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout

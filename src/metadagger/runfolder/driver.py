@@ -54,7 +54,7 @@ class RowLog:
 
     def _entries(self) -> dict[int, dict[str, dict[str, Any]]]:
         latest: dict[int, dict[str, dict[str, Any]]] = {}
-        for record in read_lines(self.path, what="row record"):
+        for record in read_lines(self.path, called="row record"):
             entries = record.get("entries")
             if not isinstance(entries, dict):
                 raise CheckpointError(
@@ -126,7 +126,7 @@ class SeedPlan:
 
 
 def plan(
-    seeds: Sequence[int], stamps: Mapping[str, Stamp], log: SeedLog, *, rebuild: bool, what: str, fix: str
+    seeds: Sequence[int], stamps: Mapping[str, Stamp], log: SeedLog, *, rebuild: bool, called: str, fix: str
 ) -> list[SeedPlan]:
     """The missing work: for each seed, the methods of ``stamps`` not logged with these stamps.
 
@@ -135,7 +135,7 @@ def plan(
         stamps: each method's current stamp.
         log: the protocol's resume log.
         rebuild: redo rows made from other inputs; without it, such rows are an error.
-        what: the protocol's name for messages (``MDM evaluation``, ``pairs``).
+        called: the protocol's name for messages (``MDM evaluation``, ``pairs``).
         fix: the command that rebuilds, for the error message.
 
     Raises:
@@ -161,7 +161,8 @@ def plan(
         changes = "; ".join(describe_changes(old, stamps[method])) or "stamp format"
         of_method = f" of {method!r}" if len(stamps) > 1 else ""  # a stage of one kind of work needs no name for it
         raise UserError(
-            f"{what}{of_method} on {len(which)} seed(s) (e.g. {which[0]}) was made from other inputs ({changes}); {fix}"
+            f"{called}{of_method} on {len(which)} seed(s) (e.g. {which[0]}) was made from other inputs ({changes}); "
+            f"{fix}"
         )
     return todo
 

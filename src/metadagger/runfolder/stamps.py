@@ -56,7 +56,7 @@ def stamp_of(config: Any, *, drop: tuple[str, ...] = ()) -> dict[str, Any]:
 def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: str = "") -> list[str]:
     """The fields whose values differ between two stamps, as ``name: old -> new`` (nested fields
     joined with dots; a ``*_fingerprint`` field reported as ``name: changed``; a field one stamp
-    leaves out, as stamps do with a later option at its default, as ``(default)``)."""
+    leaves out, as stamps do with a field stamped unless default, as ``(default)``)."""
     changes = []
     for key in sorted(set(old) | set(new)):
         name = f"{prefix}{key}"

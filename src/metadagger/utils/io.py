@@ -171,24 +171,24 @@ def write_json(path: str | Path, obj: Any) -> Path:
     return write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=_json_default) + "\n")
 
 
-def read_json(path: str | Path, what: str) -> Any:
-    """The JSON document at ``path`` (an artifact described as ``what``); a missing, unreadable or
+def read_json(path: str | Path, called: str) -> Any:
+    """The JSON document at ``path`` (an artifact described as ``called``); a missing, unreadable or
     corrupt file is a :class:`UserError` naming it."""
     path = Path(path)
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
         raise UserError(
-            f"{what} not found: {path}; re-run the stage that writes it (`metadagger reproduce` resumes a run)"
+            f"{called} not found: {path}; re-run the stage that writes it (`metadagger reproduce` resumes a run)"
         ) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise corrupt_artifact(what, path, exc.strerror if isinstance(exc, OSError) else str(exc)) from None
+        raise corrupt_artifact(called, path, exc.strerror if isinstance(exc, OSError) else str(exc)) from None
 
 
-def corrupt_artifact(what: str, path: str | Path, reason: str) -> UserError:
+def corrupt_artifact(called: str, path: str | Path, reason: str) -> UserError:
     """The error for an artifact that exists but cannot be read: it names the file, why, and the fix."""
     return UserError(
-        f"{what} is corrupt or unreadable: {path} ({reason}); delete it and re-run the stage that writes it "
+        f"{called} is corrupt or unreadable: {path} ({reason}); delete it and re-run the stage that writes it "
         "(`metadagger reproduce` resumes a run)"
     )
 
@@ -244,64 +244,66 @@ def save_tensors(
     return atomic_write(path, lambda p: save_file(clean, str(p), metadata=header))
 
 
-def load_tensors(path: str | Path, what: str = "checkpoint", *, masks: Collection[str] = ()) -> dict[str, torch.Tensor]:
+def load_tensors(
+    path: str | Path, called: str = "checkpoint", *, masks: Collection[str] = ()
+) -> dict[str, torch.Tensor]:
     """Load a safetensors file, turning a missing or corrupt file into a :class:`CheckpointError`."""
-    path = _tensor_file(path, what)
+    path = _tensor_file(path, called)
     try:
         tensors = load_file(str(path))
     except Exception as exc:  # safetensors raises several types for corrupt headers
         raise CheckpointError(
-            f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes "
-            "it"
+            f"{called} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that "
+            "writes it"
         ) from None
     for name, tensor in tensors.items():
         if tensor.is_floating_point() and tensor.dtype != torch.float32:
             raise CheckpointError(
-                f"{what} {path} holds tensor {name!r} as {str(tensor.dtype).removeprefix('torch.')}, expected "
+                f"{called} {path} holds tensor {name!r} as {str(tensor.dtype).removeprefix('torch.')}, expected "
                 "float32; it was not written by metadagger: re-run the stage that writes it"
             )
         if _non_finite(name, tensor, masks):
             raise CheckpointError(
-                f"{what} {path} holds NaN or infinite values in tensor {name!r}; it is damaged: delete it "
+                f"{called} {path} holds NaN or infinite values in tensor {name!r}; it is damaged: delete it "
                 "and re-run the stage that writes it"
             )
     return tensors
 
 
-def _tensor_file(path: str | Path | None, what: str) -> Path:
+def _tensor_file(path: str | Path | None, called: str) -> Path:
     """``path`` as a Path, if it names an existing safetensors file; else the one-line error that
-    says what was given and what is expected."""
+    says called was given and called is expected."""
     if not isinstance(path, (str, Path)):
-        raise CheckpointError(f"{what}: expected the path of a .safetensors file, got {path!r}")
+        raise CheckpointError(f"{called}: expected the path of a .safetensors file, got {path!r}")
     path = Path(path)
     if path.is_dir():
         found = sorted(p.name for p in path.glob("*.safetensors"))[:3]
         hint = f" (it holds {', '.join(found)})" if found else ""
-        raise CheckpointError(f"{what}: {path} is a folder{hint}; pass the .safetensors file itself")
+        raise CheckpointError(f"{called}: {path} is a folder{hint}; pass the .safetensors file itself")
     if not path.is_file():
         raise CheckpointError(
-            f"{what} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes "
+            f"{called} not found: {path} (expected a .safetensors file; check the path or re-run the stage that writes "
             "it)"
         )
     if path.suffix != ".safetensors":
         raise CheckpointError(
-            f"{what}: {path} is not a .safetensors file; pass a file that metadagger wrote "
+            f"{called}: {path} is not a .safetensors file; pass a file that metadagger wrote "
             "(a policy: RUN/groundtruth/policy.safetensors; a mapper: RUN/mappers/KIND/mapper.safetensors)"
         )
     return path
 
 
-def read_metadata(path: str | Path, what: str = "checkpoint") -> dict[str, str]:
+def read_metadata(path: str | Path, called: str = "checkpoint") -> dict[str, str]:
     """Return the string metadata stored in a safetensors header."""
     from safetensors import safe_open
 
-    path = _tensor_file(path, what)
+    path = _tensor_file(path, called)
     try:
         with safe_open(str(path), framework="pt") as f:
             header = dict(f.metadata() or {})
         return json.loads(header[_METADATA_KEY]) if _METADATA_KEY in header else header
     except Exception as exc:
         raise CheckpointError(
-            f"{what} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that writes "
-            "it"
+            f"{called} is corrupt or not a safetensors file: {path} ({exc}); delete it and re-run the stage that "
+            "writes it"
         ) from None

@@ -34,7 +34,7 @@ def write_lines(path: str | Path, records: Iterable[dict[str, Any]]) -> Path:
     return atomic_write(path, lambda tmp: tmp.write_bytes(b"".join(dumps_line(r) for r in records)))
 
 
-def read_lines(path: str | Path, *, what: str) -> list[dict[str, Any]]:
+def read_lines(path: str | Path, *, called: str) -> list[dict[str, Any]]:
     """Every complete record of a log (none if it does not exist); a garbled complete line is a
     :class:`CheckpointError` naming the file and line."""
     path = Path(path)
@@ -52,7 +52,7 @@ def read_lines(path: str | Path, *, what: str) -> list[dict[str, Any]]:
             record = None
         if not isinstance(record, dict):
             raise CheckpointError(
-                f"{path} line {number} is not a {what}: {raw[:80]!r}; delete that line and re-run the stage"
+                f"{path} line {number} is not a {called}: {raw[:80]!r}; delete that line and re-run the stage"
             )
         records.append(record)
     return records

@@ -75,22 +75,22 @@ def parse_seeds(text: str | int | typing.Sequence[int]) -> tuple[int, ...]:
     return check_seeds([seed for lo, hi in parts for seed in range(lo, hi + 1)], f"bad seed list {text!r}")
 
 
-def check_seeds(seeds: typing.Sequence[int], what: str) -> tuple[int, ...]:
-    """``seeds`` as a tuple, checked to be in ``[0, MAX_SEED]`` and distinct (``what`` names them in the error)."""
+def check_seeds(seeds: typing.Sequence[int], called: str) -> tuple[int, ...]:
+    """``seeds`` as a tuple, checked to be in ``[0, MAX_SEED]`` and distinct (``called`` names them in the error)."""
     negative = [s for s in seeds if s < 0]
     if negative:
-        raise UserError(f"{what}: seed {negative[0]} is negative; use seeds >= 0")
+        raise UserError(f"{called}: seed {negative[0]} is negative; use seeds >= 0")
     large = [s for s in seeds if s > MAX_SEED]
     if large:
-        raise UserError(f"{what}: seed {large[0]} is above the largest seed, {MAX_SEED}; use smaller seeds")
+        raise UserError(f"{called}: seed {large[0]} is above the largest seed, {MAX_SEED}; use smaller seeds")
     repeated = [s for s, n in Counter(seeds).items() if n > 1]
     if repeated:
-        raise UserError(f"{what}: seed {repeated[0]} appears twice; list each seed once")
+        raise UserError(f"{called}: seed {repeated[0]} appears twice; list each seed once")
     return tuple(seeds)
 
 
-def read_yaml_mapping(path: str | Path, what: str, fix: str) -> dict[str, Any]:
-    """The mapping in the YAML file ``path`` (described as ``what``); a file that cannot be read, is
+def read_yaml_mapping(path: str | Path, called: str, fix: str) -> dict[str, Any]:
+    """The mapping in the YAML file ``path`` (described as ``called``); a file that cannot be read, is
     not UTF-8 text, is not valid YAML or holds no mapping is a :class:`UserError` naming it and ``fix``."""
     try:
         data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
@@ -104,7 +104,7 @@ def read_yaml_mapping(path: str | Path, what: str, fix: str) -> dict[str, Any]:
         if isinstance(data, dict):
             return data
         problem = f"expected a mapping, got {type(data).__name__}"
-    raise UserError(f"{path} is not a readable YAML {what} ({problem}); {fix}")
+    raise UserError(f"{path} is not a readable YAML {called} ({problem}); {fix}")
 
 
 def read_run_data(path: str | Path) -> dict[str, Any]:
@@ -210,12 +210,12 @@ def _coerce(hint: Any, value: Any, where: str, field: str = "") -> Any:
 
 #: Metadata of a config field added after runs were made with its default behaviour: stamps leave
 #: it out while it holds its default, so adding it keeps every earlier artifact current.
-LATER_OPTION = {"stamp": "unless_default"}
+STAMPED_UNLESS_DEFAULT = {"stamp": "unless_default"}
 
 
 def to_dict(obj: Any, *, stamp: bool = False) -> Any:
     """A dataclass as plain YAML-ready data (tuples become lists); with ``stamp``, without the
-    :data:`LATER_OPTION` fields that hold their default."""
+    :data:`STAMPED_UNLESS_DEFAULT` fields that hold their default."""
     if dataclasses.is_dataclass(obj):
         return {
             f.name: to_dict(getattr(obj, f.name), stamp=stamp)

@@ -192,14 +192,14 @@ class DistilledFetchExpert:
     @classmethod
     def load(cls, path: str | Path) -> DistilledFetchExpert:
         """Rebuild a saved expert; a file that is not one raises :class:`CheckpointError`."""
-        metadata = read_metadata(path, what="distilled Fetch expert")
+        metadata = read_metadata(path, called="distilled Fetch expert")
         if metadata.get("kind") != cls.__name__ or metadata.get("features") != str(N_FEATURES):
             raise CheckpointError(
                 f"{path} is not a distilled Fetch expert (metadata {metadata}); pass a file written by "
                 "DistilledFetchExpert.save"
             )
         expert = cls(hidden=int(metadata["hidden"]))
-        expert.net.load_state_dict(load_tensors(path, what="distilled Fetch expert"))
+        expert.net.load_state_dict(load_tensors(path, called="distilled Fetch expert"))
         return expert
 
 
