@@ -34,6 +34,27 @@ def carracing_ci_run(tmp_path_factory) -> Path:
     return run
 
 
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory):
+    """A toy corridor run folder (one per test module) holding pi* and the pi*-head mapper: what
+    the benchmark, the videos and a gate plug-in's tests start from."""
+    from toy_task import CorridorTask
+
+    from metadagger.imitation.bc import BCConfig
+    from metadagger.mapping.mappers import Mapper
+    from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
+    from metadagger.policies import load_policy
+    from metadagger.runfolder.layout import RunLayout
+
+    pistar = GroundTruthConfig(
+        seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
+    )
+    layout = RunLayout(tmp_path_factory.mktemp("toy"))
+    train_groundtruth(CorridorTask(), pistar, layout, progress=False)
+    Mapper.pistar_head(load_policy(layout.groundtruth).head_vector()).save(layout.mapper("pistar-head"))
+    return layout
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)

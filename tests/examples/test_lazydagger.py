@@ -30,11 +30,7 @@ from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import method_label
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gates import Labelled, SafeGate
-from metadagger.mapping.mappers import Mapper
-from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
-from metadagger.policies import load_policy
 from metadagger.runfolder.driver import StageOptions
-from metadagger.runfolder.layout import RunLayout
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "lazydagger"
 PYPROJECT = tomllib.loads((EXAMPLE / "pyproject.toml").read_text())
@@ -264,19 +260,7 @@ def test_the_command_line_names_a_broken_plugin(plugins):
 
 # --- the benchmark on the toy corridor, end to end -------------------------------------------------
 
-GT = GroundTruthConfig(
-    seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
-)
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
-
-
-@pytest.fixture(scope="module")
-def toy_run(tmp_path_factory) -> RunLayout:
-    """pi* of the corridor and the pi*-head mapper, as tests/evaluation's toy run."""
-    layout = RunLayout(tmp_path_factory.mktemp("toy"))
-    train_groundtruth(CorridorTask(), GT, layout, progress=False)
-    Mapper.pistar_head(load_policy(layout.groundtruth).head_vector()).save(layout.mapper("pistar-head"))
-    return layout
 
 
 def test_the_benchmark_runs_the_installed_gate_end_to_end(lazy, toy_run):
