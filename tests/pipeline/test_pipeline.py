@@ -132,8 +132,14 @@ def test_demo_clones_from_a_minari_dataset(tmp_path, monkeypatch):
 
 
 def _stamps(run: Path) -> dict[Path, int]:
-    """Modification times of the files a stage writes only when it does work."""
-    return {p: p.stat().st_mtime_ns for pattern in ("*.safetensors", "*.jsonl") for p in run.rglob(pattern)}
+    """Modification times of the files a stage writes only when it does work: checkpoints and resume
+    logs (the benchmark's query ledger, ``labels.jsonl``, is a table, written with ``queries.csv``)."""
+    return {
+        p: p.stat().st_mtime_ns
+        for pattern in ("*.safetensors", "*.jsonl")
+        for p in run.rglob(pattern)
+        if p.name != "labels.jsonl"
+    }
 
 
 @pytest.fixture(scope="module")
