@@ -131,6 +131,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         del _FACTORIES["corridor-bench"]
 
 
+@pytest.mark.slow  # over 20 s: with the others it took the suite past 10 minutes
 def test_bench_lanes_times_one_benchmark_seed_at_each_width_without_touching_the_run(carracing_ci_run, tmp_path):
     from metadagger.cli.bench_lanes import bench_lanes
 

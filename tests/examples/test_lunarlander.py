@@ -81,6 +81,7 @@ def test_the_task_is_pixels_with_the_heuristic_as_expert(task_class):
     assert every_engine.label_dim() == 4 and every_engine.combine(3, main) == 3 and every_engine.to_label(side) == 1
 
 
+@pytest.mark.slow  # over 20 s: with the others it took the suite past 10 minutes
 def test_ci_preset_runs_every_stage(task_class, tmp_path):
     run = tmp_path / "run"
     args = [

@@ -198,6 +198,7 @@ def _artifacts(run: Path) -> dict[str, bytes | list[bytes]]:
     }
 
 
+@pytest.mark.slow  # over 20 s: with the others it took the suite past 10 minutes
 def test_fetch_pipeline_is_deterministic_across_runs_and_worker_counts(fetch_ci_run, tmp_path):
     first = _artifacts(fetch_ci_run)
     second = _artifacts(

@@ -67,6 +67,7 @@ def test_widening_methods_from_the_command_line_fills_every_seed(finished, tmp_p
     assert "  - pistar-head\n  - dm\n" in layout.config.read_text()  # the config the command ran with
 
 
+@pytest.mark.slow  # over 20 s: with the others it took the suite past 10 minutes
 def test_train_mapper_on_incomplete_pairs_refuses_and_reproduce_rebuilds(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
     lines = (layout.pairs_dir / "pairs.jsonl").read_bytes().splitlines(keepends=True)
@@ -85,6 +86,7 @@ def test_train_mapper_on_incomplete_pairs_refuses_and_reproduce_rebuilds(finishe
     assert layout.mapper("sam").read_bytes() == RunLayout(finished).mapper("sam").read_bytes()
 
 
+@pytest.mark.slow  # over 20 s: with the others it took the suite past 10 minutes
 def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
     before = {kind: layout.mapper(kind).read_bytes() for kind in ("dm", "mean-da")}
@@ -224,6 +226,7 @@ def test_diagnose_reproduces_each_validation_pair_resumes_and_reports(finished, 
     assert ("No learned mapper is nearer to w_DA in actions than mean-DA and pi*-head" in report) == (not nearer)
 
 
+@pytest.mark.slow  # over 20 s: with the others it took the suite past 10 minutes
 def test_reproduce_runs_the_diagnostics_only_when_asked(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
     before = {

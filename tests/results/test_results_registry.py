@@ -62,6 +62,7 @@ def test_an_added_run_keeps_small_artifacts_and_a_manifest_of_what_made_it(regis
     assert set(load_registry(registry, [CI_RUN.name])) == {CI_RUN.name}
 
 
+@pytest.mark.slow  # over 20 s: with the others it took the suite past 10 minutes
 def test_a_run_the_docs_read_diagnostics_of_is_added_with_them(carracing_ci_run, tmp_path, monkeypatch):
     import shutil
 
