@@ -247,6 +247,40 @@ def test_lanes_rows_do_not_depend_on_workers_nor_on_the_methods_beside_them(toy_
     assert {k: alone[k] for k in beside} == beside
 
 
+def test_a_laned_seed_reads_the_acting_features_and_fits_its_heads_together(toy_run, monkeypatch):
+    """With lanes no image is hashed or passed through the trunk a second time, and every
+    head-only fit of the seed runs batched with the others."""
+    from metadagger.imitation import lanes as lanes_module
+    from metadagger.imitation.bc import FeatureCache
+    from metadagger.metal import method
+
+    def no_images(self, images):
+        raise AssertionError("an image was hashed for its features")
+
+    def no_single_fit(*args, **kwargs):
+        raise AssertionError("a head was fitted alone")
+
+    batches = []
+
+    def counted(fits, **kwargs):
+        batches.append(len(fits))
+        return fit_heads(fits, **kwargs)
+
+    fit_heads = lanes_module.fit_heads
+    monkeypatch.setattr(FeatureCache, "_row_indices", no_images)
+    monkeypatch.setattr(method, "fit_bc", no_single_fit)
+    monkeypatch.setattr(lanes_module, "fit_heads", counted)
+    keys = [key for key in method_keys(CONFIG, rounds=ROUNDS, kinds=(), mdi=False) if key.mapper_kind is None]
+    job = dataclasses.replace(
+        _one_key_job(toy_run, keys[0], SEEDS[0], dataclasses.replace(CONFIG, lanes=4)),
+        methods=tuple(key.id for key in keys),
+        keys=tuple(keys),
+    )
+    entries = bench.benchmark_seed(job)["entries"]
+    assert len(entries) == len(keys)
+    assert max(batches) > 1  # fits asked for together were run together
+
+
 def test_rows_made_alone_are_not_reused_for_lanes(toy_run, tmp_path):
     layout = _copy_run(toy_run, tmp_path / "run")
     config = dataclasses.replace(CONFIG, seeds=SEEDS[:1], methods=("bc",))

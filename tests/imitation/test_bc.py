@@ -114,7 +114,7 @@ def test_fit_on_an_aggregate_equals_the_fit_on_its_concatenation(task, demo):
     assert torch.equal(heads[0], heads[1])
 
 
-def test_a_cache_serves_every_policy_on_its_trunk_and_keeps_features_computed_to_act(policy, demo):
+def test_a_cache_serves_every_policy_on_its_trunk_and_reads_features_computed_to_act(policy, demo):
     twin = policy.with_own_head()
     assert twin.net.trunk is policy.net.trunk and twin.net.head is not policy.net.head
     cache = FeatureCache(policy)
@@ -122,12 +122,17 @@ def test_a_cache_serves_every_policy_on_its_trunk_and_keeps_features_computed_to
     fit_bc(twin, demo, BCConfig(head_only=True, epochs=1), cache=cache)  # the twin's head trains, not the policy's
     assert torch.equal(policy.head_vector(), before) and not torch.equal(twin.head_vector(), before)
     given = np.random.default_rng(0).normal(size=(len(demo.obs), policy.net.feature_dim)).astype(np.float32)
-    primed = FeatureCache(policy)
-    primed.add(demo.obs, given)
-    np.testing.assert_array_equal(primed.features(demo.obs[:1]).numpy(), given[:1])
-    assert primed.computed == 0  # no trunk pass for an image whose features were given
-    with pytest.raises(ValueError, match="do not fit images"):
-        primed.add(demo.obs, given[:, :3])
+    carried = Dataset(obs=demo.obs, labels=demo.labels, features=given)
+    reader = FeatureCache(policy)
+    mixed = Aggregate([carried, Dataset(obs=demo.obs[:3], labels=demo.labels[:3])])
+    features = reader.features_of(mixed)
+    np.testing.assert_array_equal(features[: len(demo)].numpy(), given)  # read as carried
+    assert torch.equal(features[len(demo) :], reader.features(demo.obs[:3]))
+    assert reader.computed == 3  # only the part without features went through the trunk
+    features[0] = 0.0
+    np.testing.assert_array_equal(carried.features[0], given[0])  # the caller's copy, not the dataset's
+    with pytest.raises(ValueError, match="features must be float32"):
+        Dataset(obs=demo.obs, labels=demo.labels, features=given[:3])
 
 
 def test_fit_rejects_mismatched_data_and_cache(policy, demo):

@@ -103,10 +103,10 @@ def test_lanes_refuse_a_bad_width():
 def _chain(seeds: tuple[int, ...], head: np.ndarray):
     """A chain that rolls its seeds one after another, each episode's length shifting the next head."""
 
-    def body(roll):
+    def body(lane):
         out, shifted = [], head.copy()
         for seed in seeds:
-            trajectory = roll(EpisodeRequest(seed, shifted))
+            trajectory = lane.roll(EpisodeRequest(seed, shifted))
             out.append(trajectory)
             shifted = shifted + np.float32(0.01 * trajectory.steps)
         return out
@@ -138,13 +138,13 @@ def test_a_failing_chain_stops_the_others_and_its_error_reaches_the_caller():
     head = _heads(task, 1)[0]
     finished = []
 
-    def failing(roll):
-        roll(EpisodeRequest(0, head))
+    def failing(lane):
+        lane.roll(EpisodeRequest(0, head))
         raise UserError("a chain's own error")
 
-    def long(roll):
+    def long(lane):
         for seed in SEEDS:
-            roll(EpisodeRequest(seed, head))
+            lane.roll(EpisodeRequest(seed, head))
         finished.append(True)
 
     with Lanes(task, net, width=2) as lanes:

@@ -65,7 +65,7 @@ from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gate_registry import built_in_grids, gate_of_method, get_gate, make_gate
 from metadagger.imitation.gates import Gate
-from metadagger.imitation.lanes import Lanes, check_lanes
+from metadagger.imitation.lanes import Lanes, check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.metal.method import (
@@ -308,7 +308,7 @@ def _start(
     needs_context = any(
         cached_mapper(job.mappers[key.kind]).needs_context for key in keys if isinstance(key, MapperKey)
     )
-    context = seed_context(learner.cache, data.obs, first.obs) if needs_context else None
+    context = seed_context(learner.cache, data, first.to_dataset()) if needs_context else None
     return _Start(demo, w_bc, first, context)
 
 
@@ -501,7 +501,7 @@ def run_benchmark(
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
     if config.lanes != 1:  # stamped unless default: rows made alone stay current
-        settings["lanes"] = config.lanes
+        settings.update(lanes=config.lanes, **lanes_stamp(config.lanes))
     mdi_mapper = mdi.mapper if with_mdi and mdi is not None else None
     stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi_mapper)
     log = RowLog(layout.benchmark_log)

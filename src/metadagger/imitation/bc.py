@@ -25,6 +25,7 @@ from torch.nn.utils import parameters_to_vector
 from metadagger.errors import DivergedError, UserError, check_finite_loss
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.head_adam import LinearHeadAdam
+from metadagger.imitation.head_fits import HeadFit
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
 from metadagger.utils.optim import adam
@@ -144,8 +145,8 @@ class FeatureCache:
 
     Images are keyed by their bytes, so the cache can be shared by every fit on a growing
     (aggregated) dataset, and by every policy that shares the trunk (:meth:`Policy.with_own_head`);
-    a change of the trunk's weights empties it. :meth:`add` takes features computed elsewhere (the
-    ones a lane computed to act on the images, :mod:`metadagger.imitation.lanes`). A dataset's rows are
+    a change of the trunk's weights empties it. A dataset that carries its features (the ones a lane
+    computed to act on its images, :mod:`metadagger.imitation.lanes`) is read as it is. A dataset's rows are
     remembered for as long as the dataset lives, so a part of an :class:`Aggregate` is hashed once,
     however many fits read it.
 
@@ -187,37 +188,25 @@ class FeatureCache:
         rows = self._row_indices([obs])[0]
         return self._store[rows]
 
-    def add(self, obs: np.ndarray, features: np.ndarray) -> None:
-        """Keep ``features`` (N, feature_dim) as the trunk features of images ``obs`` (N, H, W, C)
-        that the cache has not seen; an image already seen keeps the features it has."""
-        if len(obs) != len(features) or features.shape[1:] != self._store.shape[1:]:
-            raise ValueError(
-                f"features {features.shape} do not fit images {obs.shape}: expected ({len(obs)}, "
-                f"{self._store.shape[1]})"
-            )
-        self._check_trunk()
-        rows: dict[bytes, int] = {}
-        for i, image in enumerate(np.ascontiguousarray(obs)):
-            key = hashlib.blake2b(image, digest_size=16).digest()
-            if key not in self._rows and key not in rows:
-                rows[key] = i
-        if rows:
-            start = len(self._store)
-            self._store = torch.cat([self._store, torch.from_numpy(features[list(rows.values())])])
-            self._rows.update({key: start + j for j, key in enumerate(rows)})
-
     def features_of(self, data: Dataset | Aggregate) -> torch.Tensor:
         """Features (N, feature_dim) of a dataset's images, in its row order.
 
-        The same numbers as ``features(data.obs)``, without concatenating an aggregate's images
-        or hashing a part already read.
+        A part that carries its features (:attr:`Dataset.features`: the pass that acted on its
+        images computed them, on this trunk) gives them as they are: its images are never hashed
+        or passed through the trunk again. The other parts give the same numbers as
+        ``features(part.obs)``, without concatenating an aggregate's images or hashing a part
+        already read.
         """
         self._check_trunk()
-        unread = [part for part in data.parts if part not in self._part_rows]
-        for part, rows in zip(unread, self._row_indices([part.obs for part in unread])):
-            self._part_rows[part] = rows
-        rows = torch.cat([self._part_rows[part] for part in data.parts])
-        return self._store[rows]
+        unread = [part for part in data.parts if part.features is None and part not in self._part_rows]
+        if unread:
+            for part, rows in zip(unread, self._row_indices([part.obs for part in unread])):
+                self._part_rows[part] = rows
+        chunks = [
+            torch.from_numpy(part.features) if part.features is not None else self._store[self._part_rows[part]]
+            for part in data.parts
+        ]
+        return torch.cat(chunks)  # a copy: the caller may change it
 
     def _row_indices(self, images: list[np.ndarray]) -> list[torch.Tensor]:
         """The store's rows of each array of ``images``, after computing the unseen ones.
@@ -262,7 +251,8 @@ def _gather(images: list[np.ndarray], where: list[tuple[int, int]]) -> np.ndarra
     return np.concatenate([images[a][rows] for a, rows in by_array.items()])
 
 
-def _check_data(policy: Policy, data: Dataset | Aggregate) -> None:
+def check_data(policy: Policy, data: Dataset | Aggregate) -> None:
+    """Raise a :class:`~metadagger.errors.UserError` unless ``policy`` can be fitted on ``data``."""
     arch = policy.arch
     if len(data) == 0:
         raise UserError("cannot fit on an empty dataset: collect at least one demonstration first")
@@ -317,7 +307,7 @@ def fit_bc(
         DivergedError: an epoch's mean loss, or a weight at the end, is not finite (the policy is
             then left as it is: its caller must not keep it).
     """
-    _check_data(policy, data)
+    check_data(policy, data)
     started = time.perf_counter()
     inputs, model = _inputs_and_model(policy, data, config, cache)
     targets = torch.from_numpy(data.labels)
@@ -351,6 +341,29 @@ def fit_bc(
             f"lower its learning rate (now {config.lr:g}) or check its data"
         )
     return {"loss": losses, "samples": n, "seconds": time.perf_counter() - started}
+
+
+def head_fit(
+    policy: Policy, data: Dataset | Aggregate, config: BCConfig, cache: FeatureCache, *, called: str
+) -> HeadFit:
+    """The head-only fit :func:`fit_bc` would run (its data, its seeded batch orders, its Adam), as a
+    request for :func:`~metadagger.imitation.head_fits.fit_heads`, which runs many fits batched."""
+    check_data(policy, data)
+    if not (config.head_only and LinearHeadAdam.supports(policy.net.head)):
+        raise UserError(f"{called} is not a head-only fit of a linear head; batched fits need head_only=true")
+    if cache.policy.net.trunk is not policy.net.trunk:
+        raise UserError("the FeatureCache was built for another trunk; build one with FeatureCache(policy)")
+    generator = torch.Generator().manual_seed(config.seed)
+    return HeadFit(
+        head=policy.head_vector().detach().clone(),
+        features=cache.features_of(data),
+        targets=torch.from_numpy(data.labels),
+        orders=torch.stack([torch.randperm(len(data), generator=generator) for _ in range(config.epochs)]),
+        lr=config.lr,
+        weight_decay=config.weight_decay,
+        batch_size=config.batch_size,
+        called=called,
+    )
 
 
 def _inputs_and_model(

@@ -17,10 +17,14 @@ class Dataset:
     Attributes:
         obs: (N, H, W, C) uint8 images.
         labels: (N,) int64 class indices (discrete learner) or (N, d) float32 vectors (continuous).
+        features: (N, feature_dim) float32 trunk features of the images, where the pass that acted
+            on them computed them (lockstep lanes); a head-only fit on the same trunk reads them
+            instead of the images (:meth:`~metadagger.imitation.bc.FeatureCache.features_of`).
     """
 
     obs: np.ndarray
     labels: np.ndarray
+    features: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.obs, np.ndarray) or self.obs.dtype != np.uint8 or self.obs.ndim != 4:
@@ -39,6 +43,17 @@ class Dataset:
             )
         if len(self.obs) != len(labels):
             raise ValueError(f"obs has {len(self.obs)} rows but labels has {len(labels)}; they must match")
+        features = self.features
+        if features is not None and (
+            not isinstance(features, np.ndarray)
+            or features.dtype != np.float32
+            or features.ndim != 2
+            or len(features) != len(labels)
+        ):
+            raise ValueError(
+                f"features must be float32 of shape ({len(labels)}, feature_dim), got "
+                f"{getattr(features, 'dtype', type(features).__name__)} with shape {getattr(features, 'shape', None)}"
+            )
 
     def __len__(self) -> int:
         return len(self.obs)
@@ -59,7 +74,7 @@ class Dataset:
         return (self,)
 
     def concat(self, *others: Dataset) -> Dataset:
-        """This dataset followed by ``others`` (rows appended in order, images copied)."""
+        """This dataset followed by ``others`` (rows appended in order, images copied; no features)."""
         aggregate = Aggregate((self, *others))
         return Dataset(obs=aggregate.obs, labels=aggregate.labels)
 

@@ -10,11 +10,14 @@ steps, and whichever lane it runs in; it depends on the width, which the config 
 The trunk features computed to act are kept with the trajectory (:attr:`Trajectory.features`),
 so the fits, gates and contexts that read the episode later need no second trunk pass.
 
-:func:`run_chains` runs many *chains* -- plain sequential functions that roll episodes out one
-after another (a seed's DAgger rounds under one gate, say) -- with their episodes in lanes: each
-chain runs in a thread of its own, one at a time, until it asks for an episode; the episodes
-asked for wait for a free lane in the order they were asked, and a chain resumes when its episode
-ends. The method's code stays the sequential code it is (:mod:`metadagger.metal.method`).
+:func:`run_chains` runs many *chains* -- plain sequential functions that roll episodes out and
+refit heads one after another (a seed's DAgger rounds under one gate, say) -- with their episodes
+in lanes: each chain runs in a thread of its own, one at a time, until it asks for an episode or
+a head-only fit; the episodes asked for wait for a free lane in the order they were asked, and
+the fits asked for run together, as one batched problem
+(:func:`~metadagger.imitation.head_fits.fit_heads`), whenever the lanes have room that no
+episode is waiting for. A chain resumes when what it asked for is done. The method's code stays
+the sequential code it is (:mod:`metadagger.metal.method`).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from __future__ import annotations
 import threading
 from collections import deque
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Generic, Sequence, TypeVar
+from typing import Any, Callable, Generic, Protocol, Sequence, TypeVar
 
 import numpy as np
 import torch
@@ -30,6 +33,7 @@ import torch.nn.functional as F
 
 from metadagger.errors import UserError
 from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.head_fits import FittedHead, HeadFit, fit_heads
 from metadagger.imitation.rollouts import EpisodeRecorder, Trajectory
 from metadagger.policies import PolicyNet
 from metadagger.tasks.base import Task
@@ -39,6 +43,16 @@ T = TypeVar("T")
 #: The most lanes a config may ask for.
 MAX_LANES = 256
 
+#: Bumped by every change to what a laned run (lanes above 1) computes: stamped beside the width
+#: (:func:`lanes_stamp`), so that laned artifacts made before the change are stale.
+LANE_NUMERICS = 2
+
+
+def lanes_stamp(width: int) -> dict[str, int]:
+    """The lanes' part of a stage's stamp: nothing for width 1 (every episode alone), else
+    :data:`LANE_NUMERICS` (the stamp records the width with the stage's config)."""
+    return {} if width == 1 else {"lane_numerics": LANE_NUMERICS}
+
 
 def check_lanes(name: str, value: Any) -> None:
     """Raise a :class:`~metadagger.errors.UserError` naming config field ``name`` unless ``value`` is
@@ -47,14 +61,14 @@ def check_lanes(name: str, value: Any) -> None:
         raise UserError(f"{name} must be an integer from 1 to {MAX_LANES}, got {value!r}; e.g. 32")
 
 
-# the lane of the chain that runs in this thread (run_chains sets it)
+# the chain that runs in this thread (run_chains sets it)
 _running = threading.local()
 
 
-def current_lane() -> Callable[[EpisodeRequest], Trajectory] | None:
-    """The ``roll`` of the chain running in this thread, or None outside :func:`run_chains`'s chains:
-    a learner made inside a chain rolls its episodes out through it."""
-    return getattr(_running, "roll", None)
+def current_lane() -> Lane | None:
+    """The :class:`Lane` of the chain running in this thread, or None outside :func:`run_chains`'s
+    chains: a learner made inside a chain rolls its episodes out and fits its heads through it."""
+    return getattr(_running, "lane", None)
 
 
 @dataclass(frozen=True)
@@ -192,14 +206,24 @@ class _Aborted(BaseException):
     """Raised in a chain whose run is abandoned because another chain failed."""
 
 
-class _Chain(Generic[T]):
-    """A chain's thread, handed control by :func:`run_chains` and handing it back."""
+class Lane(Protocol):
+    """What a chain asks of the lanes (:func:`run_chains` hands each chain one)."""
 
-    def __init__(self, body: Callable[[Callable[[EpisodeRequest], Trajectory]], T], handback: threading.Semaphore):
+    def roll(self, request: EpisodeRequest) -> Trajectory:
+        """One episode, rolled out in a lane; returns when it has ended."""
+
+    def fit(self, request: HeadFit) -> FittedHead:
+        """One head-only fit, run batched with the other chains' fits; returns when it is done."""
+
+
+class _Chain(Generic[T]):
+    """A chain's thread, handed control by :func:`run_chains` and handing it back; the chain's :class:`Lane`."""
+
+    def __init__(self, body: Callable[[Lane], T], handback: threading.Semaphore):
         self.body, self.handback = body, handback
         self.resume = threading.Semaphore(0)
-        self.request: EpisodeRequest | None = None
-        self.reply: Trajectory | None = None
+        self.request: EpisodeRequest | HeadFit | None = None
+        self.reply: Trajectory | FittedHead | None = None
         self.result: T | None = None
         self.error: BaseException | None = None
         self.done = False
@@ -208,10 +232,10 @@ class _Chain(Generic[T]):
 
     def _run(self) -> None:
         self.resume.acquire()
-        _running.roll = self.roll
+        _running.lane = self
         try:
             if not self.aborted:
-                self.result = self.body(self.roll)
+                self.result = self.body(self)
         except _Aborted:
             pass
         except BaseException as exc:  # handed to run_chains, which raises it in the caller
@@ -221,6 +245,13 @@ class _Chain(Generic[T]):
 
     def roll(self, request: EpisodeRequest) -> Trajectory:
         """Ask for one episode and wait, control handed back, until it has ended."""
+        return self._ask(request)  # type: ignore[return-value]
+
+    def fit(self, request: HeadFit) -> FittedHead:
+        """Ask for one head-only fit and wait, control handed back, until the batched fits are done."""
+        return self._ask(request)  # type: ignore[return-value]
+
+    def _ask(self, request: EpisodeRequest | HeadFit) -> Trajectory | FittedHead:
         self.request = request
         self.handback.release()
         self.resume.acquire()
@@ -231,42 +262,51 @@ class _Chain(Generic[T]):
         return reply
 
 
-def run_chains(lanes: Lanes, bodies: Sequence[Callable[[Callable[[EpisodeRequest], Trajectory]], T]]) -> list[T]:
-    """Run each chain ``body(roll)`` to its end, its episodes in ``lanes``; their results in order.
+def run_chains(lanes: Lanes, bodies: Sequence[Callable[[Lane], T]]) -> list[T]:
+    """Run each chain ``body(lane)`` to its end, its episodes in ``lanes``; their results in order.
 
-    A chain is a function of one argument, ``roll``, which it calls with an
-    :class:`EpisodeRequest` to get that episode's trajectory (:func:`current_lane` returns the
-    same ``roll`` inside the chain). Chains run one at a time, each in
-    its own thread, so their arithmetic is what it would be alone; a chain that raises stops the
-    others, and the error is raised here.
+    A chain is a function of one argument, a :class:`Lane`, whose ``roll`` it calls with an
+    :class:`EpisodeRequest` to get that episode's trajectory and whose ``fit`` runs a head-only
+    fit (:func:`current_lane` returns the same lane inside the chain). Chains run one at a time,
+    each in its own thread, so their arithmetic is what it would be alone; a fit's head does not
+    depend on the fits batched with it. A chain that raises stops the others, and the error is
+    raised here.
     """
     handback = threading.Semaphore(0)
     chains = [_Chain(body, handback) for body in bodies]
     waiting: deque[_Chain[T]] = deque()
+    fitting: list[_Chain[T]] = []
     owner: dict[int, _Chain[T]] = {}
 
     def advance(chain: _Chain[T]) -> None:
-        # hand control to the chain until it asks for an episode or ends
+        # hand control to the chain until it asks for an episode or a fit, or ends
         chain.resume.release()
         handback.acquire()
         if chain.error is not None:
             _abort(chains)
             raise chain.error
         if not chain.done:
-            waiting.append(chain)
+            (fitting if isinstance(chain.request, HeadFit) else waiting).append(chain)
 
     for chain in chains:
         chain.thread.start()
     try:
         for chain in chains:
             advance(chain)
-        while waiting or lanes.busy():
+        while waiting or fitting or lanes.busy():
             for lane in lanes.free():
                 if not waiting:
                     break
                 chain = waiting.popleft()
                 owner[lane] = chain
-                lanes.start(lane, chain.request)
+                lanes.start(lane, chain.request)  # type: ignore[arg-type]
+            if fitting and lanes.free():  # room in the lanes that no episode waits for: the fits hold it up
+                asking, fitting = fitting, []
+                fitted = fit_heads([chain.request for chain in asking], out_dim=lanes.out_dim, discrete=lanes.discrete)
+                for chain, head in zip(asking, fitted):
+                    chain.reply = head
+                    advance(chain)
+                continue
             for lane, trajectory in lanes.step():
                 chain = owner.pop(lane)
                 chain.reply = trajectory

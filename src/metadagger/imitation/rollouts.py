@@ -67,8 +67,8 @@ class Trajectory:
     features: np.ndarray | None = None
 
     def to_dataset(self) -> Dataset:
-        """The (observation, expert label) pairs of this episode."""
-        return Dataset(obs=self.obs, labels=self.expert_labels)
+        """The (observation, expert label) pairs of this episode, with the features it acted on where it has them."""
+        return Dataset(obs=self.obs, labels=self.expert_labels, features=self.features)
 
 
 def stack_labels(values: list[Any] | np.ndarray, discrete: bool) -> np.ndarray:

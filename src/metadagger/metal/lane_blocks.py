@@ -11,8 +11,7 @@ import functools
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from metadagger.imitation.lanes import EpisodeRequest, Lanes, run_chains
-from metadagger.imitation.rollouts import Trajectory
+from metadagger.imitation.lanes import Lane, Lanes, run_chains
 from metadagger.metal.groundtruth import cached_groundtruth
 
 
@@ -53,5 +52,5 @@ def run_block(block: LaneBlock) -> list[dict[str, Any]]:
         return run_chains(lanes, [functools.partial(_job_chain, block.work, job) for job in block.jobs])
 
 
-def _job_chain(work: Callable[[Any], dict[str, Any]], job: Any, lane: Callable[[EpisodeRequest], Trajectory]) -> Any:
+def _job_chain(work: Callable[[Any], dict[str, Any]], job: Any, lane: Lane) -> Any:
     return work(job)  # its learners find ``lane`` themselves (current_lane)

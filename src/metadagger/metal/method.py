@@ -32,11 +32,11 @@ from typing import Any, Callable, Iterator, Protocol, Sequence, TypeVar
 import numpy as np
 import torch
 
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
 from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.gates import Episode, Gate, GateMemory, Labelled
-from metadagger.imitation.lanes import EpisodeRequest, Lanes, current_lane, run_chains
+from metadagger.imitation.lanes import EpisodeRequest, Lane, Lanes, current_lane, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
 from metadagger.policies import Policy
@@ -78,9 +78,9 @@ class SeedLearner:
         self._lane = current_lane()
         self.env: Any = task.make_env() if self._lane is None else None
 
-    def fork(self, lane: Callable[[EpisodeRequest], Trajectory]) -> SeedLearner:
+    def fork(self, lane: Lane) -> SeedLearner:
         """A learner of the same seed with a head of its own (a copy of the current one), sharing this
-        one's trunk and feature cache, whose episodes ``lane`` rolls out (a chain's ``roll`` of
+        one's trunk and feature cache, whose episodes and fits go to ``lane`` (a chain's, of
         :func:`~metadagger.imitation.lanes.run_chains`)."""
         twin = copy.copy(self)
         twin.policy, twin.env, twin._lane = self.policy.with_own_head(), None, lane
@@ -111,10 +111,17 @@ class SeedLearner:
         return rollout(self.env, seed=self.seed, policy=None)
 
     def _in_lane(self, request: EpisodeRequest) -> Trajectory:
-        # the features the lane acted on are the ones every later fit, gate and context reads
-        trajectory = self._lane(request)  # type: ignore[misc]
-        self.cache.add(trajectory.obs, trajectory.features)
-        return trajectory
+        # the trajectory carries the features the lane acted on: every later fit, gate and context
+        # reads them (FeatureCache.features_of), never the images again
+        return self._lane.roll(request)  # type: ignore[union-attr]
+
+    def fit(self, data: Dataset | Aggregate, config: BCConfig, *, called: str) -> None:
+        """Fit the current head (BC, :func:`~metadagger.imitation.bc.fit_bc`) on ``data``; in a chain's
+        lane, a head-only fit runs batched with the other chains' fits."""
+        if self._lane is None or not config.head_only:
+            fit_bc(self.policy, data, config, cache=self.cache, called=called)
+        else:
+            self.load(self._lane.fit(head_fit(self.policy, data, config, self.cache, called=called)).head)
 
     def close(self) -> None:
         """Close the env."""
@@ -141,7 +148,7 @@ def run_steps(learner: SeedLearner, steps: Sequence[Callable[[SeedLearner], T]],
     return run_chains(lanes, [functools.partial(_on_fork, learner, step) for step in steps])
 
 
-def _on_fork(learner: SeedLearner, step: Callable[[SeedLearner], T], lane: Callable[[EpisodeRequest], Trajectory]) -> T:
+def _on_fork(learner: SeedLearner, step: Callable[[SeedLearner], T], lane: Lane) -> T:
     return step(learner.fork(lane))
 
 
@@ -176,23 +183,31 @@ def demonstration_share(demo: Trajectory, fraction: float) -> Trajectory:
 
 def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig, *, called: str = "the BC head's fit") -> np.ndarray:
     """Step 2: fit the learner's current head (a fresh one: w_BC) by BC on the demonstration."""
-    fit_bc(learner.policy, demo, fit, cache=learner.cache, called=called)
+    learner.fit(demo, fit, called=called)
     return learner.head()
 
 
-def seed_context(cache: FeatureCache, demonstration: np.ndarray, bc_rollout: np.ndarray) -> np.ndarray:
+def seed_context(
+    cache: FeatureCache, demonstration: np.ndarray | Dataset, bc_rollout: np.ndarray | Dataset
+) -> np.ndarray:
     """Step 3's context: what the seed's own data says about it, without a further label.
 
     The mean trunk feature of the ``demonstration``'s images, then of the ``bc_rollout``'s: one
     rollout of w_BC (visited, never labelled), the one DAgger's first round starts from, cut by
-    the pairs' early stop. Images are uint8 ``(N, H, W, C)``, ``N >= 1`` each; the context is
-    ``2 x feature_dim`` float32 numbers (:data:`CONTEXT_PARTS`).
+    the pairs' early stop. Each is uint8 images ``(N, H, W, C)`` or a dataset (whose carried
+    features are read where it has them), ``N >= 1``; the context is ``2 x feature_dim`` float32
+    numbers (:data:`CONTEXT_PARTS`).
     """
     for name, images in (("demonstration", demonstration), ("bc_rollout", bc_rollout)):
         if len(images) == 0:
             raise ValueError(f"seed_context needs at least one image of the {name}, got none")
-    means = [cache.features(images).to(torch.float64).mean(dim=0) for images in (demonstration, bc_rollout)]
+    means = [_features(cache, part).to(torch.float64).mean(dim=0) for part in (demonstration, bc_rollout)]
     return torch.cat(means).to(torch.float32).numpy()
+
+
+def _features(cache: FeatureCache, data: np.ndarray | Dataset) -> torch.Tensor:
+    """Trunk features of images, or of a dataset (its carried features where it has them)."""
+    return cache.features_of(data) if isinstance(data, Dataset) else cache.features(data)
 
 
 def map_head(mapper: HeadMapper, w_bc: np.ndarray, context: np.ndarray | None) -> np.ndarray:
@@ -254,7 +269,9 @@ def dagger_rounds(
     queries = len(data)
     # what a gate may know of the run: the demonstration first, then each rollout it has gated
     memory = (
-        GateMemory() if gate is None else GateMemory([Episode(learner.cache.features(demo.obs), bool(demo.success))])
+        GateMemory()
+        if gate is None
+        else GateMemory([Episode(learner.cache.features_of(demo.to_dataset()), bool(demo.success))])
     )
     learner.load(start)
     trajectory = first_rollout
@@ -266,11 +283,15 @@ def dagger_rounds(
             keep, scores = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory)
         labelled = None
         if keep.any():
-            labelled = Dataset(obs=trajectory.obs[keep], labels=trajectory.expert_labels[keep])
+            labelled = Dataset(
+                obs=trajectory.obs[keep],
+                labels=trajectory.expert_labels[keep],
+                features=None if trajectory.features is None else trajectory.features[keep],
+            )
             data = data.append(labelled)
             actions = np.concatenate([actions, trajectory.learner_actions[keep]])
             queries += int(keep.sum())
-            fit_bc(learner.policy, data, fit, cache=learner.cache, called=f"DAgger round {index}'s refit")
+            learner.fit(data, fit, called=f"DAgger round {index}'s refit")
         head = learner.head()
         if labelled is not None:
             trajectory = learner.roll(head, early_stop=early_stop)
@@ -302,7 +323,7 @@ def _gate_mask(
     scores it chose them by, where it has some. Only a reference gate (the oracle) sees the
     expert's labels of the round's states."""
     labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
-    features = cache.features(trajectory.obs)
+    features = cache.features_of(trajectory.to_dataset())
     chosen = gate.choose(
         features,
         _tensor(trajectory.learner_actions),

@@ -21,7 +21,7 @@ from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.data import Aggregate
 from metadagger.imitation.early_stop import check_threshold
-from metadagger.imitation.lanes import check_lanes
+from metadagger.imitation.lanes import check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.metal.groundtruth import load_groundtruth
 from metadagger.metal.lane_blocks import in_blocks
@@ -168,7 +168,7 @@ def run_pair(
                 early_stop=config.early_stop,
             )
         )
-        context = seed_context(learner.cache, data.obs, first.obs)
+        context = seed_context(learner.cache, data, first.to_dataset())
         states = learner.cache.features_of(Aggregate([r.labelled for r in rounds])) if with_states else None
     if on_episode is not None:
         for index, episode in enumerate([demo, first, *(r.rollout for r in rounds[:-1])]):
@@ -209,6 +209,7 @@ def pair_stamp(task: Task, layout: RunLayout, config: PairConfig) -> dict[str, A
         **kernel_stamp(),
         **task_stamp(task),
         **stamp_of(config, drop=("seeds", "val_fraction")),
+        **lanes_stamp(config.lanes),
         "context": list(CONTEXT_PARTS),
         "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
     }

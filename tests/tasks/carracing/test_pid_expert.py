@@ -109,3 +109,53 @@ def test_recovers_after_random_driving(seed):
     # back on the tarmac and driving along the track, not across or against it
     assert velocity @ geo.tangents[i] > math.cos(math.radians(45)) * np.hypot(*velocity)
     env.close()
+
+
+def _array_form(expert: PIDExpert, env: gym.Env) -> np.ndarray:
+    """The expert written with numpy two-vectors, as it first was: the reference of the fast form."""
+    cfg, geo, car = expert.config, expert.geometry(env), env.unwrapped.car
+    angle = car.hull.angle + 0.5 * math.pi
+    fwd = np.array([math.cos(angle), math.sin(angle)])
+    left = np.array([-fwd[1], fwd[0]])
+    vel = np.array(car.hull.linearVelocity)
+    speed = float(np.hypot(*vel))
+    rear = np.array(car.hull.position) - 82 * 0.02 * fwd
+    offsets = rear - geo.points
+    i = int(np.argmin(np.einsum("ij,ij->i", offsets, offsets)))
+    along = float(offsets[i] @ geo.tangents[i])
+    lateral = abs(float(offsets[i] @ np.array([-geo.tangents[i, 1], geo.tangents[i, 0]])))
+    lookahead = cfg.lookahead_base + cfg.lookahead_per_speed * speed
+    s = (geo.arc[i] + along + lookahead) % geo.length
+    j = int(np.searchsorted(geo.arc, s, side="right")) - 1
+    seg = geo.points[(j + 1) % len(geo.points)] - geo.points[j]
+    d = geo.points[j] + seg * ((s - geo.arc[j]) / float(np.hypot(*seg))) - rear
+    alpha = math.atan2(float(d @ left), float(d @ fwd))
+    wheel = math.atan((80 + 82) * 0.02 * 2.0 * math.sin(alpha) / min(float(np.hypot(*d)), lookahead))
+    if abs(alpha) > 0.5 * math.pi:
+        wheel = math.copysign(0.4, alpha)
+    v_target = float(geo.speed_limit[(i + np.arange(4)) % len(geo.points)].min())
+    if lateral > TRACK_HALF_WIDTH:
+        v_target = min(v_target, cfg.offtrack_speed)
+    excess = max(abs(alpha) - cfg.free_turn, 0.0)
+    v_target = min(v_target, max(v_target * math.cos(min(excess, 0.5 * math.pi)), cfg.turn_speed))
+    gas = float(np.clip(cfg.gas_gain * (v_target - speed), 0.0, 1.0))
+    brake = float(np.clip(cfg.brake_gain * (speed - v_target), 0.0, cfg.max_brake))
+    if max(w.omega * 27 * 0.02 for w in car.wheels[2:4]) - float(vel @ fwd) > cfg.max_wheel_slip:
+        gas = 0.0
+    return np.array([float(np.clip(-wheel, -1.0, 1.0)), gas, brake], dtype=np.float32)
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_labels_are_bit_equal_to_the_array_form(seed):
+    """On the track, off it, spinning and facing backwards: every label equals the array form's, bit for bit."""
+    env = CarRacingFast()
+    env.reset(seed=seed)
+    expert = PIDExpert()
+    rng = np.random.default_rng(seed)
+    for t in range(600):
+        action = expert(env)
+        np.testing.assert_array_equal(action, _array_form(expert, env), err_msg=f"step {t}")
+        if t % 100 >= 70:  # 30 steps of every 100 at random: grass, spins, wrong ways
+            action = np.array([rng.uniform(-1, 1), rng.uniform(0, 1), rng.uniform(0, 0.3)], dtype=np.float32)
+        env.step(action)
+    env.close()

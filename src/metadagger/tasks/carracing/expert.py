@@ -21,6 +21,7 @@ or pointing away from it the target speed drops; gas is cut while the rear wheel
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, fields
 from typing import Any
@@ -106,6 +107,10 @@ class TrackGeometry:
     """Length of one lap."""
     speed_limit: np.ndarray
     """(N,) target speed at each point (corner limit, limited for braking in time)."""
+    arcs: list[float]
+    """:attr:`arc` as Python floats (the per-step lookups)."""
+    speed_limits: list[float]
+    """:attr:`speed_limit` as Python floats."""
 
 
 def track_geometry(track: list[tuple[float, float, float, float]], config: PIDExpertConfig) -> TrackGeometry:
@@ -133,7 +138,15 @@ def track_geometry(track: list[tuple[float, float, float, float]], config: PIDEx
         for i in range(n - 1, -1, -1):
             nxt = limit[(i + 1) % n]
             limit[i] = min(limit[i], math.sqrt(nxt * nxt + 2.0 * config.brake_decel * seg[i]))
-    return TrackGeometry(points=points, tangents=tangents, arc=arc, length=float(seg.sum()), speed_limit=limit)
+    return TrackGeometry(
+        points=points,
+        tangents=tangents,
+        arc=arc,
+        length=float(seg.sum()),
+        speed_limit=limit,
+        arcs=arc.tolist(),
+        speed_limits=limit.tolist(),
+    )
 
 
 def _wrap(angle: float | np.ndarray) -> Any:
@@ -164,58 +177,71 @@ class PIDExpert:
         return cached[2]
 
     def __call__(self, env: gym.Env) -> np.ndarray:
+        # Two-vectors are Python floats: numpy's call overhead on them was most of the cost. Each
+        # product, sum and dot product is the same IEEE operation as numpy's, in the same order, so
+        # the labels are bit-equal to the array form's (tests/tasks/carracing/test_expert.py).
         cfg = self.config
         geo = self.geometry(env)
         car = env.unwrapped.car
         angle = car.hull.angle + 0.5 * math.pi  # the hull's forward axis is its local +y
-        fwd = np.array([math.cos(angle), math.sin(angle)])
-        left = np.array([-fwd[1], fwd[0]])
-        vel = np.array(car.hull.linearVelocity)
-        speed = float(np.hypot(*vel))
-        rear = np.array(car.hull.position) - REAR_AXLE * fwd
+        fx, fy = math.cos(angle), math.sin(angle)
+        lx, ly = -fy, fx
+        vx, vy = car.hull.linearVelocity
+        speed = float(np.hypot(vx, vy))
+        px, py = car.hull.position
+        rx, ry = px - REAR_AXLE * fx, py - REAR_AXLE * fy
 
         # Localise: nearest centre-line point, then the projection onto its segment.
-        offsets = rear - geo.points
+        offsets = np.array([rx, ry]) - geo.points
         i = int(np.argmin(np.einsum("ij,ij->i", offsets, offsets)))
-        along = float(offsets[i] @ geo.tangents[i])
-        lateral = abs(float(offsets[i] @ np.array([-geo.tangents[i, 1], geo.tangents[i, 0]])))
-        s_here = geo.arc[i] + along
+        ox, oy = offsets[i].tolist()
+        tx, ty = geo.tangents[i].tolist()
+        along = ox * tx + oy * ty
+        lateral = abs(ox * -ty + oy * tx)
+        s_here = float(geo.arc[i]) + along
 
         # Steering: pure pursuit towards the point `lookahead` further along the track. Far from the
         # track the target is far away too; capping the distance at the look-ahead keeps the turn
         # as sharp as it would be on the track, so the car heads back instead of drifting away.
         lookahead = cfg.lookahead_base + cfg.lookahead_per_speed * speed
-        d = self._point_at(geo, s_here + lookahead) - rear
-        alpha = math.atan2(float(d @ left), float(d @ fwd))
-        dist = min(float(np.hypot(*d)), lookahead)
+        qx, qy = self._point_at(geo, s_here + lookahead)
+        dx, dy = qx - rx, qy - ry
+        alpha = math.atan2(dx * lx + dy * ly, dx * fx + dy * fy)
+        dist = min(float(np.hypot(dx, dy)), lookahead)
         wheel = math.atan(WHEELBASE * 2.0 * math.sin(alpha) / dist)
         if abs(alpha) > 0.5 * math.pi:  # target behind: full lock towards it
             wheel = math.copysign(STEER_LIMIT, alpha)
-        steer = float(np.clip(-wheel, -1.0, 1.0))
+        steer = _clip(-wheel, -1.0, 1.0)
 
         # Speed: the profile here and a little ahead; lower off the tarmac, and lower when the car
         # must turn more than `free_turn` to face its target (never below `turn_speed`, so it
         # keeps moving). Normal cornering needs less than `free_turn` and is not slowed.
-        ahead = (i + np.arange(SPEED_PREVIEW)) % len(geo.points)
-        v_target = float(geo.speed_limit[ahead].min())
+        n = len(geo.points)
+        v_target = min(geo.speed_limits[(i + k) % n] for k in range(SPEED_PREVIEW))
         if lateral > TRACK_HALF_WIDTH:
             v_target = min(v_target, cfg.offtrack_speed)
         excess = max(abs(alpha) - cfg.free_turn, 0.0)
         v_target = min(v_target, max(v_target * math.cos(min(excess, 0.5 * math.pi)), cfg.turn_speed))
-        gas = float(np.clip(cfg.gas_gain * (v_target - speed), 0.0, 1.0))
-        brake = float(np.clip(cfg.brake_gain * (speed - v_target), 0.0, cfg.max_brake))
-        forward_speed = float(vel @ fwd)
+        gas = _clip(cfg.gas_gain * (v_target - speed), 0.0, 1.0)
+        brake = _clip(cfg.brake_gain * (speed - v_target), 0.0, cfg.max_brake)
+        forward_speed = vx * fx + vy * fy
         spin = max(w.omega * WHEEL_RADIUS for w in car.wheels[2:4]) - forward_speed
         if spin > cfg.max_wheel_slip:
             gas = 0.0
         return np.array([steer, gas, brake], dtype=np.float32)
 
     @staticmethod
-    def _point_at(geo: TrackGeometry, s: float) -> np.ndarray:
+    def _point_at(geo: TrackGeometry, s: float) -> tuple[float, float]:
         """Centre-line point at arc length ``s`` (wrapping round the loop), linearly interpolated."""
         s = s % geo.length
-        j = int(np.searchsorted(geo.arc, s, side="right")) - 1
+        j = bisect.bisect_right(geo.arcs, s) - 1
         nxt = (j + 1) % len(geo.points)
-        seg = geo.points[nxt] - geo.points[j]
-        seg_len = float(np.hypot(*seg))
-        return geo.points[j] + seg * ((s - geo.arc[j]) / seg_len)
+        (x0, y0), (x1, y1) = geo.points[j].tolist(), geo.points[nxt].tolist()
+        sx, sy = x1 - x0, y1 - y0
+        t = (s - geo.arcs[j]) / float(np.hypot(sx, sy))
+        return x0 + sx * t, y0 + sy * t
+
+
+def _clip(value: float, low: float, high: float) -> float:
+    """``value`` limited to ``[low, high]`` (``np.clip`` of one float)."""
+    return min(max(value, low), high)

@@ -1,0 +1,221 @@
+"""Many head-only fits as one batched problem: the refits of every lane at once.
+
+A head-only fit (:func:`~metadagger.imitation.bc.fit_bc` with ``head_only``) takes thousands of
+Adam steps on batches of ten feature rows, each step a dozen kernels too small to keep a core
+busy. :func:`fit_heads` steps many heads together instead: at step ``t`` every head takes the
+``t``-th step of its own fit (its own data, its own batch order, its own number of steps), all
+of them in one batched matrix product, one softmax and one elementwise Adam update.
+
+Every head's batch has the fit's ``batch_size`` rows, a short last batch padded with zero rows
+that a mask takes out of the loss; a head whose fit has ended keeps its weights. At this fixed
+shape a head's arithmetic does not depend on the heads beside it, nor on how many there are
+(tests/imitation/test_head_fits.py checks it), so a fit gives the same head whichever fits share
+its batch. The numbers are not bit-equal to the one-head kernel
+(:class:`~metadagger.imitation.head_adam.LinearHeadAdam`): the loss is a masked sum over the
+padded batch, not ATen's mean over a batch of its own size.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Callable, List, Sequence
+
+import torch
+
+from metadagger.errors import DivergedError, check_finite_loss
+
+
+@dataclass(frozen=True)
+class HeadFit:
+    """One head-only fit, as :func:`~metadagger.imitation.bc.fit_bc` would run it."""
+
+    head: torch.Tensor
+    """The starting head, flat float32 (weight rows, then bias: ``Policy.head_vector``)."""
+    features: torch.Tensor
+    """(N, feature_dim) float32 trunk features of the data."""
+    targets: torch.Tensor
+    """(N,) int64 class labels, or (N, out_dim) float32 vectors."""
+    orders: torch.Tensor
+    """(epochs, N) int64: each epoch's permutation of the rows (the fit's seeded shuffles)."""
+    lr: float
+    """Adam learning rate."""
+    weight_decay: float
+    """Adam's L2 term."""
+    batch_size: int
+    """Rows per step."""
+    called: str
+    """How an error names this fit."""
+
+
+@dataclass(frozen=True)
+class FittedHead:
+    """What one fit of :func:`fit_heads` made."""
+
+    head: torch.Tensor
+    """The fitted head, flat float32."""
+    losses: list[float]
+    """Mean training loss of each epoch."""
+
+
+def _batched_adam_steps(
+    params: torch.Tensor,
+    exp_avg: torch.Tensor,
+    exp_avg_sq: torch.Tensor,
+    features: torch.Tensor,
+    targets: torch.Tensor,
+    rows: torch.Tensor,
+    share: torch.Tensor,
+    live: List[int],
+    lr: float,
+    weight_decay: float,
+    discrete: bool,
+) -> torch.Tensor:
+    """Every head's steps, in lockstep, updating ``params``, ``exp_avg`` and ``exp_avg_sq`` in place.
+
+    ``params`` is (B, out_dim, d + 1): each head's weight with its bias as a last column, which the
+    ones column of ``features`` multiplies. Heads are ordered by their number of steps, longest
+    first, so step ``t``'s heads are the first ``live[t]``; ``rows[t, b]`` are head ``b``'s rows of
+    that step (indices into ``features`` and ``targets``; padding points at a zero row) and
+    ``share[t, b]`` each row's weight in the batch's mean (0 for padding). Returns each step's
+    per-row losses (T, B, batch), unweighted. Compiled by TorchScript (:func:`_compiled_steps`).
+    """
+    beta1, beta2, eps = 0.9, 0.999, 1e-8  # torch.optim.Adam's defaults, as fit_bc's
+    steps, n_heads, batch = rows.shape
+    row_losses = torch.zeros(steps, n_heads, batch)
+    for t in range(steps):
+        k = live[t]
+        x = features[rows[t, :k]]  # (k, batch, d + 1)
+        weight, avg, avg_sq = params[:k], exp_avg[:k], exp_avg_sq[:k]
+        outputs = torch.bmm(x, weight.transpose(1, 2))  # (k, batch, out)
+        if discrete:
+            labels = targets[rows[t, :k]].unsqueeze(2)
+            log_probs = torch.log_softmax(outputs, 2)
+            row_losses[t, :k] = log_probs.gather(2, labels).squeeze(2).neg()
+            grad_outputs = log_probs.exp().scatter_add_(2, labels, torch.full(labels.shape, -1.0))
+        else:
+            grad_outputs = outputs - targets[rows[t, :k]]
+            row_losses[t, :k] = (grad_outputs * grad_outputs).mean(2)
+            grad_outputs = grad_outputs * (2.0 / outputs.shape[2])
+        grad_outputs.mul_(share[t, :k].unsqueeze(2))
+        grad = torch.bmm(grad_outputs.transpose(1, 2), x)
+        if weight_decay != 0.0:
+            grad = grad.add(weight, alpha=weight_decay)
+        # torch.optim.Adam's arithmetic; every live head is at step t + 1
+        correction1 = 1.0 - beta1 ** (t + 1)
+        correction2 = 1.0 - beta2 ** (t + 1)
+        avg.lerp_(grad, 1.0 - beta1)
+        avg_sq.mul_(beta2).addcmul_(grad, grad, value=1.0 - beta2)
+        denom = (avg_sq.sqrt() / math.sqrt(correction2)).add_(eps)
+        weight.addcdiv_(avg, denom, value=-lr / correction1)
+    return row_losses
+
+
+@functools.cache
+def _compiled_steps() -> Callable[..., torch.Tensor]:
+    """:func:`_batched_adam_steps` compiled once per process, on first use."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # as head_adam's: constraints.txt pins torch
+        return torch.jit.script(_batched_adam_steps)
+
+
+def fit_heads(fits: Sequence[HeadFit], *, out_dim: int, discrete: bool) -> list[FittedHead]:
+    """Run ``fits`` as batched problems (one per learning rate, weight decay and batch size); their
+    results in order.
+
+    Raises:
+        DivergedError: a fit's epoch loss or final weight is not finite (named by its ``called``).
+    """
+    out: list[FittedHead | None] = [None] * len(fits)
+    groups: dict[tuple[float, float, int], list[int]] = {}
+    for i, fit in enumerate(fits):
+        groups.setdefault((fit.lr, fit.weight_decay, fit.batch_size), []).append(i)
+    for (lr, weight_decay, batch_size), members in groups.items():
+        heads = _fit_group([fits[i] for i in members], lr, weight_decay, batch_size, out_dim, discrete)
+        for i, fitted in zip(members, heads):
+            out[i] = fitted
+    return out  # type: ignore[return-value]
+
+
+def _fit_group(
+    fits: list[HeadFit], lr: float, weight_decay: float, batch_size: int, out_dim: int, discrete: bool
+) -> list[FittedHead]:
+    """Fits that share their optimiser settings, stepped together (longest first)."""
+    schedules = [_schedule(fit.orders, batch_size) for fit in fits]
+    order = sorted(range(len(fits)), key=lambda b: -len(schedules[b][0]))  # stable: ties keep their order
+    # one table of every fit's rows with a ones column (the bias's input), a zero row last for the padding
+    sizes = [len(fits[b].features) for b in order]
+    starts = [sum(sizes[:i]) for i in range(len(sizes))]
+    pad = sum(sizes)
+    table = torch.cat([*(fits[b].features for b in order), torch.zeros(1, fits[0].features.shape[1])])
+    features = torch.cat([table, torch.ones(len(table), 1)], 1)
+    features[pad, -1] = 0.0
+    targets = torch.cat([*(fits[b].targets for b in order), torch.zeros_like(fits[0].targets[:1])])
+    steps = len(schedules[order[0]][0])
+    rows = torch.full((steps, len(fits), batch_size), pad, dtype=torch.long)
+    share = torch.zeros(steps, len(fits), batch_size)
+    live = [0] * steps
+    for slot, (b, start) in enumerate(zip(order, starts)):
+        fit_rows, fit_counts = schedules[b]
+        real = torch.arange(batch_size).unsqueeze(0) < fit_counts.unsqueeze(1)
+        rows[: len(fit_rows), slot] = torch.where(real, fit_rows + start, pad)
+        share[: len(fit_rows), slot] = real.float() / fit_counts.unsqueeze(1).float()
+        for t in range(len(fit_rows)):
+            live[t] += 1
+    params = torch.stack([_with_bias_column(fits[b].head, out_dim) for b in order])
+    exp_avg, exp_avg_sq = torch.zeros_like(params), torch.zeros_like(params)
+    with torch.no_grad():
+        row_losses = _compiled_steps()(
+            params,
+            exp_avg,
+            exp_avg_sq,
+            features,
+            targets if discrete else targets.to(torch.float32),
+            rows,
+            share,
+            live,
+            float(lr),
+            float(weight_decay),
+            discrete,
+        )
+    step_losses = (row_losses * share).sum(2)  # (T, B): each step's mean loss
+    fitted: list[FittedHead | None] = [None] * len(fits)
+    for slot, b in enumerate(order):
+        n_steps = len(schedules[b][0])
+        head = torch.cat([params[slot, :, :-1].reshape(-1), params[slot, :, -1]])
+        fitted[b] = _finish(fits[b], head, step_losses[:n_steps, slot], schedules[b][1])
+    return fitted  # type: ignore[return-value]
+
+
+def _with_bias_column(head: torch.Tensor, out_dim: int) -> torch.Tensor:
+    """A flat head (weight rows, then bias) as (out_dim, d + 1), the bias the last column."""
+    head = head.to(torch.float32)
+    n_weight = head.numel() - out_dim
+    return torch.cat([head[:n_weight].view(out_dim, -1), head[n_weight:].unsqueeze(1)], 1)
+
+
+def _schedule(orders: torch.Tensor, batch_size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """A fit's steps: (steps, batch_size) row indices (a short last batch of an epoch repeats its
+    first rows, masked out), and each step's count of real rows."""
+    epochs, n = orders.shape
+    per_epoch = -(-n // batch_size)
+    padded = torch.zeros((epochs, per_epoch * batch_size), dtype=torch.long)
+    padded[:, :n] = orders
+    counts = torch.full((per_epoch,), batch_size, dtype=torch.long)
+    counts[-1] = n - (per_epoch - 1) * batch_size
+    return padded.view(epochs * per_epoch, batch_size), counts.repeat(epochs)
+
+
+def _finish(fit: HeadFit, head: torch.Tensor, step_losses: torch.Tensor, counts: torch.Tensor) -> FittedHead:
+    """The fit's epoch losses (each a mean over its rows), checked finite, and its head."""
+    epochs, n = fit.orders.shape
+    weighted = (step_losses.double() * counts.double()).view(epochs, -1).sum(1) / n
+    losses = weighted.tolist()
+    fix = f"lower its learning rate (now {fit.lr:g}) or check its data"
+    for epoch, loss in enumerate(losses):
+        check_finite_loss(loss, called=fit.called, epoch=epoch + 1, epochs=epochs, fix=fix)
+    if not bool(torch.isfinite(head).all()):
+        raise DivergedError(f"{fit.called} diverged: its weights are not finite after {epochs} epochs; {fix}")
+    return FittedHead(head=head.clone(), losses=losses)

@@ -1,0 +1,101 @@
+"""Batched head fits: a head does not depend on the fits beside it, and is the fit BC would make."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from metadagger.errors import DivergedError
+from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
+from metadagger.imitation.data import Dataset
+from metadagger.imitation.head_fits import HeadFit, fit_heads
+from metadagger.imitation.lanes import Lanes, run_chains
+from metadagger.policies import Policy, PolicyNet
+
+OUT, DIM = 5, 16
+
+
+def _fit(n: int, seed: int, *, discrete: bool = True, epochs: int = 3, lr: float = 1e-2) -> HeadFit:
+    generator = torch.Generator().manual_seed(seed)
+    targets = torch.randint(0, OUT, (n,), generator=generator) if discrete else torch.randn(n, OUT, generator=generator)
+    return HeadFit(
+        head=torch.randn(OUT * DIM + OUT, generator=generator) * 0.1,
+        features=torch.rand(n, DIM, generator=generator),
+        targets=targets,
+        orders=torch.stack([torch.randperm(n, generator=generator) for _ in range(epochs)]),
+        lr=lr,
+        weight_decay=0.0,
+        batch_size=4,
+        called=f"fit {seed}",
+    )
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+def test_a_head_does_not_depend_on_its_batch_mates(discrete):
+    # sizes with short last batches, one row, and more steps than the others
+    fits = [_fit(n, seed, discrete=discrete) for seed, n in enumerate([9, 1, 30, 4, 13])]
+    alone = [fit_heads([fit], out_dim=OUT, discrete=discrete)[0] for fit in fits]
+    together = fit_heads(fits, out_dim=OUT, discrete=discrete)
+    backwards = fit_heads(fits[::-1], out_dim=OUT, discrete=discrete)[::-1]
+    pairs = [fit_heads([fits[i], fits[(i + 2) % len(fits)]], out_dim=OUT, discrete=discrete)[0] for i in range(5)]
+    for mates in (together, backwards, pairs):
+        for mine, theirs in zip(alone, mates):
+            assert torch.equal(mine.head, theirs.head)
+            assert mine.losses == theirs.losses
+
+
+def test_fits_with_other_settings_are_grouped_and_each_is_as_alone():
+    fits = [_fit(10, 0, lr=1e-2), _fit(7, 1, lr=1e-3), _fit(12, 2, lr=1e-2)]
+    together = fit_heads(fits, out_dim=OUT, discrete=True)
+    for fit, theirs in zip(fits, together):
+        assert torch.equal(fit_heads([fit], out_dim=OUT, discrete=True)[0].head, theirs.head)
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+@pytest.mark.parametrize("weight_decay", [0.0, 1e-2])
+def test_a_batched_fit_is_the_fit_bc_makes_up_to_rounding(discrete, weight_decay):
+    """The same data, batch orders and Adam as fit_bc's head-only fit: equal heads and losses but
+    for the last bits (the loss is summed over a padded batch)."""
+    rng = np.random.default_rng(0)
+    net = PolicyNet(obs_shape=(8, 8, 3), n_outputs=OUT, discrete=discrete, conv_channels=(4,), kernel_sizes=(3,))
+    policy = Policy(net=net, task="test")
+    n = 23
+    labels = rng.integers(0, OUT, n) if discrete else rng.normal(size=(n, OUT)).astype(np.float32)
+    data = Dataset(obs=rng.integers(0, 255, (n, 8, 8, 3), dtype=np.uint8), labels=labels)
+    config = BCConfig(lr=1e-2, batch_size=4, epochs=5, head_only=True, seed=3, weight_decay=weight_decay)
+    cache = FeatureCache(policy)
+    request = head_fit(policy, data, config, cache, called="the test's fit")
+    [batched] = fit_heads([request], out_dim=OUT, discrete=discrete)
+    losses = fit_bc(policy, data, config, cache=cache)["loss"]
+    torch.testing.assert_close(batched.head, policy.head_vector(), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(batched.losses, losses, rtol=1e-5)
+    assert not torch.equal(batched.head, request.head)  # it did fit
+
+
+def test_a_diverging_fit_is_named():
+    bad = _fit(8, 0)
+    bad.features[3, 1] = float("inf")
+    with pytest.raises(DivergedError, match="fit 0 diverged"):
+        fit_heads([_fit(8, 1), bad], out_dim=OUT, discrete=True)
+
+
+def test_fits_asked_for_in_chains_are_the_fits_alone():
+    net = PolicyNet(obs_shape=(8, 8, 3), n_outputs=OUT, discrete=True, conv_channels=(4,), kernel_sizes=(3,))
+    fits = [[_fit(9, 0), _fit(5, 1)], [_fit(14, 2)], [_fit(3, 3), _fit(6, 4), _fit(11, 5)]]
+
+    def chain(mine):
+        return lambda lane: [lane.fit(fit).head for fit in mine]
+
+    with Lanes(_NoTask(), net, width=2) as lanes:
+        heads = run_chains(lanes, [chain(mine) for mine in fits])
+    for mine, got in zip(fits, heads):
+        for fit, head in zip(mine, got):
+            assert torch.equal(fit_heads([fit], out_dim=OUT, discrete=True)[0].head, head)
+
+
+class _NoTask:
+    """A task whose envs are never made: the chains above only fit."""
+
+    def make_env(self):  # pragma: no cover - never called
+        raise AssertionError("no episode was asked for")
