@@ -8,6 +8,8 @@ import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
+from metadagger.imitation.bc import FeatureCache
+from metadagger.imitation.data import images_kept, take_rows
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.lanes import EpisodeRequest, Lanes, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
@@ -20,8 +22,8 @@ def _heads(task, n: int) -> list[np.ndarray]:
     return [make_policy(task, seed=10 + i).head_vector().numpy() for i in range(n)]
 
 
-def _same(a: Trajectory, b: Trajectory, *, features: bool = True) -> None:
-    for name in ("obs", "expert_labels", "learner_actions", "step_rewards", "final_obs"):
+def _same(a: Trajectory, b: Trajectory, *, features: bool = True, images: bool = True) -> None:
+    for name in ("obs", "expert_labels", "learner_actions", "step_rewards", "final_obs")[0 if images else 1 :]:
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
     assert (a.reward, a.steps, a.success, a.terminated, a.early_stopped, a.seed) == (
         b.reward,
@@ -42,7 +44,7 @@ def test_a_lane_acts_with_its_head_on_its_row_of_the_padded_batch(discrete):
     task = CorridorTask(discrete=discrete)
     policy = make_policy(task, seed=3)
     with Lanes(task, policy.net, width=3) as lanes:
-        [laned] = lanes.run([EpisodeRequest(SEEDS[0], policy.head_vector().numpy())])
+        [laned] = lanes.run([EpisodeRequest(SEEDS[0], policy.head_vector().numpy(), keep_images=True)])
     batch = np.zeros((len(laned.obs), 3, *laned.obs.shape[1:]), np.uint8)
     batch[:, 0] = laned.obs
     for t, padded in enumerate(batch):
@@ -62,7 +64,7 @@ def test_an_episode_does_not_depend_on_the_episodes_beside_it_nor_on_its_lane():
     task = CorridorTask(discrete=True)
     net = make_policy(task, seed=3).net
     heads = _heads(task, len(SEEDS))
-    requests = [EpisodeRequest(seed, head) for seed, head in zip(SEEDS, heads)]
+    requests = [EpisodeRequest(seed, head, keep_images=True) for seed, head in zip(SEEDS, heads)]
     with Lanes(task, net, width=4) as lanes:
         together = lanes.run(requests)
         backwards = lanes.run(requests[::-1])[::-1]
@@ -83,7 +85,11 @@ def test_the_expert_drives_a_lane_without_a_head_and_early_stops_and_caps_cut_as
     head = policy.head_vector().numpy()
     with Lanes(task, policy.net, width=3) as lanes:
         got = lanes.run(
-            [EpisodeRequest(1, None), EpisodeRequest(1, head, early_stop=0.5), EpisodeRequest(2, head, max_steps=2)]
+            [
+                EpisodeRequest(1, None, keep_images=True),
+                EpisodeRequest(1, head, early_stop=0.5, keep_images=True),
+                EpisodeRequest(2, head, max_steps=2, keep_images=True),
+            ]
         )
     _same(demo, got[0], features=False)
     assert got[0].features.shape == (demo.steps, policy.net.feature_dim) and got[0].features.dtype == np.float32
@@ -106,7 +112,7 @@ def _chain(seeds: tuple[int, ...], head: np.ndarray):
     def body(lane):
         out, shifted = [], head.copy()
         for seed in seeds:
-            trajectory = lane.roll(EpisodeRequest(seed, shifted))
+            trajectory = lane.roll(EpisodeRequest(seed, shifted, keep_images=True))
             out.append(trajectory)
             shifted = shifted + np.float32(0.01 * trajectory.steps)
         return out
@@ -151,3 +157,19 @@ def test_a_failing_chain_stops_the_others_and_its_error_reaches_the_caller():
         with pytest.raises(UserError, match="a chain's own error"):
             run_chains(lanes, [long, failing, long])
     assert finished == []
+
+
+def test_a_laned_episode_keeps_its_features_and_no_image_unless_asked():
+    task = CorridorTask(discrete=True)
+    policy = make_policy(task, seed=3)
+    head = policy.head_vector().numpy()
+    with Lanes(task, policy.net, width=2) as lanes:
+        kept, bare = lanes.run([EpisodeRequest(1, head, keep_images=True), EpisodeRequest(1, head)])
+    _same(kept, bare, images=False)
+    assert images_kept(kept.obs) and not images_kept(bare.obs)
+    assert bare.obs.shape == kept.obs.shape and bare.obs.base.nbytes == 1  # one byte, whatever the length
+    assert not images_kept(take_rows(bare.obs, np.arange(len(bare.obs)) % 2 == 0))
+    data = bare.to_dataset()
+    np.testing.assert_array_equal(FeatureCache(policy).features_of(data).numpy(), kept.features)
+    with pytest.raises(RuntimeError, match="not kept"):
+        FeatureCache(policy).features(bare.obs)

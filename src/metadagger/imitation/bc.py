@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch.nn.utils import parameters_to_vector
 
 from metadagger.errors import DivergedError, UserError, check_finite_loss
-from metadagger.imitation.data import Aggregate, Dataset
+from metadagger.imitation.data import Aggregate, Dataset, images_kept
 from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.imitation.head_fits import HeadFit
 from metadagger.imitation.selection import EpochSelector
@@ -215,6 +215,11 @@ class FeatureCache:
         in batches of ``batch_size``: the batches (and so the numbers) are those of one call on
         the arrays' concatenation.
         """
+        if not all(images_kept(obs) for obs in images):
+            raise RuntimeError(
+                "features were asked of images that were not kept (a laned episode keeps only the "
+                "features it acted on): read them with FeatureCache.features_of from the episode's dataset"
+            )
         images = [np.ascontiguousarray(obs) for obs in images]
         keys = [[hashlib.blake2b(image, digest_size=16).digest() for image in obs] for obs in images]
         missing: dict[bytes, tuple[int, int]] = {}

@@ -9,6 +9,24 @@ from typing import Sequence
 import numpy as np
 
 
+def unkept_images(count: int, shape: tuple[int, ...]) -> np.ndarray:
+    """A stand-in for ``count`` uint8 images of ``shape`` that were not kept: read-only, every stride
+    zero, so it holds no memory however long the episode (:func:`images_kept` tells it apart)."""
+    return np.broadcast_to(np.zeros((), dtype=np.uint8), (count, *shape))
+
+
+def images_kept(obs: np.ndarray) -> bool:
+    """Whether ``obs`` holds images rather than :func:`unkept_images`' stand-in."""
+    return obs.size <= 1 or any(obs.strides)
+
+
+def take_rows(obs: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``obs[rows]`` (a mask or indices), a stand-in staying a stand-in rather than a copy of zeros."""
+    if images_kept(obs):
+        return obs[rows]
+    return unkept_images(len(np.arange(len(obs))[rows]), obs.shape[1:])
+
+
 # eq=False: a dataset is compared (and hashed) by identity, so it can key the feature cache's memo
 @dataclass(frozen=True, eq=False)
 class Dataset:

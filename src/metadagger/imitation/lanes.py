@@ -85,6 +85,9 @@ class EpisodeRequest:
     None: none."""
     max_steps: int | None = None
     """Step cap (not a success); None: the env's own end."""
+    keep_images: bool = False
+    """Keep the acted-on images in the trajectory; by default only their features are kept (the
+    trajectory's ``obs`` is a stand-in, :func:`~metadagger.imitation.data.unkept_images`)."""
 
 
 class _Lane:
@@ -93,7 +96,9 @@ class _Lane:
     def __init__(self, env: Any, request: EpisodeRequest, out_dim: int) -> None:
         self.request = request
         stop = None if request.early_stop is None else CosineEarlyStop(threshold=request.early_stop)
-        self.episode = EpisodeRecorder(env, seed=request.seed, max_steps=request.max_steps, early_stop=stop)
+        self.episode = EpisodeRecorder(
+            env, seed=request.seed, max_steps=request.max_steps, early_stop=stop, keep_images=request.keep_images
+        )
         self.weight: torch.Tensor | None = None
         self.bias: torch.Tensor | None = None
         if request.head is not None:

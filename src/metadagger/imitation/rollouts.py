@@ -8,7 +8,7 @@ from typing import Any, Callable, Iterable, Protocol
 import gymnasium as gym
 import numpy as np
 
-from metadagger.imitation.data import Dataset
+from metadagger.imitation.data import Dataset, unkept_images
 from metadagger.policies import Policy
 from metadagger.tasks.base import Task
 from metadagger.utils.executors import in_order, make_executor
@@ -30,7 +30,9 @@ class Trajectory:
     """One episode in a learner env.
 
     Attributes:
-        obs: (T, H, W, C) uint8 observations the learner acted on.
+        obs: (T, H, W, C) uint8 observations the learner acted on; for an episode whose images
+            were not kept (:func:`~metadagger.imitation.data.images_kept`), a stand-in of that
+            shape that holds no memory.
         expert_labels: the expert's label for each observation: (T,) int64 or (T, d) float32.
         learner_actions: the action taken at each observation, same layout as ``expert_labels``.
         reward: summed env reward.
@@ -90,20 +92,30 @@ class EpisodeRecorder:
         seed: reset seed.
         max_steps: stop after this many steps even if the env has not ended (not a success).
         early_stop: stops the episode as a failure when its ``update`` returns True.
+        keep_images: keep every acted-on image in the trajectory; False gives a stand-in
+            (:func:`~metadagger.imitation.data.unkept_images`) for an episode whose features are all that is read later.
     """
 
     def __init__(
-        self, env: gym.Env, *, seed: int, max_steps: int | None = None, early_stop: EarlyStop | None = None
+        self,
+        env: gym.Env,
+        *,
+        seed: int,
+        max_steps: int | None = None,
+        early_stop: EarlyStop | None = None,
+        keep_images: bool = True,
     ) -> None:
         if max_steps is not None and max_steps <= 0:
             raise ValueError(f"max_steps must be positive or None, got {max_steps}")
         self.env, self.seed, self.max_steps, self.early_stop = env, int(seed), max_steps, early_stop
+        self.keep_images = keep_images
         self.discrete = isinstance(env.action_space, gym.spaces.Discrete)
         self.obs, self.info = env.reset(seed=seed)
         self.variation = self.info.get("variation")
         if early_stop is not None:
             early_stop.reset()
         self.observations: list[np.ndarray] = []
+        self.steps = 0
         self.labels: list[Any] = []
         self.actions: list[Any] = []
         self.rewards: list[float] = []
@@ -117,8 +129,9 @@ class EpisodeRecorder:
     def step(self, action: Any) -> bool:
         """Take ``action`` on the current observation; True when the episode has ended."""
         label = self.info["expert_label"]
-        # copied because an env may reuse its observation buffer between steps
-        self.observations.append(np.array(self.obs, dtype=np.uint8, copy=True))
+        if self.keep_images:  # copied because an env may reuse its observation buffer between steps
+            self.observations.append(np.array(self.obs, dtype=np.uint8, copy=True))
+        self.steps += 1
         self.labels.append(label)
         self.actions.append(action)
         self.obs, step_reward, terminated, truncated, self.info = self.env.step(action)
@@ -131,13 +144,14 @@ class EpisodeRecorder:
         if terminated or truncated:
             self.success = bool(self.info.get("is_success", False))
             return True
-        return self.max_steps is not None and len(self.observations) >= self.max_steps
+        return self.max_steps is not None and self.steps >= self.max_steps
 
     def trajectory(self) -> Trajectory:
         """The finished episode."""
-        steps = len(self.observations)
+        steps = self.steps
+        images = np.asarray(self.obs).shape
         return Trajectory(
-            obs=np.stack(self.observations),
+            obs=np.stack(self.observations) if self.keep_images else unkept_images(steps, images),
             expert_labels=stack_labels(self.labels, self.discrete),
             learner_actions=stack_labels(self.actions, self.discrete),
             reward=float(sum(self.rewards)),

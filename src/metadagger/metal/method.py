@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
-from metadagger.imitation.data import Aggregate, Dataset
+from metadagger.imitation.data import Aggregate, Dataset, take_rows
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.gates import Episode, Gate, GateMemory, Labelled
 from metadagger.imitation.lanes import EpisodeRequest, Lane, Lanes, current_lane, run_chains
@@ -284,7 +284,7 @@ def dagger_rounds(
         labelled = None
         if keep.any():
             labelled = Dataset(
-                obs=trajectory.obs[keep],
+                obs=take_rows(trajectory.obs, keep),
                 labels=trajectory.expert_labels[keep],
                 features=None if trajectory.features is None else trajectory.features[keep],
             )

@@ -135,3 +135,27 @@ def test_loading_a_wrong_file_is_a_checkpoint_error(tmp_path):
 def test_distilled_expert_succeeds():
     expert = distill_fetch_expert(DistillConfig())
     assert np.mean(expert_success(seeds=range(20), expert=expert)) >= 0.9
+
+
+def test_the_state_read_is_upstreams_whole_observation_to_the_bit():
+    """read_fetch_state reads three positions, not upstream's whole observation: the same values, on
+    every step of an episode with a noisy grasp and a drop."""
+    expert = FetchExpert()
+    fetch = gym.make(UPSTREAM_ID).unwrapped
+    rng = np.random.default_rng(0)
+    try:
+        fetch.reset(seed=1)
+        lower_goal_to_object(fetch)
+        for step in range(60):
+            state = read_fetch_state(fetch)
+            grip, cube, _, fingers, *_ = fetch.generate_mujoco_observations()
+            np.testing.assert_array_equal(state.grip_pos, grip, err_msg=f"step {step}")
+            np.testing.assert_array_equal(state.object_pos, np.ravel(cube), err_msg=f"step {step}")
+            assert state.gripper_opening == float(np.sum(fingers))
+            action = expert.act(state)
+            action[:3] += rng.normal(0, 0.3, 3).astype(np.float32)
+            if step in range(30, 36):
+                action[3] = OPEN
+            fetch.step(np.clip(action, -1, 1))
+    finally:
+        fetch.close()
