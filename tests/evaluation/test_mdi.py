@@ -360,3 +360,25 @@ def test_a_conditioned_initialiser_reads_the_seed_context(toy_run, tmp_path):
     fit_bc(policy, demo, bc, cache=cache)
     saved = load_tensors(head_dir(tmp_path, "dagger-mdi-conditioned", "oneshot") / f"{seed}.safetensors")["head"]
     assert torch.equal(saved, policy.head_vector())
+
+
+def test_seeds_in_lanes_do_not_depend_on_workers_blocks_or_resume(toy_run, evaluated, tmp_path):
+    run, _ = toy_run
+    task = CorridorTask(discrete=False)
+    laned = dataclasses.replace(CONFIG, lanes=2)
+    tables = []
+    for name, steps in (("one", [(laned, 1)]), ("two", [(laned, 2)]), ("resumed", [(laned, 1), (laned, 1)])):
+        copy_run(run, tmp_path / name)
+        if name == "resumed":
+            steps[0] = (dataclasses.replace(laned, seeds=CONFIG.seeds[-1:]), 1)
+        for config, workers in steps:
+            rows = evaluate_mdi(task, RunLayout(tmp_path / name), config, StageOptions(workers=workers, progress=False))
+        tables.append((tmp_path / name / "eval" / "mdi.csv").read_bytes())
+    assert tables[0] == tables[1] == tables[2]
+    # the same protocol: every method and seed has its row, and two shots only after a failed one
+    assert [(r["method"], r["seed"]) for r in rows] == [(r["method"], r["seed"]) for r in evaluated[1]]
+    assert all(r["two_shot_run"] == (not r["one_shot_success"]) for r in rows)
+    with pytest.raises(UserError, match="lanes"):  # rows made alone are not taken for rows made in lanes
+        evaluate_mdi(task, RunLayout(evaluated[0]), laned, StageOptions(workers=1, progress=False))
+    with pytest.raises(UserError, match="mdi.lanes must be an integer from 1 to 256, got 0"):
+        dataclasses.replace(CONFIG, lanes=0)

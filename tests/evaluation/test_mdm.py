@@ -48,13 +48,13 @@ def _copy(layout: RunLayout, to: Path) -> RunLayout:
     return RunLayout(to)
 
 
-def _evaluate(layout: RunLayout, seeds, methods, **kwargs) -> list[dict]:
+def _evaluate(layout: RunLayout, seeds, methods, lanes: int = 1, **kwargs) -> list[dict]:
     return evaluate_run(
         CorridorTask(),
         layout,
-        EvalConfig(seeds=tuple(seeds), methods=tuple(methods)),
+        EvalConfig(seeds=tuple(seeds), methods=tuple(methods), lanes=lanes),
         bc=BC,
-        options=StageOptions(workers=1, progress=False, **kwargs),
+        options=StageOptions(**{"workers": 1, "progress": False, **kwargs}),
     )
 
 
@@ -137,3 +137,29 @@ def test_a_conditioned_mapper_reads_the_seed_context_from_the_bc_rollout(toy_run
         assert table["conditioned", seed]["unlabelled_steps"] == unlabelled.steps == table["bc", seed]["steps"]
         assert table["conditioned", seed]["expert_queries"] == len(demo)
     assert "unlabelled_steps" in read_csv(layout.eval_table("mdm"))[0]
+
+
+def test_seeds_in_lanes_do_not_depend_on_workers_blocks_or_resume(toy_run, tmp_path):
+    """Seeds evaluated in blocks of lanes: the same table and heads with 1 or 2 workers and after a
+    run that made part of the seeds; rows made alone are not taken for rows made in lanes."""
+    methods = ("pistar-head", "mean-da")
+    one, two, resumed = (_copy(toy_run, tmp_path / name) for name in ("one", "two", "resumed"))
+    rows = _evaluate(one, SEEDS, methods, lanes=2)  # a block of 2 and a block of 1
+    assert _evaluate(two, SEEDS, methods, lanes=2, workers=2) == rows
+    _evaluate(resumed, SEEDS[1:2], methods, lanes=2)
+    assert _evaluate(resumed, SEEDS, methods, lanes=2) == rows
+    for layout in (two, resumed):
+        assert layout.eval_table("mdm").read_bytes() == one.eval_table("mdm").read_bytes()
+        for seed in SEEDS:
+            name = f"{seed}.safetensors"
+            assert (layout.heads("oneshot-mean-da") / name).read_bytes() == (
+                one.heads("oneshot-mean-da") / name
+            ).read_bytes()
+    table = {(r["method"], r["seed"]): r["success"] for r in rows}
+    assert all(table["pistar-head", seed] and not table["mean-da", seed] for seed in SEEDS)
+    alone = _copy(toy_run, tmp_path / "alone")
+    _evaluate(alone, SEEDS, methods)
+    with pytest.raises(UserError, match="lanes"):
+        _evaluate(alone, SEEDS, methods, lanes=2)
+    with pytest.raises(UserError, match="evaluate.lanes must be an integer from 1 to 256, got 0"):
+        EvalConfig(lanes=0)

@@ -500,8 +500,7 @@ def run_benchmark(
         )
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
-    if config.lanes != 1:  # stamped unless default: rows made alone stay current
-        settings.update(lanes=config.lanes, **lanes_stamp(config.lanes))
+    settings.update(lanes_stamp(config.lanes))  # stamped unless 1: rows made alone stay current
     mdi_mapper = mdi.mapper if with_mdi and mdi is not None else None
     stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi_mapper)
     log = RowLog(layout.benchmark_log)

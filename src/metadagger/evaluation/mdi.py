@@ -42,10 +42,12 @@ from metadagger.errors import UserError
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
+from metadagger.imitation.lanes import check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper, load_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
 from metadagger.metal.groundtruth import cached_groundtruth
+from metadagger.metal.lane_blocks import in_blocks
 from metadagger.metal.method import (
     SeedLearner,
     bc_head,
@@ -63,6 +65,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import save_tensors
 from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 #: The three methods of Table 6, in table order.
 METHODS = ("dagger-mdi", "dagger-bc", "dagger")
@@ -122,6 +125,10 @@ class MDIConfig:
     """Further mapper kinds that initialise DAgger-MDI, each in rows of method ``dagger-mdi-<kind>``
     (the Fetch presets: the controls ``mean-da`` and ``pistar-head``, and in the family's also
     ``conditioned``); () for none."""
+    lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
+    """Seeds run together, in blocks of this many stepped in lockstep lanes, one trunk forward per
+    step at this batch shape (:mod:`metadagger.imitation.lanes`); 1 runs each seed alone. The
+    rows depend on it, never on the workers."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -133,6 +140,7 @@ class MDIConfig:
                 "mdi.bc.head_only and mdi.dagger_bc.head_only must be true: only layer n is initialised and fitted"
             )
         check_threshold("mdi.early_stop", self.early_stop)
+        check_lanes("mdi.lanes", self.lanes)
         if self.mapper not in kind_names():
             raise UserError(f"mdi.mapper must be one of {', '.join(kind_names())}, got {self.mapper!r}")
         if self.dagger_init not in DAGGER_INITS:
@@ -204,7 +212,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
         context = None
         if any(mapper.needs_context for mapper in mappers.values()):
             rolled = learner.roll(w_bc, early_stop=job.context_early_stop)
-            context = seed_context(learner.cache, data.obs, rolled.obs)
+            context = seed_context(learner.cache, data, rolled.to_dataset())
         inits = {method: map_head(mapper, w_bc, context) for method, mapper in mappers.items()}
         if "dagger-bc" in job.methods:
             inits["dagger-bc"] = w_bc
@@ -287,6 +295,7 @@ def mdi_stamps(
         **kernel_stamp(),
         **task_stamp(task),
         **stamp_of(config, drop=("seeds", "mapper", "controls")),
+        **lanes_stamp(config.lanes),
         "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
     }
     kinds = config.kinds
@@ -362,7 +371,8 @@ def evaluate_mdi(
             head = torch.from_numpy(np.array(head))  # a copy: arrays from Ray workers are read-only
             save_tensors(layout.heads(head_folder(method, shot)) / f"{result['seed']}.safetensors", {"head": head})
 
-    drive(evaluate_mdi_seed, jobs, log=log, stamps=stamps, save=save, options=options, desc="mdi")
+    work, units = in_blocks(evaluate_mdi_seed, jobs, config.lanes)
+    drive(work, units, log=log, stamps=stamps, save=save, options=options, desc="mdi")
     rows = log.rows(config.seeds, stamps)
     write_csv(layout.eval_table("mdi"), rows, fields=MDI_FIELDS)
     return rows

@@ -11,7 +11,7 @@ saved (``eval/heads/<method>/<seed>.safetensors``, tensor ``head``) so any row c
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -20,9 +20,11 @@ import torch
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import ROW_FIELDS, write_csv
 from metadagger.imitation.bc import BCConfig
+from metadagger.imitation.lanes import check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
+from metadagger.metal.lane_blocks import in_blocks
 from metadagger.metal.method import SeedLearner, bc_head, demonstration, map_head, one_shot, seed_context, seeded
 from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, Stamp, drive, plan
 from metadagger.runfolder.layout import RunLayout
@@ -31,6 +33,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import save_tensors
 from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 #: Prefix of the one-shot rows of a mapper kind: ``oneshot-<kind>``.
 ONESHOT_PREFIX = "oneshot-"
@@ -47,8 +50,13 @@ class EvalConfig:
     tam, the ridge baseline and the controls mean-da and pistar-head."""
     oneshot: bool = True
     """Also run one-shot learning for every mapper that fails on a seed (Tables 3-5)."""
+    lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
+    """Seeds evaluated together, in blocks of this many stepped in lockstep lanes, one trunk
+    forward per step at this batch shape (:mod:`metadagger.imitation.lanes`); 1 evaluates each
+    seed alone. The rows depend on it, never on the workers."""
 
     def __post_init__(self) -> None:
+        check_lanes("evaluate.lanes", self.lanes)
         if not self.seeds:
             raise UserError("evaluate.seeds must not be empty")
         unknown = sorted(set(self.methods) - set(kind_names()))
@@ -105,7 +113,10 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
             # the context's rollout is never labelled
             reuse = bc_trajectory is not None and job.early_stop is None
             rolled = bc_trajectory if reuse else learner.roll(w_bc, early_stop=job.early_stop)
-            context, unlabelled = seed_context(learner.cache, demo.obs, rolled.obs), {"unlabelled_steps": rolled.steps}
+            context, unlabelled = (
+                seed_context(learner.cache, demo, rolled.to_dataset()),
+                {"unlabelled_steps": rolled.steps},
+            )
         for kind, mapper in mappers.items():
             extra = unlabelled if mapper.needs_context else {}
             mapped = map_head(mapper, w_bc, context)
@@ -127,6 +138,7 @@ def mdm_stamps(
         **task_stamp(task),
         "bc": stamp_of(bc),
         "oneshot": config.oneshot,
+        **lanes_stamp(config.lanes),
         "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
     }
     return {
@@ -193,7 +205,8 @@ def evaluate_run(
             head = torch.from_numpy(np.array(head))  # a copy: arrays from Ray workers are read-only
             save_tensors(layout.heads(method) / f"{result['seed']}.safetensors", {"head": head})
 
-    drive(evaluate_seed, jobs, log=log, stamps=stamps, save=save, options=options, desc="evaluate")
+    work, units = in_blocks(evaluate_seed, jobs, config.lanes)
+    drive(work, units, log=log, stamps=stamps, save=save, options=options, desc="evaluate")
     rows = log.rows(config.seeds, stamps)
     # the column appears only where a mapper read a context, so other runs' tables keep their form
     fields = ROW_FIELDS + (("unlabelled_steps",) if any("unlabelled_steps" in r for r in rows) else ())

@@ -49,9 +49,9 @@ LANE_NUMERICS = 2
 
 
 def lanes_stamp(width: int) -> dict[str, int]:
-    """The lanes' part of a stage's stamp: nothing for width 1 (every episode alone), else
-    :data:`LANE_NUMERICS` (the stamp records the width with the stage's config)."""
-    return {} if width == 1 else {"lane_numerics": LANE_NUMERICS}
+    """The lanes' part of a stage's stamp: nothing for width 1 (every episode alone, as before
+    lanes existed), else the width and :data:`LANE_NUMERICS`."""
+    return {} if width == 1 else {"lanes": width, "lane_numerics": LANE_NUMERICS}
 
 
 def check_lanes(name: str, value: Any) -> None:
