@@ -37,6 +37,7 @@ from metadagger.mapping.diagnostics import canonical_heads, function_error, memo
 from metadagger.mapping.mappers import Mapper
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperConfig, MapperJob, mapper_stamp, train_mappers
+from metadagger.metal.lane_blocks import in_blocks
 from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
 from metadagger.metal.store import PairSplit
 from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, drive, plan
@@ -135,6 +136,8 @@ def collect_seed_data(
         for p in todo
     ]
     stored = {seed: i for i, seed in enumerate(split.val_seeds)}
+    # pairs made in lanes are made again in lanes of the same width: a pair depends on the width only
+    work, units = in_blocks(diagnose_seed, [j for j in jobs if j.methods], pairs.lanes)
 
     def save(result: dict[str, Any]) -> None:
         seed = result["seed"]
@@ -152,8 +155,8 @@ def collect_seed_data(
             save_tensors(layout.diagnostics_seed(what, seed), tensors, metadata={"seed": str(seed)})
 
     drive(
-        diagnose_seed,
-        [j for j in jobs if j.methods],
+        work,
+        units,
         log=log,
         stamps=stamps,
         save=save,
