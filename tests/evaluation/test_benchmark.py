@@ -18,7 +18,7 @@ from metadagger.evaluation.methods import GateKey
 from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig
-from metadagger.imitation.rollouts import collect
+from metadagger.imitation.collect import collect
 from metadagger.metal.method import SeedLearner, bc_head, demonstration, seeded
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout

@@ -16,8 +16,9 @@ from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_m
 from metadagger.evaluation.report_mdi import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.collect import collect
 from metadagger.imitation.early_stop import CosineEarlyStop
-from metadagger.imitation.rollouts import collect, rollout
+from metadagger.imitation.rollouts import rollout
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.metal.method import seed_context

@@ -15,7 +15,8 @@ from metadagger.errors import UserError
 from metadagger.evaluation.mdm import EvalConfig, evaluate_run
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
-from metadagger.imitation.rollouts import collect, rollout
+from metadagger.imitation.collect import collect
+from metadagger.imitation.rollouts import rollout
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
 from metadagger.metal.method import seed_context

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from toy_task import TOY_ARCH, CorridorTask
 
+from metadagger.imitation.collect import collect
 from metadagger.imitation.data import Dataset
-from metadagger.imitation.rollouts import collect
 from metadagger.policies import Policy, make_policy
 
 

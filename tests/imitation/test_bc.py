@@ -274,7 +274,7 @@ import torch
 from toy_task import TOY_ARCH, CorridorTask
 from torch.nn.utils import parameters_to_vector
 from metadagger.imitation.bc import BCConfig, fit_bc
-from metadagger.imitation.rollouts import collect
+from metadagger.imitation.collect import collect
 from metadagger.policies import make_policy
 torch.set_num_threads(1)
 task = CorridorTask(discrete=True)

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 from toy_task import TOY_ARCH, CorridorTask
 
-from metadagger.imitation.rollouts import collect, rollout
+from metadagger.imitation.collect import collect
+from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.rollouts import rollout
 from metadagger.policies import make_policy
 
 
@@ -113,3 +115,21 @@ def test_evaluation_rows_are_made_where_the_episodes_run(task, policy):
     rows = evaluate_policy(task, policy, seeds, progress=False, workers=2)
     assert rows == [episode_row(t) for t in collect(task, seeds, policy=policy)]
     assert [r["seed"] for r in rows] == seeds
+
+
+def test_episodes_in_lanes_do_not_depend_on_the_pool_nor_on_their_lane_mates(task, policy):
+    seeds = [7, 2, 9, 4, 1, 8, 3, 6, 5]
+    laned = collect(task, seeds, policy=policy, lanes=4)
+    pooled = collect(task, seeds, policy=policy, lanes=4, workers=2)
+    alone = [collect(task, [seed], policy=policy, lanes=4)[0] for seed in seeds]
+    unlaned = collect(task, seeds, policy=policy)
+    assert [t.seed for t in laned] == seeds
+    for a, b, c, d in zip(laned, pooled, alone, unlaned):
+        assert a.features is None  # the features belong to the trunk of the moment; the images stay
+        for other in (b, c):
+            np.testing.assert_array_equal(a.obs, other.obs)
+            np.testing.assert_array_equal(a.learner_actions, other.learner_actions)
+            assert (a.reward, a.success, a.steps) == (other.reward, other.success, other.steps)
+        np.testing.assert_array_equal(a.obs[0], d.obs[0])  # the same seed's episode, acted on at another batch shape
+    with pytest.raises(ValueError, match="early stop"):
+        collect(task, seeds, policy=policy, lanes=4, early_stop_factory=CosineEarlyStop)

@@ -11,9 +11,9 @@ from toy_task import TOY_ARCH
 from metadagger.errors import UserError
 from metadagger.imitation import selection
 from metadagger.imitation.bc import BCConfig, fit_bc, fit_or_resume
+from metadagger.imitation.collect import collect
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.episodes import evaluate_policy
-from metadagger.imitation.rollouts import collect
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import load_policy, make_policy
 

@@ -16,8 +16,8 @@ minari = pytest.importorskip("minari")
 from test_groundtruth_pairs import GT, PAIRS  # noqa: E402
 
 from metadagger.errors import UserError  # noqa: E402
+from metadagger.imitation.collect import collect  # noqa: E402
 from metadagger.imitation.minari_io import read_demonstrations  # noqa: E402
-from metadagger.imitation.rollouts import collect  # noqa: E402
 from metadagger.metal.export import export_run  # noqa: E402
 from metadagger.metal.groundtruth import train_groundtruth  # noqa: E402
 from metadagger.metal.pairs import collect_pairs, run_pair  # noqa: E402

@@ -19,9 +19,15 @@ from toy_task import CorridorTask
 from metadagger.errors import CheckpointError, UserError
 from metadagger.evaluation.report_run import groundtruth_section
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.collect import collect
 from metadagger.imitation.early_stop import CosineEarlyStop
-from metadagger.imitation.rollouts import collect, rollout
-from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
+from metadagger.imitation.rollouts import rollout
+from metadagger.metal.groundtruth import (
+    GroundTruthConfig,
+    groundtruth_changes,
+    head_from_groundtruth,
+    train_groundtruth,
+)
 from metadagger.metal.method import seed_context
 from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
 from metadagger.metal.store import PairStore
@@ -63,6 +69,17 @@ def gt_run(tmp_path_factory) -> Path:
     run = tmp_path_factory.mktemp("run")
     train_groundtruth(CorridorTask(), GT, RunLayout(run), progress=False)
     return run
+
+
+def test_pistar_in_lanes_does_not_depend_on_workers_and_is_not_taken_for_pistar_made_alone(tmp_path):
+    laned = dataclasses.replace(GT, lanes=3)
+    one, two = RunLayout(tmp_path / "one"), RunLayout(tmp_path / "two")
+    metrics = train_groundtruth(CorridorTask(), laned, one, progress=False)
+    assert train_groundtruth(CorridorTask(), laned, two, progress=False, workers=2) == metrics
+    assert one.groundtruth.read_bytes() == two.groundtruth.read_bytes()
+    assert any("lanes" in change for change in groundtruth_changes(CorridorTask(), GT, one))
+    with pytest.raises(UserError, match="groundtruth.lanes must be an integer from 1 to 256, got 0"):
+        dataclasses.replace(GT, lanes=0)
 
 
 def test_groundtruth_writes_policy_metrics_and_round_checkpoints(gt_run):

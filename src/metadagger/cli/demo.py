@@ -12,11 +12,11 @@ from pathlib import Path
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
+from metadagger.imitation.collect import collect
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.episodes import evaluate_policy
 from metadagger.imitation.metrics import summarize
 from metadagger.imitation.minari_io import read_demonstrations
-from metadagger.imitation.rollouts import collect
 from metadagger.imitation.whole_policy_dagger import DAggerConfig, run_whole_policy_dagger
 from metadagger.pipeline.run_config import load_preset
 from metadagger.policies import make_policy

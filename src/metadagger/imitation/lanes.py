@@ -178,11 +178,11 @@ class Lanes:
             return int(out.argmax(dim=1)[0])
         return out[0].numpy().astype(np.float32, copy=True)
 
-    def run(self, requests: Sequence[EpisodeRequest]) -> list[Trajectory]:
+    def run(self, requests: Sequence[EpisodeRequest], *, each: Callable[[Trajectory], Any] | None = None) -> list[Any]:
         """Every episode of ``requests``, in lanes, each one started in the first free lane in
-        request order; the trajectories in request order."""
+        request order; the trajectories (or ``each`` of each, applied as it ends) in request order."""
         queue = deque(enumerate(requests))
-        out: list[Trajectory | None] = [None] * len(requests)
+        out: list[Any] = [None] * len(requests)
         owner: dict[int, int] = {}
         while queue or self.busy():
             for lane in self.free():
@@ -191,8 +191,8 @@ class Lanes:
                 owner[lane], request = queue.popleft()
                 self.start(lane, request)
             for lane, trajectory in self.step():
-                out[owner.pop(lane)] = trajectory
-        return out  # type: ignore[return-value]
+                out[owner.pop(lane)] = trajectory if each is None else each(trajectory)
+        return out
 
     def close(self) -> None:
         """Close every lane's env."""

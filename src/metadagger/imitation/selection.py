@@ -32,6 +32,7 @@ class EpochSelector:
         every: epochs between checks.
         epochs: the fit's epoch count (its last epoch is always checked).
         workers: processes the rollouts run in.
+        lanes: episodes stepped in lockstep (:func:`~metadagger.imitation.collect.collect`).
         progress: print a line after each check.
     """
 
@@ -44,6 +45,7 @@ class EpochSelector:
         every: int,
         epochs: int,
         workers: int = 1,
+        lanes: int = 1,
         progress: bool = False,
     ) -> None:
         if not seeds:
@@ -51,14 +53,16 @@ class EpochSelector:
         if every < 1:
             raise UserError(f"the selection's check interval must be >= 1 epoch, got {every}")
         self.task, self.policy, self.seeds = task, policy, tuple(seeds)
-        self.every, self.epochs, self.workers, self.progress = every, epochs, workers, progress
+        self.every, self.epochs, self.workers, self.lanes, self.progress = every, epochs, workers, lanes, progress
         self.history: list[dict[str, int]] = []
         self._best: tuple[int, int, dict[str, Any]] | None = None  # (successes, epoch, weights)
 
     def __call__(self, epoch: int) -> None:
         if epoch % self.every and epoch != self.epochs:
             return
-        rows = evaluate_policy(self.task, self.policy, self.seeds, progress=False, workers=self.workers)
+        rows = evaluate_policy(
+            self.task, self.policy, self.seeds, progress=False, workers=self.workers, lanes=self.lanes
+        )
         wins = sum(bool(row["success"]) for row in rows)
         self.history.append({"epoch": epoch, "successes": wins, "episodes": len(rows)})
         if self._best is None or wins >= self._best[0]:

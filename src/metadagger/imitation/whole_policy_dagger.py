@@ -17,8 +17,9 @@ import numpy as np
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
+from metadagger.imitation.collect import collect
 from metadagger.imitation.data import Aggregate, Dataset
-from metadagger.imitation.rollouts import EarlyStop, Trajectory, collect
+from metadagger.imitation.rollouts import EarlyStop, Trajectory
 from metadagger.policies import Policy
 from metadagger.tasks.base import Task
 from metadagger.utils.progress import progress_bar
@@ -71,6 +72,7 @@ def run_whole_policy_dagger(
     checkpoints: str | Path | None = None,
     on_rollouts: Callable[[int, list[Trajectory]], None] | None = None,
     workers: int = 1,
+    lanes: int = 1,
 ) -> DAggerResult:
     """Improve ``policy`` in place with DAgger on ``task``.
 
@@ -97,6 +99,7 @@ def run_whole_policy_dagger(
         on_rollouts: called as ``on_rollouts(round_idx, trajectories)`` with each round's rollouts
             before its refit (e.g. to export the episodes).
         workers: roll the seeds out in a process pool of this size (see :func:`collect`).
+        lanes: step this many of a round's episodes in lockstep (see :func:`collect`).
 
     Returns:
         Per-round metrics, keys namespaced ``dagger/``: ``round`` (1-based), ``success_rate``,
@@ -115,7 +118,13 @@ def run_whole_policy_dagger(
     history: list[dict[str, Any]] = []
     for round_idx in progress_bar(range(1, config.rounds + 1), desc="dagger", enabled=progress, leave=False):
         trajectories = collect(
-            task, seeds, policy=policy, progress=progress, early_stop_factory=early_stop_factory, workers=workers
+            task,
+            seeds,
+            policy=policy,
+            progress=progress,
+            early_stop_factory=early_stop_factory,
+            workers=workers,
+            lanes=lanes,
         )
         if on_rollouts is not None:
             on_rollouts(round_idx, trajectories)

@@ -14,10 +14,11 @@ from dataclasses import dataclass, field
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, fit_or_resume
+from metadagger.imitation.collect import collect
 from metadagger.imitation.data import Dataset
 from metadagger.imitation.episodes import evaluate_policy
+from metadagger.imitation.lanes import check_lanes, lanes_stamp
 from metadagger.imitation.metrics import summarize, wilson_interval
-from metadagger.imitation.rollouts import collect
 from metadagger.imitation.selection import EpochSelector
 from metadagger.imitation.whole_policy_dagger import DAggerConfig, run_whole_policy_dagger
 from metadagger.policies import Policy, load_policy, make_policy
@@ -51,6 +52,11 @@ class GroundTruthConfig:
     default): pi* is the last epoch's. Needs ``dagger_rounds: 0``."""
     select_every: int = field(default=4, metadata=STAMPED_UNLESS_DEFAULT)
     """Epochs between the checks of ``select_seeds``."""
+    lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
+    """pi*'s own rollouts (DAgger rounds, selection checks, the success measures) stepped this
+    many at a time in lockstep lanes, one forward of pi*'s trunk per step at this batch shape
+    (:mod:`metadagger.imitation.lanes`); 1 rolls each episode out alone. pi* depends on it,
+    never on the workers."""
     min_success: float = 0.2
     """The least success rate pi* must reach on ``eval_seeds`` before pairs are collected. With
     pi*'s trunk frozen, a seed's DAgger refit of the head rarely succeeds where pi* itself fails
@@ -64,6 +70,7 @@ class GroundTruthConfig:
         return set(self.seeds) | set(self.select_seeds) | set(self.eval_seeds)
 
     def __post_init__(self) -> None:
+        check_lanes("groundtruth.lanes", self.lanes)
         if not self.seeds:
             raise UserError("groundtruth.seeds must not be empty")
         if set(self.seeds) & set(self.eval_seeds):
@@ -96,7 +103,12 @@ class GroundTruthConfig:
 
 def groundtruth_stamp(task: Task, config: GroundTruthConfig) -> dict:
     """What pi* is made from: the task and every setting of its training."""
-    return {**kernel_stamp(), **task_stamp(task), **stamp_of(config, drop=("min_success",))}
+    return {
+        **kernel_stamp(),
+        **task_stamp(task),
+        **stamp_of(config, drop=("min_success",)),
+        **lanes_stamp(config.lanes),
+    }
 
 
 def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout) -> list[str]:
@@ -156,6 +168,7 @@ def train_groundtruth(
             every=config.select_every,
             epochs=config.bc.epochs,
             workers=workers,
+            lanes=config.lanes,
             progress=progress,
         )
         if config.select_seeds
@@ -181,14 +194,29 @@ def train_groundtruth(
             progress=progress,
             checkpoints=layout.groundtruth_rounds,
             workers=workers,
+            lanes=config.lanes,
         )
         history = result.rounds
     own = summarize(
-        evaluate_policy(task, policy, config.seeds, label="pi* on its seeds", progress=progress, workers=workers)
+        evaluate_policy(
+            task,
+            policy,
+            config.seeds,
+            label="pi* on its seeds",
+            progress=progress,
+            workers=workers,
+            lanes=config.lanes,
+        )
     )
     unseen = summarize(
         evaluate_policy(
-            task, policy, config.eval_seeds, label="pi* on unseen seeds", progress=progress, workers=workers
+            task,
+            policy,
+            config.eval_seeds,
+            label="pi* on unseen seeds",
+            progress=progress,
+            workers=workers,
+            lanes=config.lanes,
         )
     )
     metrics = {
