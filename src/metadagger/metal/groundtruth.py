@@ -197,27 +197,11 @@ def train_groundtruth(
             lanes=config.lanes,
         )
         history = result.rounds
-    own = summarize(
-        evaluate_policy(
-            task,
-            policy,
-            config.seeds,
-            label="pi* on its seeds",
-            progress=progress,
-            workers=workers,
-            lanes=config.lanes,
+    own, unseen = (
+        summarize(
+            evaluate_policy(task, policy, seeds, label=label, progress=progress, workers=workers, lanes=config.lanes)
         )
-    )
-    unseen = summarize(
-        evaluate_policy(
-            task,
-            policy,
-            config.eval_seeds,
-            label="pi* on unseen seeds",
-            progress=progress,
-            workers=workers,
-            lanes=config.lanes,
-        )
+        for seeds, label in ((config.seeds, "pi* on its seeds"), (config.eval_seeds, "pi* on unseen seeds"))
     )
     metrics = {
         "own_seeds": own,
