@@ -356,8 +356,7 @@ def head_fit(
     check_data(policy, data)
     if not (config.head_only and LinearHeadAdam.supports(policy.net.head)):
         raise UserError(f"{called} is not a head-only fit of a linear head; batched fits need head_only=true")
-    if cache.policy.net.trunk is not policy.net.trunk:
-        raise UserError("the FeatureCache was built for another trunk; build one with FeatureCache(policy)")
+    _check_cache(cache, policy)
     generator = torch.Generator().manual_seed(config.seed)
     return HeadFit(
         head=policy.head_vector().detach().clone(),
@@ -371,14 +370,18 @@ def head_fit(
     )
 
 
+def _check_cache(cache: FeatureCache, policy: Policy) -> None:
+    if cache.policy.net.trunk is not policy.net.trunk:
+        raise UserError("the FeatureCache was built for another trunk; build one with FeatureCache(policy)")
+
+
 def _inputs_and_model(
     policy: Policy, data: Dataset | Aggregate, config: BCConfig, cache: FeatureCache | None
 ) -> tuple[torch.Tensor, torch.nn.Module]:
     """What a fit trains on and what it trains: cached trunk features and the head, or images and the network."""
     if config.head_only:
         cache = cache if cache is not None else FeatureCache(policy)
-        if cache.policy.net.trunk is not policy.net.trunk:
-            raise UserError("the FeatureCache was built for another trunk; build one with FeatureCache(policy)")
+        _check_cache(cache, policy)
         return cache.features_of(data), policy.net.head
     if cache is not None:
         raise UserError("a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache=")

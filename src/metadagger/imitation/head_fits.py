@@ -156,14 +156,12 @@ def _fit_group(
     steps = len(schedules[order[0]][0])
     rows = torch.full((steps, len(fits), batch_size), pad, dtype=torch.long)
     share = torch.zeros(steps, len(fits), batch_size)
-    live = [0] * steps
     for slot, (b, start) in enumerate(zip(order, starts)):
         fit_rows, fit_counts = schedules[b]
         real = torch.arange(batch_size).unsqueeze(0) < fit_counts.unsqueeze(1)
         rows[: len(fit_rows), slot] = torch.where(real, fit_rows + start, pad)
         share[: len(fit_rows), slot] = real.float() / fit_counts.unsqueeze(1).float()
-        for t in range(len(fit_rows)):
-            live[t] += 1
+    live = (share[:, :, 0] > 0).sum(1).tolist()  # step t's heads: every fit that has a step t
     params = torch.stack([_with_bias_column(fits[b].head, out_dim) for b in order])
     exp_avg, exp_avg_sq = torch.zeros_like(params), torch.zeros_like(params)
     with torch.no_grad():
