@@ -3,10 +3,11 @@
 :func:`fingerprint_kernels` runs, on fixed inputs made from integers (the same bits on every
 machine), each kind of computation a run does, in the order pi*'s first BC step meets them: numpy
 and OpenCV, then one training step of the CarRacing policy network op by op (convolutions on
-oneDNN and on ATen's own path, the fully-connected layers, the loss, every gradient, Adam), then a
-CarRacing episode's frames. Each gives the sha256 of its output. Two machines' fingerprints,
-compared with :func:`compare_fingerprints`, name the first computation whose bits differ: the
-kernel to pin, or to report.
+oneDNN and on ATen's own path, the fully-connected layers, the loss, every gradient, Adam), then
+the lanes' kernels (a padded trunk forward, batched head fits), then a CarRacing episode's
+frames. Each gives the sha256 of its output. Two machines' fingerprints, compared with
+:func:`compare_fingerprints`, name the first computation whose bits differ: the kernel to pin, or
+to report.
 """
 
 from __future__ import annotations
@@ -116,6 +117,45 @@ def _policy_step(ops: dict[str, Callable[[], Any]]) -> None:
     ops["policy step"] = step
 
 
+def _lanes(ops: dict[str, Callable[[], Any]]) -> None:
+    """The lanes' kernels: one trunk forward of a padded batch of lanes, and batched head-only fits."""
+    import torch
+
+    from metadagger.imitation.head_fits import HeadFit, fit_heads
+    from metadagger.policies import PolicyNet
+
+    width, live = 32, 27
+    frames = np.zeros((width, _SIZE, _SIZE, 3), dtype=np.uint8)
+    frames[:live] = (_integers(live * _SIZE * _SIZE * 3, 9) & 255).astype(np.uint8).reshape(live, _SIZE, _SIZE, 3)
+    net = PolicyNet(obs_shape=(_SIZE, _SIZE, 3), n_outputs=_CLASSES, discrete=True)
+    net.init_weights(0)
+
+    def forward() -> torch.Tensor:
+        with torch.inference_mode():
+            return net.trunk(net.preprocess(torch.from_numpy(frames)))
+
+    def fits() -> list[torch.Tensor]:
+        heads = []
+        for k, n in enumerate((40, 25, 10)):  # fits of unequal length: heads drop out as they end
+            orders = np.argsort(_integers(3 * n, 10 + k).reshape(3, n), axis=1, kind="stable")
+            heads.append(
+                HeadFit(
+                    head=torch.from_numpy(_uniform((_CLASSES * 513,), 20 + k)),
+                    features=torch.from_numpy(_uniform((n, 512), 30 + k)),
+                    targets=torch.from_numpy((_integers(n, 40 + k) % _CLASSES).astype(np.int64)),
+                    orders=torch.from_numpy(orders),
+                    lr=1e-3,
+                    weight_decay=1e-4,
+                    batch_size=10,
+                    called=f"fingerprint fit {k}",
+                )
+            )
+        return [fitted.head for fitted in fit_heads(heads, out_dim=_CLASSES, discrete=True)]
+
+    ops["lanes: trunk forward (32 rows, 5 padded)"] = forward
+    ops["lanes: batched head fits"] = fits
+
+
 def _carracing_episode(ops: dict[str, Callable[[], Any]]) -> None:
     from metadagger.cli.bench import smooth_actions
     from metadagger.tasks import make_task
@@ -144,6 +184,7 @@ def fingerprint_kernels() -> dict[str, Any]:
     ops: dict[str, Callable[[], Any]] = {}
     _numpy_and_opencv(ops)
     _policy_step(ops)
+    _lanes(ops)
     _carracing_episode(ops)
     digests: list[dict[str, Any]] = []
     for name, op in ops.items():
