@@ -360,6 +360,53 @@ def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:
     }
 
 
+def bench_fit(task_name: str = "fetch", *, preset: str = "paper", steps: int = 200, seed: int = 0) -> dict:
+    """pi*'s whole-network fit (the preset's ``groundtruth.bc``: network, batch, augmentation,
+    Adam) for ``steps`` Adam steps on random frames of the task's shape: seconds per step on the
+    CPU (one thread, as a stage computes) and, where torch sees a GPU, on it, side by side."""
+    import dataclasses
+
+    import torch
+
+    from metadagger.imitation.bc import fit_bc
+    from metadagger.imitation.data import Dataset
+    from metadagger.pipeline.run_config import resolve_config
+    from metadagger.policies import make_policy
+    from metadagger.tasks import make_task
+    from metadagger.utils.device import current_device, use_device
+
+    task = make_task(task_name)
+    bc = dataclasses.replace(resolve_config(task_name, preset).groundtruth.bc, epochs=1, seed=seed)
+    shape = tuple(make_policy(task, seed=seed).arch["obs_shape"])
+    rng = np.random.default_rng(seed)
+    n = steps * bc.batch_size
+    dim = task.label_dim()
+    if task.is_discrete:
+        labels = rng.integers(0, dim, n).astype(np.int64)
+    else:
+        labels = rng.standard_normal((n, dim)).astype(np.float32)
+    data = Dataset(obs=rng.integers(0, 256, (n, *shape), dtype=np.uint8), labels=labels)
+    warm_up = Dataset(obs=data.obs[: 2 * bc.batch_size], labels=labels[: 2 * bc.batch_size])
+
+    def seconds_per_step(device: str) -> float:
+        before = current_device()
+        use_device(device)
+        try:
+            fit_bc(make_policy(task, seed=seed), warm_up, bc)
+            return fit_bc(make_policy(task, seed=seed), data, bc)["seconds"] / steps
+        finally:
+            use_device(before)
+
+    torch.set_num_threads(1)
+    result: dict[str, Any] = {"task": task_name, "preset": preset, "steps": steps, "batch_size": bc.batch_size}
+    result["cpu_s_per_step"] = seconds_per_step("cpu")
+    if torch.cuda.is_available():
+        result["gpu"] = torch.cuda.get_device_name(0)
+        result["gpu_s_per_step"] = seconds_per_step("cuda")
+        result["gpu_speedup"] = result["cpu_s_per_step"] / result["gpu_s_per_step"]
+    return result
+
+
 def _kernel_environment(kernels: str) -> dict[str, str]:
     """This process's environment without any kernel setting, plus ``native``'s switch."""
     env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV and k != NATIVE_SWITCH}

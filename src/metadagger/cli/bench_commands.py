@@ -66,6 +66,20 @@ def bench_bc_cmd(
     _measure_and_write(out, "--out", lambda: bench_bc(images=images, epochs=epochs))
 
 
+@bench_app.command("fit")
+@user_errors
+def bench_fit_cmd(
+    task: str = typer.Option("fetch", "--task", help="Task whose pi* network and preset fit are timed."),
+    preset: str = typer.Option("paper", "--preset", help="Preset whose groundtruth.bc settings are used."),
+    steps: int = typer.Option(200, "--steps", min=1, help="Adam steps timed on each device."),
+    out: Path = typer.Option(Path("runs/bench/fit.json"), "--out", help="JSON file to write."),
+) -> None:
+    """pi*'s whole-network fit: seconds per Adam step on the CPU and, where there is one, on the GPU."""
+    from metadagger.cli.bench import bench_fit
+
+    _measure_and_write(out, "--out", lambda: bench_fit(task, preset=preset, steps=steps))
+
+
 @bench_app.command("pairs")
 @user_errors
 def bench_pairs_cmd(

@@ -29,6 +29,7 @@ from metadagger.cli.bench_commands import bench_app
 from metadagger.cli.options import (
     ADDRESS,
     BUILTIN_PRESET,
+    DEVICE,
     EXECUTOR,
     OUT,
     PRESET,
@@ -163,6 +164,7 @@ def groundtruth(
     presets: Optional[Path] = PRESETS_FILE,
     overrides: list[str] = SET,
     rebuild: bool = REBUILD,
+    device: Optional[str] = DEVICE,
 ) -> None:
     """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
     from metadagger.metal.groundtruth import pistar_rates
@@ -171,7 +173,7 @@ def groundtruth(
     from metadagger.runfolder.layout import RunLayout
 
     layout = RunLayout(out)
-    config = init_run(out, task, preset, presets, overrides)
+    config = init_run(out, task, preset, presets, overrides, device)
     metrics = stage_groundtruth(layout, config, StageOptions(rebuild=rebuild))
     typer.echo(f"pi*: {pistar_rates(metrics)}")
     if metrics["unseen_seeds"]["success_rate"] < config.groundtruth.min_success:
@@ -504,6 +506,7 @@ def reproduce(
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
+    device: Optional[str] = DEVICE,
     log: Optional[str] = typer.Option(
         None,
         "--log",
@@ -536,6 +539,7 @@ def reproduce(
         presets_file=presets,
         overrides=overrides,
         diagnose=diagnose,
+        device=device,
         options=stage_options(False, executor, workers, address),
     )
     typer.echo(path.read_text())

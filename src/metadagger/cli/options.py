@@ -53,6 +53,12 @@ PRESETS_FILE = typer.Option(
 BUILTIN_PRESET = typer.Option(
     "quick", "--preset", help="Preset from pipeline/presets/<task>.yaml (quick, paper or ci)."
 )
+DEVICE = typer.Option(
+    None,
+    "--device",
+    help="Where a new run computes: cpu, cuda (a GPU) or auto (cuda where torch sees one). A run keeps "
+    "the device it started on (default: cpu for a new run, the folder's for a started one).",
+)
 OUT = typer.Option(..., "--out", help="Run folder (holds config.yaml and every stage's artifacts).")
 SET = typer.Option(
     [],

@@ -28,6 +28,7 @@ from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.imitation.head_fits import HeadFit
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
+from metadagger.utils.device import compute_device
 from metadagger.utils.optim import adam
 from metadagger.utils.progress import progress_bar
 from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
@@ -291,7 +292,9 @@ def fit_bc(
     where they serve: a head-only fit of a linear head runs each epoch in one compiled call
     (:class:`~metadagger.imitation.head_adam.LinearHeadAdam`, bit-equal to the reference), and
     a whole-policy fit with ``batch_shards`` above 1 splits each batch's gradient over threads
-    (:class:`ShardedEpoch`, the same gradient summed in another order).
+    (:class:`ShardedEpoch`, the same gradient summed in another order). On a run's GPU
+    (:func:`~metadagger.utils.device.compute_device`) every fit but a linear head's takes the
+    reference steps there (:class:`DeviceEpoch`).
 
     Args:
         policy: the policy to train (its network is updated in place).
@@ -483,6 +486,35 @@ class HeadAdamEpoch:
         self.adam.write_back()
 
 
+class DeviceEpoch:
+    """The reference epoch on a GPU (the run's compute device): the network and the data there
+    while it trains, the network back on the CPU whenever it is read (:meth:`write_back`)."""
+
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        params: list[torch.nn.Parameter],
+        inputs: torch.Tensor,
+        targets: torch.Tensor,
+        config: BCConfig,
+        discrete: bool,
+        generator: torch.Generator,
+        device: torch.device,
+    ) -> None:
+        self.model, self.device = model.to(device), device
+        self.reference = ReferenceEpoch(
+            model, params, inputs.to(device), targets.to(device), config, discrete, generator
+        )
+
+    def __call__(self, epoch: int, order: torch.Tensor) -> list[float]:
+        self.model.to(self.device)
+        return self.reference(epoch, order)
+
+    def write_back(self) -> None:
+        """Bring the network back to the CPU (its optimiser's state stays on the device)."""
+        self.model.to("cpu")
+
+
 @contextmanager
 def _epochs(
     model: torch.nn.Module,
@@ -492,10 +524,18 @@ def _epochs(
     config: BCConfig,
     discrete: bool,
     generator: torch.Generator,
-) -> Iterator[ReferenceEpoch | ShardedEpoch | HeadAdamEpoch]:
-    """The epoch a fit runs: a fast path where one serves it, else the reference."""
+) -> Iterator[ReferenceEpoch | ShardedEpoch | HeadAdamEpoch | DeviceEpoch]:
+    """The epoch a fit runs: a fast path where one serves it, the reference on the run's GPU where
+    it has one, else the reference."""
+    device = compute_device()
     if config.head_only and LinearHeadAdam.supports(model):
         yield HeadAdamEpoch(model, inputs, targets, config, discrete)  # type: ignore[arg-type]
+    elif device.type != "cpu":
+        epoch = DeviceEpoch(model, params, inputs, targets, config, discrete, generator, device)
+        try:
+            yield epoch
+        finally:
+            epoch.write_back()
     elif config.batch_shards > 1:
         # a new thread starts with OpenMP's default thread count, not the caller's torch.set_num_threads
         with ThreadPoolExecutor(

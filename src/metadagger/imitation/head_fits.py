@@ -26,6 +26,7 @@ from typing import Callable, List, Sequence
 import torch
 
 from metadagger.errors import DivergedError, check_finite_loss
+from metadagger.utils.device import compute_device
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,7 @@ def _batched_adam_steps(
     """
     beta1, beta2, eps = 0.9, 0.999, 1e-8  # torch.optim.Adam's defaults, as fit_bc's
     steps, n_heads, batch = rows.shape
-    row_losses = torch.zeros(steps, n_heads, batch)
+    row_losses = torch.zeros(steps, n_heads, batch, device=params.device)
     for t in range(steps):
         k = live[t]
         x = features[rows[t, :k]]  # (k, batch, d + 1)
@@ -94,7 +95,7 @@ def _batched_adam_steps(
             labels = targets[rows[t, :k]].unsqueeze(2)
             log_probs = torch.log_softmax(outputs, 2)
             row_losses[t, :k] = log_probs.gather(2, labels).squeeze(2).neg()
-            grad_outputs = log_probs.exp().scatter_add_(2, labels, torch.full(labels.shape, -1.0))
+            grad_outputs = log_probs.exp().scatter_add_(2, labels, torch.full(labels.shape, -1.0, device=params.device))
         else:
             grad_outputs = outputs - targets[rows[t, :k]]
             row_losses[t, :k] = (grad_outputs * grad_outputs).mean(2)
@@ -162,23 +163,25 @@ def _fit_group(
         rows[: len(fit_rows), slot] = torch.where(real, fit_rows + start, pad)
         share[: len(fit_rows), slot] = real.float() / fit_counts.unsqueeze(1).float()
     live = (share[:, :, 0] > 0).sum(1).tolist()  # step t's heads: every fit that has a step t
-    params = torch.stack([_with_bias_column(fits[b].head, out_dim) for b in order])
+    device = compute_device()  # the whole problem on it; the heads and losses back on the CPU
+    params = torch.stack([_with_bias_column(fits[b].head, out_dim) for b in order]).to(device)
     exp_avg, exp_avg_sq = torch.zeros_like(params), torch.zeros_like(params)
     with torch.no_grad():
         row_losses = _compiled_steps()(
             params,
             exp_avg,
             exp_avg_sq,
-            features,
-            targets if discrete else targets.to(torch.float32),
-            rows,
-            share,
+            features.to(device),
+            (targets if discrete else targets.to(torch.float32)).to(device),
+            rows.to(device),
+            share.to(device),
             live,
             float(lr),
             float(weight_decay),
             discrete,
         )
-    step_losses = (row_losses * share).sum(2)  # (T, B): each step's mean loss
+    step_losses = (row_losses * share.to(device)).sum(2).cpu()  # (T, B): each step's mean loss
+    params = params.cpu()
     fitted: list[FittedHead | None] = [None] * len(fits)
     for slot, b in enumerate(order):
         n_steps = len(schedules[b][0])

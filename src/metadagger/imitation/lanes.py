@@ -22,6 +22,7 @@ the sequential code it is (:mod:`metadagger.metal.method`).
 
 from __future__ import annotations
 
+import copy
 import threading
 from collections import deque
 from dataclasses import dataclass, replace
@@ -37,6 +38,7 @@ from metadagger.imitation.head_fits import FittedHead, HeadFit, fit_heads
 from metadagger.imitation.rollouts import EpisodeRecorder, Trajectory
 from metadagger.policies import PolicyNet
 from metadagger.tasks.base import Task
+from metadagger.utils.device import compute_device
 
 T = TypeVar("T")
 
@@ -111,6 +113,9 @@ class _Lane:
 class Lanes:
     """``width`` lanes of ``task``'s learner env, acting through ``net``'s trunk.
 
+    The trunk runs on the process's compute device (:func:`~metadagger.utils.device.compute_device`:
+    on a GPU, a copy of it); the features come back to the CPU, where the heads act.
+
     Args:
         task: the task whose learner envs the lanes step.
         net: the network whose trunk computes every lane's features (pi*'s); its head is not used.
@@ -121,6 +126,8 @@ class Lanes:
         if not isinstance(width, int) or width < 1:
             raise ValueError(f"lanes need a width >= 1, got {width!r}")
         self.net, self.width = net, width
+        self._device = compute_device()
+        self._trunk = net.trunk if self._device.type == "cpu" else copy.deepcopy(net.trunk).to(self._device)
         self.discrete = net.discrete
         self.out_dim = int(net.arch["n_outputs"])
         self._task = task
@@ -155,7 +162,8 @@ class Lanes:
         for i in live:
             self._batch[i] = self._lanes[i].episode.obs
         with torch.inference_mode():
-            features = self.net.trunk(self.net.preprocess(torch.from_numpy(self._batch)))
+            images = torch.from_numpy(self._batch).to(self._device)
+            features = self._trunk(self.net.preprocess(images)).cpu()
             self.forwards += 1
             actions = {i: self._act(self._lanes[i], features[i : i + 1]) for i in live}
         ended = []

@@ -33,6 +33,7 @@ from metadagger.metal.store import PairSplit
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import CURVES_FILE, MAPPER_FILE
 from metadagger.runfolder.stamps import data_fingerprint, describe_changes, stamp_of
+from metadagger.utils.device import compute_device
 from metadagger.utils.executors import default_workers, make_executor
 from metadagger.utils.io import write_text
 from metadagger.utils.kernels import kernel_stamp
@@ -439,20 +440,24 @@ def _fit(
     after_epoch: Callable[[], tuple[float, float]] | None = None,
 ) -> list[dict[str, Any]]:
     """Adam on the MSE of ``net(x)`` against ``y``; one curve row per epoch. A loss or weight that
-    becomes non-finite stops it with a :class:`DivergedError` naming ``owner``, ``name`` and the epoch."""
+    becomes non-finite stops it with a :class:`DivergedError` naming ``owner``, ``name`` and the epoch.
+    The steps run on the run's compute device (:func:`~metadagger.utils.device.compute_device`);
+    each epoch's evaluation, and the network after the fit, on the CPU."""
+    device = compute_device()
+    x_steps, y_steps = x_tr.to(device), y_tr.to(device)
     optimizer = adam(net.parameters(), lr=lr, weight_decay=weight_decay)
     rows = []
     bar = progress_bar(range(1, epochs + 1), desc=f"mapping/{name}", enabled=progress, leave=False)
     for epoch in bar:
-        net.train()
-        total = torch.zeros(())
+        net.to(device).train()
+        total = torch.zeros((), device=device)
         for idx in _batches(torch.randperm(len(x_tr), generator=generator), batch_size):
-            loss = F.mse_loss(net(x_tr[idx]), y_tr[idx])
+            loss = F.mse_loss(net(x_steps[idx]), y_steps[idx])
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
             total += loss.detach() * len(idx)
-        net.eval()
+        net.to("cpu").eval()
         with torch.no_grad():
             val_loss = _mse(net(x_va), y_va) if len(x_va) else math.nan
         weights = after_epoch() if after_epoch else (math.nan, math.nan)

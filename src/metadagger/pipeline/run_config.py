@@ -34,6 +34,7 @@ from metadagger.metal.pairs import PairConfig
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
 from metadagger.tasks import check_task
+from metadagger.utils.device import resolve_device
 from metadagger.utils.io import write_text
 from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
@@ -43,8 +44,8 @@ LOGS = ("none", "tensorboard")
 """Values of :attr:`RunConfig.log`."""
 PRESETS = ("quick", "paper", "ci")
 """The packaged presets of every built-in task (``presets/<task>.yaml``)."""
-CHOSEN_AT_START = ("task", "preset")
-"""Config keys a run takes from ``--task``/``--preset`` when it starts, never from ``--set``."""
+CHOSEN_AT_START = ("task", "preset", "device")
+"""Config keys a run takes from ``--task``/``--preset``/``--device`` when it starts, never from ``--set``."""
 VERSION_KEY = "metadagger_version"
 """The config key that records the metadagger version a run folder was made by."""
 FIRST_RECORDED = "0.2"
@@ -81,12 +82,18 @@ class RunConfig:
     """Success against expert queries (DAgger, gated DAgger, MetaL DAgger) on unseen seeds; None: not run."""
     diagnose: DiagnoseConfig = field(default_factory=DiagnoseConfig)
     """The mapping diagnostics (``metadagger diagnose``): state samples, noise ceiling, scaling shares."""
+    device: str = "cpu"
+    """Where the run computes: ``cpu``, or ``cuda`` (a GPU: the lanes' trunk forwards, the batched
+    head fits, pi*'s whole-network fits; utils/device.py). Chosen with ``--device`` when the run
+    starts and kept: a run folder never mixes CPU and GPU artifacts."""
     log: str = "none"
     """``tensorboard``: each stage also writes its training curves and evaluations as TensorBoard
     scalars under ``RUN/tb/``, from its artifacts (docs/tensorboard.md; the ``tensorboard`` extra); ``none``: off."""
 
     def __post_init__(self) -> None:
         check_log(self.log)
+        if self.device not in ("cpu", "cuda"):
+            raise UserError(f"device must be cpu or cuda, got {self.device!r}; a run's device is chosen with --device")
         if self.log == "tensorboard":
             require_tensorboard()  # a missing extra fails now, not after the first stage
         if self.max_episode_steps < 1:
@@ -223,21 +230,34 @@ def apply_overrides(data: dict[str, Any], overrides: Sequence[str]) -> dict[str,
 
 
 def resolve_config(
-    task: str, preset: str, presets_file: str | Path | None = None, overrides: Sequence[str] = ()
+    task: str,
+    preset: str,
+    presets_file: str | Path | None = None,
+    overrides: Sequence[str] = (),
+    device: str = "cpu",
 ) -> RunConfig:
-    """The config of a new run: a preset (packaged, or from ``presets_file``) with ``overrides``."""
+    """The config of a new run: a preset (packaged, or from ``presets_file``) with ``overrides``,
+    on ``device`` (a ``--device`` value, resolved: :func:`~metadagger.utils.device.resolve_device`)."""
     sections = {k: v for k, v in load_preset(task, preset, presets_file).items() if k != "demo"}
-    data = apply_overrides({"task": task, "preset": preset, **sections}, overrides)
+    resolved = resolve_device(device)
+    data = apply_overrides({"task": task, "preset": preset, "device": resolved, **sections}, overrides)
     return build(RunConfig, data, where=f"{task}.{preset}" + (" with --set" if overrides else ""))
 
 
 def init_run(
-    run: str | Path, task: str, preset: str, presets_file: str | Path | None = None, overrides: Sequence[str] = ()
+    run: str | Path,
+    task: str,
+    preset: str,
+    presets_file: str | Path | None = None,
+    overrides: Sequence[str] = (),
+    device: str | None = None,
 ) -> RunConfig:
-    """Create ``<run>/config.yaml`` from a preset and ``overrides``, or read the existing one (of
-    the same task and preset) with ``overrides`` applied; an existing run's file is updated by the
-    stage that runs with the result (:func:`~metadagger.pipeline.stage_runs.records_config`). Pins the CPU kernels first
-    (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
+    """Create ``<run>/config.yaml`` from a preset and ``overrides`` on ``device`` (a ``--device``
+    value; None: ``cpu``), or read the existing one (of the same task and preset, and the same
+    device where one is named) with ``overrides`` applied; an existing run's file is updated by
+    the stage that runs with the result (:func:`~metadagger.pipeline.stage_runs.records_config`).
+    Pins the CPU kernels first (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command
+    line does."""
     pin_cpu_kernels()
     layout = RunLayout(run)
     if layout.root.exists() and not layout.root.is_dir():
@@ -249,8 +269,13 @@ def init_run(
                 f"run folder {run} holds task {config.task!r} preset {config.preset!r}, not {task!r} {preset!r}; "
                 "use another --out or the same task and preset"
             )
+        if device not in (None, "auto") and resolve_device(device) != config.device:
+            raise UserError(
+                f"run folder {run} was made on {config.device}, not {device}: a run folder never mixes CPU and GPU "
+                f"artifacts; use another --out, or --device {config.device} (or none) to resume it"
+            )
         return config
-    config = resolve_config(task, preset, presets_file, overrides)
+    config = resolve_config(task, preset, presets_file, overrides, device or "cpu")
     with run_lock(run):
         save_run(run, config)
     return config

@@ -12,6 +12,7 @@ from metadagger.errors import UserError
 from metadagger.pipeline.run_config import RunConfig, save_run
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
+from metadagger.utils.device import use_device
 from metadagger.utils.io import atomic_write, read_json, write_json
 from metadagger.utils.kernels import machine_description
 from metadagger.utils.yaml_config import dump_yaml
@@ -73,10 +74,12 @@ def records_config(
     when the file says otherwise (``--set`` overrides), and put back as it was when the stage
     refuses (a :class:`UserError`), so a refused command leaves the run's config unchanged. A
     folder without a ``config.yaml`` (a config made in code) gets none. The stage holds the run
-    folder's write lock (a second writer is refused at once)."""
+    folder's write lock (a second writer is refused at once) and computes on the run's device
+    (:func:`~metadagger.utils.device.use_device`; its workers too)."""
 
     @functools.wraps(stage)
     def wrapper(layout: RunLayout, config: RunConfig, *args: P.args, **kwargs: P.kwargs) -> R:
+        use_device(config.device)
         with run_lock(layout.root):  # one writer per run folder (runfolder/lock.py)
             before = layout.config.read_bytes() if layout.config.is_file() else None
             if before is None or before == dump_yaml(config).encode():

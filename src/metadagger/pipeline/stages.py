@@ -461,16 +461,18 @@ def reproduce(
     presets_file: str | Path | None = None,
     overrides: Sequence[str] = (),
     diagnose: bool = False,
+    device: str | None = None,
     options: StageOptions = StageOptions(),
 ) -> Path:
     """Every stage in order, each resuming where a previous run stopped and rebuilding what a
     changed input made stale (``options.rebuild`` is always on); returns the report path.
     ``presets_file``: a YAML file of presets to take ``preset`` from instead of the packaged one;
     ``overrides``: ``section.key=value`` items; ``diagnose``: also the mapping diagnostics on the
-    validation pairs (:func:`stage_diagnose`), after the benchmark. Pins the CPU kernels first
+    validation pairs (:func:`stage_diagnose`), after the benchmark; ``device``: a ``--device`` value
+    for a new run (:func:`init_run`). Pins the CPU kernels first
     (:func:`~metadagger.utils.kernels.pin_cpu_kernels`), as the command line does."""
     pin_cpu_kernels()
-    config = init_run(run, task, preset, presets_file, overrides)
+    config = init_run(run, task, preset, presets_file, overrides, device)
     with run_lock(run):  # the whole run: no other writer between two stages
         return _reproduce(RunLayout(run), config, options, diagnose=diagnose)
 

@@ -25,6 +25,7 @@ from typing import Any, Callable, Generic, Iterable, Iterator, TypeVar
 import torch
 
 from metadagger.errors import UserError
+from metadagger.utils.device import current_device, use_device
 from metadagger.utils.kernels import pin_cpu_kernels, pinned_environment
 from metadagger.utils.ray_cluster import ADDRESS_HINT, bounded_gcs_wait, check_reachable, import_ray, token_hint
 
@@ -92,8 +93,9 @@ def _limit_threads() -> None:
     torch.set_num_threads(1)
 
 
-def _init_pool_worker() -> None:
+def _init_pool_worker(device: str = "cpu") -> None:
     _limit_threads()
+    use_device(device)  # the driver's compute device (utils/device.py)
     # A terminal Ctrl-C reaches the whole process group; only the driver should react (it
     # terminates the pool), so workers do not die mid-task with tracebacks of their own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -253,7 +255,10 @@ class LocalExecutor(Executor[futures.Future]):
         # numpy before any code of theirs runs: the pins must be in it now.
         pin_cpu_kernels()
         self._pool = futures.ProcessPoolExecutor(
-            max_workers=workers, mp_context=_mp_context(), initializer=_init_pool_worker
+            max_workers=workers,
+            mp_context=_mp_context(),
+            initializer=_init_pool_worker,
+            initargs=(current_device(),),
         )
 
     def _submit(self, fn: Callable[[T], R], item: T) -> futures.Future:
@@ -311,6 +316,11 @@ class RayExecutor(Executor[Any]):
     """
 
     def __init__(self, *, workers: int | None, address: str | None) -> None:
+        if current_device() != "cpu":
+            raise UserError(
+                f"executor 'ray' computes on CPUs, but this run's device is {current_device()}; "
+                "use --executor local on the GPU's machine, or a run made with --device cpu"
+            )
         ray = import_ray()
         self._ray = ray
         self._owns_ray = not ray.is_initialized()

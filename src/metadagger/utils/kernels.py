@@ -42,6 +42,8 @@ import platform
 import sys
 from typing import Any
 
+from metadagger.utils.device import device_stamp
+
 #: The environment that pins each library's kernels (x86-64).
 KERNEL_ENV = {
     "ATEN_CPU_CAPABILITY": "avx2",
@@ -92,15 +94,15 @@ def pin_cpu_kernels() -> None:
 
 
 def kernel_stamp() -> dict[str, Any]:
-    """The numerics a stage's artifacts are made with, for its stamp: :data:`NUMERICS` and the
+    """The numerics a stage's artifacts are made with, for its stamp: :data:`NUMERICS`, the
     kernel settings in effect (``native`` where nothing is pinned; the libraries that loaded
-    before their pin, if any)."""
+    before their pin, if any) and, off the CPU, the compute device (:func:`device_stamp`)."""
     if not _is_x86() or _native():
-        return {"numerics": NUMERICS, "kernels": "native"}
+        return {"numerics": NUMERICS, "kernels": "native", **device_stamp()}
     kernels: dict[str, Any] = {name: os.environ.get(name) for name in KERNEL_ENV}
     if _loaded_unpinned:
         kernels["loaded_unpinned"] = sorted(_loaded_unpinned)
-    return {"numerics": NUMERICS, "kernels": kernels}
+    return {"numerics": NUMERICS, "kernels": kernels, **device_stamp()}
 
 
 def pinned_environment() -> dict[str, str]:
