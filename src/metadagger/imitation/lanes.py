@@ -131,7 +131,7 @@ class Lanes:
         self.discrete = net.discrete
         self.out_dim = int(net.arch["n_outputs"])
         self._task = task
-        self._envs: list[Any] = [None] * width  # made when a lane is first used: an env is tens of MB
+        self._envs: list[Any] = [None] * width  # made when a lane is first used: an env is MBs (CarRacing: about 8)
         self._lanes: list[_Lane | None] = [None] * width
         self._batch = np.zeros((width, *net.arch["obs_shape"]), dtype=np.uint8)
         #: trunk forwards so far (one per step of the live lanes)

@@ -5,10 +5,12 @@ surface to 96x96 with ``pygame.transform.smoothscale``. This module draws the st
 
 - **Ground and road** (background, grass squares, road tiles and kerbs) never move, so they are
   drawn once per track into a world map (4 pixels per world unit, about 2.5 per state pixel at
-  full zoom). Each frame, one ``cv2.warpAffine`` with nearest-neighbour sampling gives every
-  canvas pixel the map's colour at its centre, which is what filling the polygons on the
-  canvas would give. A tile the car touches changes colour (upstream's contact listener); it is
-  redrawn on the map, with the parts drawn after it that overlap it.
+  full zoom). The map holds one byte a pixel, an index into a palette of the track's colours (7
+  MB a track instead of 21). Each frame, one ``cv2.warpAffine`` with nearest-neighbour sampling
+  gives every canvas pixel the map's index at its centre, and a lookup its colour, which is what
+  filling the polygons on the canvas would give. A tile the car touches changes colour
+  (upstream's contact listener); it is redrawn on the map, with the parts drawn after it that
+  overlap it.
 - **Car and indicators** move every frame: the car's polygons go through one vectorised
   transform and OpenCV fills with sub-pixel (fixed-point) vertices; the indicator bars and the
   reward text are cached, area-averaged patches.
@@ -204,7 +206,11 @@ class StateRenderer:
         self._shrink_car = _CV2_GROWTH - _DRAW_GROWTH * gain  # in canvas pixels
         self._world_per_canvas = 1.0 / gain  # ... times 1 / zoom
         self._canvas = np.zeros((self.size, self.size, 3), dtype=np.uint8)
+        self._indices = np.zeros((self.size, self.size), dtype=np.uint8)
         self._map: np.ndarray | None = None
+        # the map's colours: index 0 is the black beyond the playfield; (1, 256, 3) for cv2.LUT
+        self._palette = np.zeros((1, 256, 3), dtype=np.uint8)
+        self._palette_index: dict[tuple[int, ...], int] = {}
         # the canvas point the car sits on: upstream's (W/2, H/4 from the bottom), in canvas pixels
         self._view_centre = (
             cr.WINDOW_W / 2 * _SX * supersample - 0.5,
@@ -282,11 +288,12 @@ class StateRenderer:
             self._map,
             _canvas_to_map(a, b),
             (self.size, self.size),
-            dst=canvas,
+            dst=self._indices,
             flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
             borderMode=cv2.BORDER_CONSTANT,
             borderValue=0,
         )
+        cv2.LUT(cv2.merge((self._indices, self._indices, self._indices)), self._palette, dst=canvas)
         car_polys, car_colors = self._car_polygons(a, b, zoom)
         for poly, col in zip(car_polys, car_colors):
             cv2.fillConvexPoly(canvas, poly, col, cv2.LINE_8, _SHIFT)
@@ -320,9 +327,11 @@ class StateRenderer:
         """
         if self._map is None:  # one buffer for every track: a fresh one costs page faults
             size = int(math.ceil(2 * _MAP_HALF * _MAP_PX))
-            self._map = np.zeros((size, size, 3), dtype=np.uint8)
+            self._map = np.zeros((size, size), dtype=np.uint8)
         else:
             self._map.fill(0)
+        self._palette.fill(0)
+        self._palette_index = {(0, 0, 0): 0}
         self._map_colors = self._road_colors.copy()
         self._paint_map(np.flatnonzero(self._map_drawn))
 
@@ -363,14 +372,27 @@ class StateRenderer:
         n_ground = int(np.searchsorted(indices, self._n_ground))
         n_background = int(n_ground > 0 and indices[0] == 0)  # _GROUND[0] is the background
         if n_background:
-            cv2.fillConvexPoly(image, polys[0], self._bg_color, cv2.LINE_8, _SHIFT)
+            cv2.fillConvexPoly(image, polys[0], self._index_of(self._bg_color), cv2.LINE_8, _SHIFT)
         if n_ground > n_background:
             # grass squares never overlap, so one call fills them all (its even-odd rule is moot)
-            cv2.fillPoly(image, list(polys[n_background:n_ground]), self._grass_color, cv2.LINE_8, _SHIFT)
+            grass = self._index_of(self._grass_color)
+            cv2.fillPoly(image, list(polys[n_background:n_ground]), grass, cv2.LINE_8, _SHIFT)
         # int() truncation, as upstream's ``[int(c) for c in color]`` (OpenCV would round).
         colors = self._road_colors[indices[n_ground:] - self._n_ground].astype(np.int32).tolist()
         for poly, color in zip(polys[n_ground:], colors):
-            cv2.fillConvexPoly(image, poly, color, cv2.LINE_8, _SHIFT)
+            cv2.fillConvexPoly(image, poly, self._index_of(color), cv2.LINE_8, _SHIFT)
+
+    def _index_of(self, color: list[int]) -> int:
+        """The map's index of ``color`` (0-255 RGB), added to the palette on first use."""
+        key = tuple(color)
+        index = self._palette_index.get(key)
+        if index is None:
+            index = len(self._palette_index)
+            if index > 255:
+                raise RuntimeError("a CarRacing track uses more than 256 colours; the map holds one byte a pixel")
+            self._palette_index[key] = index
+            self._palette[0, index] = np.clip(color, 0, 255)
+        return index
 
     def _car_polygons(self, a: np.ndarray, b: np.ndarray, zoom: float) -> tuple[list, list]:
         """Wheels with their rotating stripes, then the hull (upstream's draw order, no particles)."""
