@@ -247,6 +247,49 @@ def test_lanes_rows_do_not_depend_on_workers_nor_on_the_methods_beside_them(toy_
     assert {k: alone[k] for k in beside} == beside
 
 
+def test_the_mdi_rows_run_in_the_seeds_lanes_and_do_not_depend_on_workers(toy_run, tmp_path, monkeypatch):
+    """A seed's MDI rows (Table 6's methods) run as one more chain of the seed's lanes, beside the
+    first demonstration share's chains: every one-shot and two-shot row is there, as without lanes,
+    and the same with 1 or 2 workers."""
+    from metadagger.evaluation.mdi import MDIConfig
+    from metadagger.imitation.lanes import current_lane
+
+    mdi = MDIConfig(seeds=SEEDS, early_stop=None, mapper="pistar-head", bc=BC, dagger_bc=BC)
+    in_lane = []
+    evaluate = bench.evaluate_mdi_seed
+    monkeypatch.setattr(
+        bench, "evaluate_mdi_seed", lambda job: in_lane.append(current_lane() is not None) or evaluate(job)
+    )
+
+    def run(name: str, lanes: int, workers: int = 1) -> list[dict]:
+        config = dataclasses.replace(CONFIG, methods=("bc", "mdi"), lanes=lanes)
+        return run_benchmark(
+            CorridorTask(),
+            _copy_run(toy_run, tmp_path / name),
+            config,
+            rounds=ROUNDS,
+            bc=BC,
+            dagger_bc=BC,
+            early_stop=None,
+            kinds=(),
+            mdi=mdi,
+            meta_queries={"pistar": 900, "pairs": 100},
+            options=StageOptions(workers=workers, progress=False, executor="inline" if workers == 1 else "local"),
+        )
+
+    alone = run("alone", 1)
+    assert in_lane == [False] * len(SEEDS)
+    laned = run("laned", 4)
+    assert in_lane[len(SEEDS) :] == [True] * len(SEEDS)
+    methods, tests = ("dagger-mdi", "dagger-bc-init", "dagger-xavier"), ("one-shot", "two-shot")
+    shots = {(r["method"], r["setting"], r["seed"]) for r in laned if r["method"] in methods}
+    assert shots == {(m, t, seed) for m in methods for t in tests for seed in SEEDS}
+    assert [(r["method"], r["setting"], r["seed"]) for r in alone] == [
+        (r["method"], r["setting"], r["seed"]) for r in laned
+    ]
+    assert run("laned-2", 4, workers=2) == laned
+
+
 def test_a_laned_seed_reads_the_acting_features_and_fits_its_heads_together(toy_run, monkeypatch):
     """With lanes no image is hashed or passed through the trunk a second time, and every
     head-only fit of the seed runs batched with the others."""

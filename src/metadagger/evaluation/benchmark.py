@@ -249,10 +249,14 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
     """Run the job's method keys on one seed; returns ``seed`` and ``entries`` (by key id).
 
     With ``config.lanes`` above 1 every chain of rollouts (each gate setting's rounds, DAgger's,
-    each mapper's head, each refit) steps in lockstep lanes (:mod:`metadagger.imitation.lanes`).
+    each mapper's head, each refit, the MDI protocol's seed) steps in lockstep lanes
+    (:mod:`metadagger.imitation.lanes`); the MDI seed runs beside the first demonstration share's
+    chains.
     """
     seed, keys = job.seed, job.keys
     rows: Rows = {}
+    shots = [key for key in keys if isinstance(key, ShotKey)]
+    mdi = [partial(_mdi_rows, job, shots)] if job.mdi is not None and shots else []
     with ExitStack() as stack:
         learner = stack.enter_context(
             SeedLearner(job.task, job.groundtruth, seed, head_init_seed=job.bc.head_init_seed(seed))
@@ -268,11 +272,11 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
                 continue
             share = demonstration_share(demo, fraction)
             [start] = run_steps(learner, [partial(_start, job, fresh, share, mine)], lanes)
-            for found in run_steps(learner, _chains(job, start, mine), lanes):
+            for found in run_steps(learner, [*_chains(job, start, mine), *mdi], lanes):
                 rows.update(found)
-    shots = [key for key in keys if isinstance(key, ShotKey)]
-    if job.mdi is not None and shots:
-        rows.update(_mdi_rows(job, shots))
+            mdi = []
+        for found in run_steps(learner, mdi, lanes):  # a run of MDI rows alone
+            rows.update(found)
     return {"seed": seed, "entries": {key.id: [rows[key]] for key in keys if key in rows}}
 
 
@@ -390,8 +394,9 @@ _CHAINS: dict[type, Callable[[BenchmarkJob, _Start, list[MethodKey], SeedLearner
 }
 
 
-def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey]) -> Rows:
-    """Table 6's one- and two-shot outcomes of DAgger-MDI, DAgger-BC and DAgger on this seed."""
+def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey], learner: SeedLearner) -> Rows:
+    """Table 6's one- and two-shot outcomes of DAgger-MDI, DAgger-BC and DAgger on this seed, by the
+    MDI protocol's own learner of the seed (in ``learner``'s lane, where it has one)."""
     assert job.mdi is not None
     mdi_job = MDIJob(
         task=job.task,
