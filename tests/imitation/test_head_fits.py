@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +11,7 @@ import torch
 from metadagger.errors import DivergedError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
 from metadagger.imitation.data import Dataset
-from metadagger.imitation.head_fits import HeadFit, fit_heads
+from metadagger.imitation.head_fits import HeadFit, Prior, fit_heads
 from metadagger.imitation.lanes import Lanes, run_chains
 from metadagger.policies import Policy, PolicyNet
 
@@ -99,3 +101,48 @@ class _NoTask:
 
     def make_env(self):  # pragma: no cover - never called
         raise AssertionError("no episode was asked for")
+
+
+def _with_prior(fit: HeadFit, mean: torch.Tensor, weight: torch.Tensor) -> HeadFit:
+    return dataclasses.replace(fit, prior=Prior(mean=mean, weight=weight))
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+def test_a_prior_pulls_toward_its_mean_as_far_as_its_weight_says(discrete):
+    """No weight: the plain fit's head. A huge weight: the mean. Zero mean and the weight decay's
+    strength everywhere: the weight-decay fit, up to rounding. Each coordinate is pulled alone."""
+    fit = _fit(13, 0, discrete=discrete, epochs=100)  # Adam moves a weight at most lr a step
+    size = fit.head.numel()
+    mean = torch.linspace(-0.5, 0.5, size)
+    plain = fit_heads([fit], out_dim=OUT, discrete=discrete)[0]
+    unweighted = fit_heads([_with_prior(fit, mean, torch.zeros(size))], out_dim=OUT, discrete=discrete)[0]
+    assert torch.equal(plain.head, unweighted.head) and plain.losses == unweighted.losses
+    pinned = fit_heads([_with_prior(fit, mean, torch.full((size,), 1e6))], out_dim=OUT, discrete=discrete)[0]
+    torch.testing.assert_close(pinned.head, mean, atol=1e-4, rtol=0)
+    decayed = fit_heads([dataclasses.replace(fit, weight_decay=0.5)], out_dim=OUT, discrete=discrete)[0]
+    as_prior = fit_heads(
+        [_with_prior(fit, torch.zeros(size), torch.full((size,), 0.5))], out_dim=OUT, discrete=discrete
+    )
+    torch.testing.assert_close(as_prior[0].head, decayed.head, rtol=1e-5, atol=1e-6)
+    half = torch.zeros(size)
+    half[: size // 2] = 1e6  # only the first half pinned
+    partly = fit_heads([_with_prior(fit, mean, half)], out_dim=OUT, discrete=discrete)[0].head
+    torch.testing.assert_close(partly[: size // 2], mean[: size // 2], atol=1e-4, rtol=0)
+    assert not torch.allclose(partly[size // 2 :], mean[size // 2 :], atol=1e-2)
+
+
+def test_a_head_with_a_prior_does_not_depend_on_its_batch_mates():
+    fits = [_fit(n, seed) for seed, n in enumerate([9, 30, 4])]
+    size = fits[0].head.numel()
+    priored = [_with_prior(fit, torch.full((size,), 0.1 * k), torch.full((size,), 0.3)) for k, fit in enumerate(fits)]
+    alone = [fit_heads([fit], out_dim=OUT, discrete=True)[0].head for fit in priored]
+    mixed = fit_heads([priored[0], fits[1], priored[1], fits[0], priored[2]], out_dim=OUT, discrete=True)
+    for mine, theirs in zip(alone, [mixed[0], mixed[2], mixed[4]]):
+        assert torch.equal(mine, theirs.head)
+    assert torch.equal(mixed[1].head, fit_heads([fits[1]], out_dim=OUT, discrete=True)[0].head)
+
+
+def test_a_prior_shaped_otherwise_than_the_head_is_refused_naming_the_fit():
+    fit = _fit(5, 0)
+    with pytest.raises(ValueError, match="fit 0: a prior's mean .* must be shaped as the head"):
+        _with_prior(fit, torch.zeros(3), torch.zeros(3))

@@ -407,6 +407,51 @@ def bench_fit(task_name: str = "fetch", *, preset: str = "paper", steps: int = 2
     return result
 
 
+def bench_prior(*, fits: int = 32, rows: int = 500, epochs: int = 20, repeats: int = 3, seed: int = 0) -> dict:
+    """Batched head-only fits with and without a Gaussian prior on the same data (CarRacing's
+    head: 20 classes on 64 features), timed alternately ``repeats`` times: the prior's cost as a
+    ratio, for one fit alone and for ``fits`` fits batched."""
+    import torch
+
+    from metadagger.imitation.head_fits import HeadFit, Prior, fit_heads
+
+    torch.set_num_threads(1)
+    generator = torch.Generator().manual_seed(seed)
+    out_dim, dim = 20, 64
+    size = out_dim * (dim + 1)
+
+    def request(k: int, prior: bool) -> HeadFit:
+        return HeadFit(
+            head=torch.randn(size, generator=torch.Generator().manual_seed(k)) * 0.1,
+            features=torch.rand(rows, dim, generator=torch.Generator().manual_seed(1000 + k)),
+            targets=torch.randint(0, out_dim, (rows,), generator=torch.Generator().manual_seed(2000 + k)),
+            orders=torch.stack([torch.randperm(rows, generator=generator) for _ in range(epochs)]),
+            lr=1e-3,
+            weight_decay=0.0,
+            batch_size=10,
+            called=f"bench fit {k}",
+            prior=Prior(mean=torch.zeros(size), weight=torch.full((size,), 1e-3)) if prior else None,
+        )
+
+    result: dict[str, Any] = {"rows": rows, "epochs": epochs, "repeats": repeats, "head_size": size}
+    for count in (1, fits):
+        plain, priored = [request(k, False) for k in range(count)], [request(k, True) for k in range(count)]
+        fit_heads(plain, out_dim=out_dim, discrete=True)  # compiles the kernel; warms the caches
+        seconds: dict[str, list[float]] = {"plain": [], "prior": []}
+        for _ in range(repeats):
+            for name, batch in (("plain", plain), ("prior", priored)):
+                start = time.perf_counter()
+                fit_heads(batch, out_dim=out_dim, discrete=True)
+                seconds[name].append(time.perf_counter() - start)
+        best = {name: min(values) for name, values in seconds.items()}
+        result[f"fits_{count}"] = {
+            "plain_s": best["plain"],
+            "prior_s": best["prior"],
+            "prior_over_plain": best["prior"] / best["plain"],
+        }
+    return result
+
+
 def _kernel_environment(kernels: str) -> dict[str, str]:
     """This process's environment without any kernel setting, plus ``native``'s switch."""
     env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV and k != NATIVE_SWITCH}

@@ -80,6 +80,21 @@ def bench_fit_cmd(
     _measure_and_write(out, "--out", lambda: bench_fit(task, preset=preset, steps=steps))
 
 
+@bench_app.command("prior")
+@user_errors
+def bench_prior_cmd(
+    fits: int = typer.Option(32, "--fits", min=1, help="Fits batched together (also timed: one alone)."),
+    rows: int = typer.Option(500, "--rows", min=10, help="Feature rows each fit learns from."),
+    epochs: int = typer.Option(20, "--epochs", min=1, help="Epochs of each fit."),
+    repeats: int = typer.Option(3, "--repeats", min=1, help="Alternating timings of each; the best is kept."),
+    out: Path = typer.Option(Path("runs/bench/prior.json"), "--out", help="JSON file to write."),
+) -> None:
+    """A head-only fit with a Gaussian prior against the same fit without: seconds and their ratio."""
+    from metadagger.cli.bench import bench_prior
+
+    _measure_and_write(out, "--out", lambda: bench_prior(fits=fits, rows=rows, epochs=epochs, repeats=repeats))
+
+
 @bench_app.command("pairs")
 @user_errors
 def bench_pairs_cmd(

@@ -13,6 +13,11 @@ shape a head's arithmetic does not depend on the heads beside it, nor on how man
 its batch. The numbers are not bit-equal to the one-head kernel
 (:class:`~metadagger.imitation.head_adam.LinearHeadAdam`): the loss is a masked sum over the
 padded batch, not ATen's mean over a batch of its own size.
+
+A fit may carry a Gaussian prior (:class:`HeadFit.prior`): its loss is then the data's plus
+``sum_j weight_j (w_j - mean_j)^2 / 2`` over the head's weights and biases, a pull toward a mean
+head with a strength of its own per coordinate (docs/method.md, "A prior for the head"). The
+losses reported are the data's alone.
 """
 
 from __future__ import annotations
@@ -21,12 +26,22 @@ import functools
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Callable, List, Sequence
+from typing import Callable, List, Optional, Sequence
 
 import torch
 
 from metadagger.errors import DivergedError, check_finite_loss
 from metadagger.utils.device import compute_device
+
+
+@dataclass(frozen=True)
+class Prior:
+    """A Gaussian prior on a head: the mean it pulls toward and the pull on each coordinate."""
+
+    mean: torch.Tensor
+    """Flat float32, laid out as the head (weight rows, then bias)."""
+    weight: torch.Tensor
+    """Flat float32, >= 0: the strength times each coordinate's precision."""
 
 
 @dataclass(frozen=True)
@@ -49,6 +64,15 @@ class HeadFit:
     """Rows per step."""
     called: str
     """How an error names this fit."""
+    prior: Prior | None = None
+    """A Gaussian prior the fit adds to its loss; None: none."""
+
+    def __post_init__(self) -> None:
+        if self.prior is not None and not (self.prior.mean.shape == self.prior.weight.shape == self.head.shape):
+            raise ValueError(
+                f"{self.called}: a prior's mean {tuple(self.prior.mean.shape)} and weight "
+                f"{tuple(self.prior.weight.shape)} must be shaped as the head {tuple(self.head.shape)}"
+            )
 
 
 @dataclass(frozen=True)
@@ -73,6 +97,8 @@ def _batched_adam_steps(
     lr: float,
     weight_decay: float,
     discrete: bool,
+    prior_mean: Optional[torch.Tensor],
+    prior_weight: Optional[torch.Tensor],
 ) -> torch.Tensor:
     """Every head's steps, in lockstep, updating ``params``, ``exp_avg`` and ``exp_avg_sq`` in place.
 
@@ -80,8 +106,10 @@ def _batched_adam_steps(
     ones column of ``features`` multiplies. Heads are ordered by their number of steps, longest
     first, so step ``t``'s heads are the first ``live[t]``; ``rows[t, b]`` are head ``b``'s rows of
     that step (indices into ``features`` and ``targets``; padding points at a zero row) and
-    ``share[t, b]`` each row's weight in the batch's mean (0 for padding). Returns each step's
-    per-row losses (T, B, batch), unweighted. Compiled by TorchScript (:func:`_compiled_steps`).
+    ``share[t, b]`` each row's weight in the batch's mean (0 for padding); ``prior_mean`` and
+    ``prior_weight``, shaped as ``params``, a Gaussian prior's gradient ``weight * (w - mean)``
+    (both None: no prior). Returns each step's per-row losses (T, B, batch), unweighted. Compiled
+    by TorchScript (:func:`_compiled_steps`).
     """
     beta1, beta2, eps = 0.9, 0.999, 1e-8  # torch.optim.Adam's defaults, as fit_bc's
     steps, n_heads, batch = rows.shape
@@ -104,6 +132,8 @@ def _batched_adam_steps(
         grad = torch.bmm(grad_outputs.transpose(1, 2), x)
         if weight_decay != 0.0:
             grad = grad.add(weight, alpha=weight_decay)
+        if prior_mean is not None and prior_weight is not None:
+            grad = grad.addcmul(prior_weight[:k], weight - prior_mean[:k])
         # torch.optim.Adam's arithmetic; every live head is at step t + 1
         correction1 = 1.0 - beta1 ** (t + 1)
         correction2 = 1.0 - beta2 ** (t + 1)
@@ -123,17 +153,17 @@ def _compiled_steps() -> Callable[..., torch.Tensor]:
 
 
 def fit_heads(fits: Sequence[HeadFit], *, out_dim: int, discrete: bool) -> list[FittedHead]:
-    """Run ``fits`` as batched problems (one per learning rate, weight decay and batch size); their
-    results in order.
+    """Run ``fits`` as batched problems (one per learning rate, weight decay, batch size, and with
+    or without a prior); their results in order.
 
     Raises:
         DivergedError: a fit's epoch loss or final weight is not finite (named by its ``called``).
     """
     out: list[FittedHead | None] = [None] * len(fits)
-    groups: dict[tuple[float, float, int], list[int]] = {}
+    groups: dict[tuple[float, float, int, bool], list[int]] = {}
     for i, fit in enumerate(fits):
-        groups.setdefault((fit.lr, fit.weight_decay, fit.batch_size), []).append(i)
-    for (lr, weight_decay, batch_size), members in groups.items():
+        groups.setdefault((fit.lr, fit.weight_decay, fit.batch_size, fit.prior is not None), []).append(i)
+    for (lr, weight_decay, batch_size, _), members in groups.items():
         heads = _fit_group([fits[i] for i in members], lr, weight_decay, batch_size, out_dim, discrete)
         for i, fitted in zip(members, heads):
             out[i] = fitted
@@ -166,6 +196,11 @@ def _fit_group(
     device = compute_device()  # the whole problem on it; the heads and losses back on the CPU
     params = torch.stack([_with_bias_column(fits[b].head, out_dim) for b in order]).to(device)
     exp_avg, exp_avg_sq = torch.zeros_like(params), torch.zeros_like(params)
+    prior_mean = prior_weight = None
+    if fits[0].prior is not None:  # a group's fits all have one, or none has
+        priors = [fits[b].prior for b in order]
+        prior_mean = torch.stack([_with_bias_column(p.mean, out_dim) for p in priors]).to(device)  # type: ignore[union-attr]
+        prior_weight = torch.stack([_with_bias_column(p.weight, out_dim) for p in priors]).to(device)  # type: ignore[union-attr]
     with torch.no_grad():
         row_losses = _compiled_steps()(
             params,
@@ -179,6 +214,8 @@ def _fit_group(
             float(lr),
             float(weight_decay),
             discrete,
+            prior_mean,
+            prior_weight,
         )
     step_losses = (row_losses * share.to(device)).sum(2).cpu()  # (T, B): each step's mean loss
     params = params.cpu()

@@ -36,6 +36,7 @@ from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
 from metadagger.imitation.data import Aggregate, Dataset, take_rows
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.gates import Episode, Gate, GateMemory, Labelled
+from metadagger.imitation.head_fits import Prior, fit_heads
 from metadagger.imitation.lanes import EpisodeRequest, Lane, Lanes, current_lane, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
@@ -115,13 +116,21 @@ class SeedLearner:
         # reads them (FeatureCache.features_of), never the images again
         return self._lane.roll(request)  # type: ignore[union-attr]
 
-    def fit(self, data: Dataset | Aggregate, config: BCConfig, *, called: str) -> None:
+    def fit(self, data: Dataset | Aggregate, config: BCConfig, *, called: str, prior: Prior | None = None) -> None:
         """Fit the current head (BC, :func:`~metadagger.imitation.bc.fit_bc`) on ``data``; in a chain's
-        lane, a head-only fit runs batched with the other chains' fits."""
-        if self._lane is None or not config.head_only:
+        lane, a head-only fit runs batched with the other chains' fits. With a ``prior`` (a Gaussian
+        prior on the head, :class:`~metadagger.imitation.head_fits.Prior`), the head-only fit adds
+        it to its loss, and always runs in the batched kernel, in a lane or alone."""
+        if prior is None and (self._lane is None or not config.head_only):
             fit_bc(self.policy, data, config, cache=self.cache, called=called)
+            return
+        request = dataclasses.replace(head_fit(self.policy, data, config, self.cache, called=called), prior=prior)
+        if self._lane is not None:
+            self.load(self._lane.fit(request).head)
         else:
-            self.load(self._lane.fit(head_fit(self.policy, data, config, self.cache, called=called)).head)
+            out_dim = int(self.policy.net.head.out_features)
+            [fitted] = fit_heads([request], out_dim=out_dim, discrete=self.policy.discrete)
+            self.load(fitted.head)
 
     def close(self) -> None:
         """Close the env."""
@@ -181,9 +190,12 @@ def demonstration_share(demo: Trajectory, fraction: float) -> Trajectory:
     )
 
 
-def bc_head(learner: SeedLearner, demo: Dataset, fit: BCConfig, *, called: str = "the BC head's fit") -> np.ndarray:
-    """Step 2: fit the learner's current head (a fresh one: w_BC) by BC on the demonstration."""
-    learner.fit(demo, fit, called=called)
+def bc_head(
+    learner: SeedLearner, demo: Dataset, fit: BCConfig, *, called: str = "the BC head's fit", prior: Prior | None = None
+) -> np.ndarray:
+    """Step 2: fit the learner's current head (a fresh one: w_BC) by BC on the demonstration (with
+    a Gaussian ``prior`` on the head, where one is given)."""
+    learner.fit(demo, fit, called=called, prior=prior)
     return learner.head()
 
 
