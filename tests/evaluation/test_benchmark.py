@@ -8,6 +8,7 @@ import math
 import shutil
 
 import pytest
+import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
@@ -332,6 +333,55 @@ def test_rows_made_alone_are_not_reused_for_lanes(toy_run, tmp_path):
         _run(layout, dataclasses.replace(config, lanes=2))
     with pytest.raises(UserError, match="benchmark.lanes must be an integer from 1 to 256, got 0"):
         dataclasses.replace(config, lanes=0)
+
+
+def _prior_run(layout: RunLayout, priors: dict, **kwargs) -> list[dict]:
+    config = dataclasses.replace(CONFIG, methods=("bc", "prior"), grids={}, demo_fractions=(0.5, 1.0))
+    return run_benchmark(
+        CorridorTask(),
+        layout,
+        config,
+        rounds=ROUNDS,
+        bc=BC,
+        dagger_bc=BC,
+        early_stop=None,
+        kinds=("pistar-head",),
+        mdi=None,
+        meta_queries={"pistar": 900, "pairs": 100},
+        priors=priors,
+        options=StageOptions(workers=1, progress=False, **kwargs),
+    )
+
+
+def test_bc_with_a_prior_spends_the_demonstrations_queries_toward_each_mean(toy_run, tmp_path):
+    """``prior`` makes one row per mean (each mapper kind, and zero) and demonstration share, charged
+    the share's queries; a prior of strength 0 fits w_BC again (the same rollout as BC); the
+    strength and precision are in the rows' stamps, so another prior's rows are never reused."""
+    from metadagger.mapping.priors import HeadPrior
+    from metadagger.policies import load_policy
+
+    size = load_policy(toy_run.groundtruth).head_vector().numel()
+    priors = {
+        "pistar-head": HeadPrior("pistar-head", torch.ones(size), strength=10.0),
+        "zero": HeadPrior("zero", torch.ones(size), strength=0.0),
+    }
+    layout = _copy_run(toy_run, tmp_path / "run")
+    rows = _prior_run(layout, priors)
+    table = {(r["method"], r["demo_fraction"], r["seed"]): r for r in rows}
+    for seed in SEEDS:
+        for fraction in (0.5, 1.0):
+            bc_row = table["bc", fraction, seed]
+            for method in ("prior-pistar-head", "prior-zero"):
+                assert table[method, fraction, seed]["expert_queries"] == bc_row["expert_queries"]
+            assert table["prior-zero", fraction, seed]["steps"] == bc_row["steps"]
+    assert _prior_run(layout, priors) == rows  # resumed: nothing redone
+    text = "\n".join(benchmark_section(layout))
+    assert "BC, prior toward pi*-head (control)" in text and "BC, prior toward zero" in text
+    stronger = {**priors, "pistar-head": dataclasses.replace(priors["pistar-head"], strength=100.0)}
+    with pytest.raises(UserError, match="prior"):
+        _prior_run(layout, stronger)
+    with pytest.raises(UserError, match=r"benchmark method prior needs the priors toward \['zero'\]"):
+        _prior_run(layout, {"pistar-head": priors["pistar-head"]})
 
 
 def test_a_round_that_labels_nothing_rolls_nothing_out_again(toy_run, monkeypatch):

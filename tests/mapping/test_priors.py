@@ -13,11 +13,12 @@ from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig
 from metadagger.mapping.mappers import Mapper
 from metadagger.mapping.priors import (
-    PRIOR_MEANS,
     STRENGTHS,
     VARIANCE_FLOOR,
+    ZERO,
     build_prior,
-    choose_strength,
+    choose_strengths,
+    mean_head,
     residual_precision,
 )
 from metadagger.metal.method import SeedLearner, bc_head, demonstration, seeded
@@ -40,25 +41,35 @@ def test_the_precision_is_the_inverse_mean_square_of_the_residuals_floored():
         residual_precision(torch.zeros(4, 3))
 
 
-def test_each_mean_is_the_training_pairs_and_its_precision_their_spread_around_it():
+def test_each_mean_is_a_mappers_map_and_its_precision_the_pairs_spread_around_it(tmp_path):
     split = synthetic_split()
     pistar = torch.full((split.w_da_train.shape[1],), 0.3)
-    mapper = Mapper.control("mean-da", w_da_train=split.w_da_train)  # a mapper of a constant map
-    priors = {mean: build_prior(mean, split, mapper=mapper, pistar_head=pistar) for mean in PRIOR_MEANS}
-    mean_da = split.w_da_train.mean(dim=0)
-    torch.testing.assert_close(priors["mean-da"].constant, mean_da)
-    torch.testing.assert_close(priors["pistar-head"].constant, pistar)
-    assert torch.equal(priors["zero"].constant, torch.zeros_like(pistar)) and priors["mapper"].constant is None
-    for mean, centre in (("mean-da", mean_da), ("pistar-head", pistar), ("zero", torch.zeros_like(pistar))):
-        torch.testing.assert_close(priors[mean].precision, residual_precision(split.w_da_train - centre))
-    # the mapper's prior reads the mapper, per seed and for its residuals
-    torch.testing.assert_close(priors["mapper"].precision, priors["mean-da"].precision)
-    torch.testing.assert_close(priors["mapper"].mean_for(split.w_bc_val[0], None, mapper), mean_da)
-    assert all(prior.strength == 0.0 for prior in priors.values())
-    with pytest.raises(UserError, match="unknown prior mean 'median'; expected one of mapper, pistar-head"):
-        build_prior("median", split, mapper=None, pistar_head=pistar)
-    with pytest.raises(UserError, match="the mapper prior needs a mapper"):
-        build_prior("mapper", split, mapper=None, pistar_head=pistar)
+    mappers = {
+        "pistar-head": Mapper.pistar_head(pistar),
+        "mean-da": Mapper.control("mean-da", w_da_train=split.w_da_train),
+        ZERO: None,
+    }
+    centres = {"pistar-head": pistar, "mean-da": split.w_da_train.mean(dim=0), ZERO: torch.zeros_like(pistar)}
+    for kind, mapper in mappers.items():
+        prior = build_prior(split, mapper)
+        assert prior.mean == kind and prior.strength == 0.0
+        torch.testing.assert_close(mean_head(mapper, split.w_bc_val[0]), centres[kind])
+        torch.testing.assert_close(prior.precision, residual_precision(split.w_da_train - centres[kind]))
+    # a learned kind's mean is its map of each seed's w_BC; its precision, the residuals of its predictions
+    from mapping_data import tiny_config
+
+    from metadagger.mapping.train import train_mapper
+
+    ridge = train_mapper(split, tiny_config("ridge"), tmp_path / "ridge", progress=False)
+    prior = build_prior(split, ridge)
+    predicted = ridge.map_tensor(split.w_bc_train, split.context_train)
+    torch.testing.assert_close(prior.precision, residual_precision(split.w_da_train - predicted))
+    context = split.context_val[1]
+    torch.testing.assert_close(
+        mean_head(ridge, split.w_bc_val[1], context), ridge.map_tensor(split.w_bc_val[1:2], context[None])[0]
+    )
+    weight = prior.prior(mean_head(ridge, split.w_bc_val[1], context)).weight
+    assert torch.equal(weight, torch.zeros_like(weight))  # strength 0 until chosen
 
 
 def _split(val_targets: torch.Tensor, size: int) -> PairSplit:
@@ -81,8 +92,8 @@ def test_the_strength_is_chosen_on_the_validation_pairs_alone(toy_run, monkeypat
     task, groundtruth = CorridorTask(), str(toy_run.groundtruth)
     size = load_policy(groundtruth).head_vector().numel()
     at_mean = _split(torch.zeros(len(VAL_SEEDS), size), size)
-    prior = build_prior("zero", at_mean, mapper=None, pistar_head=torch.zeros(size))
-    strong, choice = choose_strength(prior, task, groundtruth, at_mean, FIT)
+    prior = build_prior(at_mean, None)
+    [(strong, choice)] = choose_strengths({ZERO: (prior, None)}, task, groundtruth, at_mean, FIT).values()
     assert strong.strength == max(STRENGTHS) == choice.strength and strong.precision is prior.precision
     assert list(choice.distances) == list(STRENGTHS)
     assert choice.distances[max(STRENGTHS)] < choice.distances[0.0]
@@ -90,9 +101,8 @@ def test_the_strength_is_chosen_on_the_validation_pairs_alone(toy_run, monkeypat
     for seed in VAL_SEEDS:
         with SeedLearner(task, groundtruth, seed, head_init_seed=FIT.head_init_seed(seed)) as learner:
             own.append(torch.from_numpy(bc_head(learner, demonstration(learner).to_dataset(), seeded(FIT, seed))))
-    weak, choice = choose_strength(
-        prior, task, groundtruth, dataclasses.replace(at_mean, w_da_val=torch.stack(own)), FIT
-    )
+    at_own = dataclasses.replace(at_mean, w_da_val=torch.stack(own))
+    [(weak, choice)] = choose_strengths({ZERO: (prior, None)}, task, groundtruth, at_own, FIT).values()
     assert weak.strength <= 1e-4 and choice.distances[weak.strength] < choice.distances[max(STRENGTHS)]
     seen = []
     original = SeedLearner.__init__
@@ -102,5 +112,7 @@ def test_the_strength_is_chosen_on_the_validation_pairs_alone(toy_run, monkeypat
         original(self, task, groundtruth, seed, **kwargs)
 
     monkeypatch.setattr(SeedLearner, "__init__", recording)
-    choose_strength(prior, task, groundtruth, at_mean, FIT, strengths=(0.0, 1.0))
-    assert seen == list(VAL_SEEDS)
+    two = {ZERO: (prior, None), "pistar-head": (prior, Mapper.pistar_head(torch.zeros(size)))}
+    both = choose_strengths(two, task, groundtruth, at_mean, FIT, strengths=(0.0, 1.0))
+    assert seen == list(VAL_SEEDS)  # one demonstration a seed, whatever the number of priors
+    assert both[ZERO][1] == both["pistar-head"][1]  # the same mean (zero): the same distances

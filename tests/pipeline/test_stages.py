@@ -298,3 +298,21 @@ def test_pairs_summary_records_how_far_dagger_moved_the_heads(finished):
     weak = {**summary, "head_change": {"median": NEGLIGIBLE_HEAD_CHANGE / 2, "min": 0.01, "max": 0.06}}
     assert "DAgger moved the heads by a median 5.0%" in negligible_change_warning(weak)
     assert negligible_change_warning({**summary, "head_change": {"median": 1.0, "min": 0.5, "max": 2.0}}) is None
+
+
+def test_the_prior_method_chooses_its_strengths_on_the_validation_pairs_and_rows_each_mean(finished, tmp_path):
+    """``benchmark --methods bc,prior``: a prior toward each evaluated mapper kind and zero, its
+    strength chosen on the validation pairs and written to benchmark/priors.json, one row per mean."""
+    from metadagger.mapping.priors import STRENGTHS
+    from metadagger.pipeline.run_config import load_run
+
+    layout = _copy(finished, tmp_path / "run")
+    shutil.rmtree(layout.benchmark_dir, ignore_errors=True)
+    _ok(["benchmark", "--out", layout.root, "--seeds", "5000", "--methods", "bc,prior"])
+    kinds = list(load_run(layout.root).evaluate.methods)
+    priors = json.loads(layout.benchmark_priors.read_text())
+    assert set(priors) == {*kinds, "zero"}
+    for choice in priors.values():
+        assert choice["strength"] in STRENGTHS and len(choice["distances"]) == len(STRENGTHS)
+    rows = read_csv(layout.benchmark_table)
+    assert {r["method"] for r in rows} >= {"bc", *(f"prior-{kind}" for kind in kinds), "prior-zero"}

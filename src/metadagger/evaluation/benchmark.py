@@ -30,6 +30,7 @@ query ledger (:mod:`metadagger.evaluation.ledger`). The summary and its statisti
 
 from __future__ import annotations
 
+import hashlib
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from functools import partial
@@ -37,6 +38,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
+import torch
 
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark_figure import plot_queries
@@ -51,6 +53,7 @@ from metadagger.evaluation.methods import (
     GateKey,
     MapperKey,
     MethodKey,
+    PriorKey,
     RefitKey,
     RoundKey,
     ShotKey,
@@ -68,6 +71,7 @@ from metadagger.imitation.gates import Gate
 from metadagger.imitation.lanes import Lanes, check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
+from metadagger.mapping.priors import HeadPrior, mean_head
 from metadagger.metal.method import (
     Round,
     SeedLearner,
@@ -214,6 +218,8 @@ class BenchmarkJob(SeedJob):
     early_stop: float | None
     mdi: MDIConfig | None
     """The run's MDI protocol (``bc`` resolved) when the job runs its methods."""
+    priors: dict[str, HeadPrior] = field(default_factory=dict)
+    """Each prior of the ``prior`` method, by its mean (a mapper kind or ``zero``)."""
 
 
 def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...], mdi: bool) -> list[MethodKey]:
@@ -285,6 +291,8 @@ class _Start:
     """Where every row of one demonstration share starts: w_BC and its rollout."""
 
     demo: Trajectory
+    fresh: np.ndarray
+    """The seed's fresh head, which w_BC was fitted from."""
     w_bc: np.ndarray
     first: Trajectory
     """w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round."""
@@ -310,10 +318,12 @@ def _start(
     w_bc = bc_head(learner, data, seeded(job.bc, job.seed))
     first = learner.roll(w_bc, early_stop=job.early_stop)
     needs_context = any(
-        cached_mapper(job.mappers[key.kind]).needs_context for key in keys if isinstance(key, MapperKey)
+        cached_mapper(job.mappers[key.mapper_kind]).needs_context
+        for key in keys
+        if isinstance(key, (MapperKey, PriorKey)) and key.mapper_kind is not None
     )
     context = seed_context(learner.cache, data, first.to_dataset()) if needs_context else None
-    return _Start(demo, w_bc, first, context)
+    return _Start(demo, fresh, w_bc, first, context)
 
 
 Chain = Callable[[SeedLearner], Rows]
@@ -339,6 +349,18 @@ def _mapper_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner
     if key.reads_demonstration:
         return {key: _row(key, job.seed, rollout, start.queries, start.labels())}
     return {key: _row(key, job.seed, rollout, 0, [])}
+
+
+def _prior_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
+    # BC's fit from the fresh head with a prior toward the mean kind's head for w_BC (and context)
+    [key] = keys
+    assert isinstance(key, PriorKey)
+    mapper = None if key.mapper_kind is None else cached_mapper(job.mappers[key.mapper_kind])
+    context = None if start.context is None else torch.from_numpy(start.context)
+    prior = job.priors[key.mean].prior(mean_head(mapper, torch.from_numpy(start.w_bc), context))
+    learner.load(start.fresh)
+    head = bc_head(learner, start.demo.to_dataset(), seeded(job.bc, job.seed), called="BC with a prior", prior=prior)
+    return {key: _row(key, job.seed, learner.roll(head, early_stop=job.early_stop), start.queries, start.labels())}
 
 
 def _rounds(job: BenchmarkJob, start: _Start, learner: SeedLearner, gate: Gate | None) -> Iterator[Round]:
@@ -388,6 +410,7 @@ def _refit_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner:
 _CHAINS: dict[type, Callable[[BenchmarkJob, _Start, list[MethodKey], SeedLearner], Rows]] = {
     BCKey: _bc_row,
     MapperKey: _mapper_row,
+    PriorKey: _prior_row,
     RoundKey: _dagger_rows,
     GateKey: _gate_row,
     RefitKey: _refit_row,
@@ -438,6 +461,7 @@ def benchmark_stamps(
     keys: list[MethodKey],
     mdi: MDIConfig | None,
     mdi_mapper: str | None,
+    priors: dict[str, HeadPrior] | None = None,
 ) -> dict[str, Stamp]:
     """What each method key's rows are made from: the shared fits, pi*, and the method's own inputs."""
     common = {
@@ -449,13 +473,23 @@ def benchmark_stamps(
         "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
     }
     stamps: dict[str, Stamp] = {}
-    inputs = StampInputs(config.options_of, None if mdi is None else stamp_of(mdi, drop=("seeds", "controls")))
+    inputs = StampInputs(
+        config.options_of,
+        None if mdi is None else stamp_of(mdi, drop=("seeds", "controls")),
+        {mean: prior_stamp(prior) for mean, prior in (priors or {}).items()},
+    )
     for key in keys:
         own = key.own_stamp(inputs)
         if key.mapper_kind is not None:
             own["mapper_fingerprint"] = file_fingerprint(_mapper_path(layout, key.mapper_kind, mdi_mapper))
         stamps[key.id] = {**common, **own}
     return stamps
+
+
+def prior_stamp(prior: HeadPrior) -> dict[str, Any]:
+    """What a prior's rows are made from beyond its mean's mapper: its strength and precision."""
+    precision = prior.precision.to(torch.float32).contiguous().numpy()
+    return {"strength": prior.strength, "precision_sha256": hashlib.sha256(precision.tobytes()).hexdigest()}
 
 
 def _mapper_path(layout: RunLayout, kind: str, mdi_mapper: str | None) -> Path:
@@ -475,6 +509,7 @@ def run_benchmark(
     kinds: tuple[str, ...],
     mdi: MDIConfig | None,
     meta_queries: dict[str, int],
+    priors: dict[str, HeadPrior] | None = None,
     options: StageOptions = StageOptions(),
 ) -> list[dict[str, Any]]:
     """Run the missing rows of the benchmark; write ``queries.csv``, the query ledger
@@ -487,15 +522,17 @@ def run_benchmark(
         config: seeds, methods and gate grids.
         rounds: R, the pairs' DAgger rounds; ``bc``, ``dagger_bc``, ``early_stop``: the pairs' fits
             and early stop, so every method starts where the pairs start.
-        kinds: the mapper kinds MDM runs with.
+        kinds: the mapper kinds MDM runs with, and the means of the priors (with ``zero``).
         mdi: the run's MDI protocol (``bc`` resolved), or None.
         meta_queries: expert queries spent on meta-training (``pistar``, ``pairs``), for the report.
+        priors: the ``prior`` method's priors by mean (:mod:`metadagger.mapping.priors`; the
+            stage builds them from the pairs), where ``config.methods`` has it.
         options: rebuild (redo rows made from other inputs; else they are an error), executor,
             workers, progress: as for every stage.
 
     Raises:
-        UserError: ``config.methods`` has ``mdi`` but the run has no MDI protocol; or, without
-            ``rebuild``, rows made from other inputs.
+        UserError: ``config.methods`` has ``mdi`` but the run has no MDI protocol, or ``prior``
+            without its priors; or, without ``rebuild``, rows made from other inputs.
     """
     with_mdi = "mdi" in config.methods
     if with_mdi and mdi is None:
@@ -504,10 +541,13 @@ def run_benchmark(
             "drop mdi from --methods (or benchmark.methods), or add an mdi section"
         )
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
+    missing = sorted({key.mean for key in keys if isinstance(key, PriorKey)} - set(priors or {}))
+    if missing:
+        raise UserError(f"benchmark method prior needs the priors toward {missing}; build them from the pairs first")
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
     settings.update(lanes_stamp(config.lanes))  # stamped unless 1: rows made alone stay current
     mdi_mapper = mdi.mapper if with_mdi and mdi is not None else None
-    stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi_mapper)
+    stamps = benchmark_stamps(task, layout, settings, config, keys, mdi if with_mdi else None, mdi_mapper, priors)
     log = RowLog(layout.benchmark_log)
     todo = plan(
         config.seeds,
@@ -540,6 +580,7 @@ def run_benchmark(
             dagger_bc=dagger_bc,
             early_stop=early_stop,
             mdi=mdi if with_mdi else None,
+            priors=dict(priors or {}),
         )
         for p in todo
     ]

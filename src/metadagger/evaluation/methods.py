@@ -21,10 +21,13 @@ from typing import Any, Callable, Sequence
 
 from metadagger.errors import UserError
 from metadagger.imitation.gate_registry import GATED_PREFIX, gate_declarations
+from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import control_names
 
 #: Prefix of the MDM methods: ``mdm-<mapper kind>``.
 MDM_PREFIX = "mdm-"
+#: Prefix of BC with a prior (:mod:`metadagger.mapping.priors`): ``prior-<mapper kind>``, ``prior-zero``.
+PRIOR_PREFIX = "prior-"
 #: The control that refits w_BC as DAgger does, with no new label.
 BC_REFIT = "bc-refit"
 #: The MDI protocol's methods (:mod:`metadagger.evaluation.mdi`) and their names in the benchmark,
@@ -44,6 +47,8 @@ class StampInputs:
     """A gated method's gate options."""
     mdi: dict[str, Any] | None
     """The MDI protocol's settings as stamped, where the run has one."""
+    priors: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Each prior's strength and precision as stamped, by its mean (a mapper kind or ``zero``)."""
 
 
 @dataclass(frozen=True)
@@ -117,6 +122,25 @@ class MapperKey(MethodKey):
     def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
         charged = {} if self.reads_demonstration else {"charged": "no query"}
         return {**super().own_stamp(inputs), **charged}
+
+
+@dataclass(frozen=True)
+class PriorKey(MethodKey):
+    """BC on the demonstration with a Gaussian prior on the head, toward a mapper kind's head for
+    w_BC (``zero``: toward the zero head), its strength chosen on the validation pairs."""
+
+    mean: str
+
+    @property
+    def starts_from_demonstration(self) -> bool:
+        return True
+
+    @property
+    def mapper_kind(self) -> str | None:
+        return None if self.mean == ZERO else self.mean
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        return {**super().own_stamp(inputs), "prior": inputs.priors[self.mean]}
 
 
 @dataclass(frozen=True)
@@ -195,6 +219,10 @@ def _mdm(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi
     return [MapperKey(MDM_PREFIX + kind, "", kind=kind) for kind in kinds]
 
 
+def _prior(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    return [PriorKey(PRIOR_PREFIX + mean, "", mean=mean) for mean in (*kinds, ZERO)]
+
+
 def _dagger(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     return [RoundKey("dagger", str(r), round=r) for r in range(1, rounds + 1)]
 
@@ -230,6 +258,12 @@ _BUILT_IN = (
         "BC refitted as DAgger, no new label (control)",
         "w_BC refitted as often and as long as DAgger refits it, on the demonstration alone (a control)",
         _bc_refit,
+    ),
+    BenchmarkMethod(
+        "prior",
+        "BC with a prior",
+        "BC on the demonstration with a Gaussian prior toward each mapper kind's head (and zero), no further query",
+        _prior,
     ),
 )
 _MDI = BenchmarkMethod(

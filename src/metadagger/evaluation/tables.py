@@ -7,8 +7,9 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
-from metadagger.evaluation.methods import MDI_LABELS, benchmark_methods
+from metadagger.evaluation.methods import MDI_LABELS, PRIOR_PREFIX, benchmark_methods
 from metadagger.imitation.metrics import summarize
+from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import get_kind, kind_names
 from metadagger.utils.plotting import draw_figure
 
@@ -29,6 +30,9 @@ def method_label(method: str) -> str:
         return MDI_PROTOCOL_LABELS[method]
     if method.startswith("mdm-"):
         return f"MDM {get_kind(method.removeprefix('mdm-')).label}"
+    if method.startswith(PRIOR_PREFIX):
+        mean = method.removeprefix(PRIOR_PREFIX)
+        return f"BC, prior toward {'zero' if mean == ZERO else get_kind(mean).label}"
     if method.startswith("oneshot-"):
         return f"one-shot {get_kind(method.removeprefix('oneshot-')).label}"
     if method.startswith("dagger-mdi-"):

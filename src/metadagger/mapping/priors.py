@@ -3,14 +3,15 @@
 MDM replaces a seed's head with a mapper's; a prior only pulls the seed's fit toward a mean head,
 as far as the seed's own data leaves the head undecided. A :class:`HeadPrior` has
 
-- a **mean**, one of :data:`PRIOR_MEANS`: the mapper's prediction from the seed's w_BC (and
-  context, where its kind reads one), the MetaL prior; or, as controls, pi*'s head, mean-DA (the
-  training pairs' mean w_DA) and zero (weight decay with a strength per coordinate);
+- a **mean**: a mapper's prediction from the seed's w_BC (and context, where its kind reads
+  one): a learned kind's is the MetaL prior; the control kinds' are pi*'s head and mean-DA (the
+  training pairs' mean w_DA); and :data:`ZERO`, no mapper, is weight decay with a strength per
+  coordinate;
 - a **precision** per coordinate: the inverse of the variance of the training pairs' w_DA around
-  the mean (their residuals around the mapper's predictions, for the mapper), floored at
-  :data:`VARIANCE_FLOOR` times its mean over the coordinates;
+  their means (the mapper's predictions for them), floored at :data:`VARIANCE_FLOOR` times its
+  mean over the coordinates;
 - a **strength** ``lam``, chosen from the fixed grid :data:`STRENGTHS` on the validation pairs
-  alone (:func:`choose_strength`): each validation seed's demonstration is fitted, as the pairs
+  alone (:func:`choose_strengths`): each validation seed's demonstration is fitted, as the pairs
   fitted it, once per strength, and the strength whose heads land nearest the seeds' w_DA (mean
   squared distance) is kept, a tie going to the weaker.
 
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -36,8 +37,8 @@ from metadagger.metal.method import SeedLearner, demonstration, seeded
 from metadagger.metal.store import PairSplit
 from metadagger.tasks.base import Task
 
-#: The means a prior can pull toward: the mapper's prediction (the MetaL prior), then the controls.
-PRIOR_MEANS = ("mapper", "pistar-head", "mean-da", "zero")
+#: The mean of a prior without a mapper: the zero head.
+ZERO = "zero"
 #: The strengths ``lam`` a prior is chosen from, weakest first; fixed in advance (0: no prior).
 STRENGTHS = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 #: The floor of a coordinate's variance, as a share of the variances' mean over the coordinates.
@@ -46,25 +47,24 @@ VARIANCE_FLOOR = 1e-2
 
 @dataclass(frozen=True)
 class HeadPrior:
-    """A Gaussian prior on a head: its mean's kind, the constant mean (None for the mapper's, which
-    depends on the seed), the precision per coordinate and the strength."""
+    """A Gaussian prior on a head: the mapper kind of its mean (:data:`ZERO` for none), the
+    precision per coordinate and the strength."""
 
     mean: str
-    constant: torch.Tensor | None
     precision: torch.Tensor
     strength: float = 0.0
 
     def prior(self, mean_head: torch.Tensor) -> Prior:
-        """The kernel's prior for a seed whose mean head is ``mean_head`` (:meth:`mean_for`)."""
+        """The kernel's prior for a seed whose mean head is ``mean_head`` (:func:`mean_head`)."""
         return Prior(mean=mean_head.to(torch.float32), weight=(self.strength * self.precision).to(torch.float32))
 
-    def mean_for(self, w_bc: torch.Tensor, context: torch.Tensor | None, mapper: Mapper | None) -> torch.Tensor:
-        """The mean head of a seed with head ``w_bc`` (and ``context``): the constant, or ``mapper``'s map."""
-        if self.constant is not None:
-            return self.constant
-        if mapper is None:
-            raise ValueError("the mapper prior needs its mapper")
-        return mapper.map_tensor(w_bc[None].to(torch.float32), None if context is None else context[None])[0]
+
+def mean_head(mapper: Mapper | None, w_bc: torch.Tensor, context: torch.Tensor | None = None) -> torch.Tensor:
+    """A seed's prior mean: ``mapper``'s head for its ``w_bc`` (and ``context``), or zero without a mapper."""
+    w_bc = torch.as_tensor(w_bc, dtype=torch.float32)
+    if mapper is None:
+        return torch.zeros_like(w_bc)
+    return mapper.map_tensor(w_bc[None], None if context is None else torch.as_tensor(context)[None])[0].clone()
 
 
 def residual_precision(residuals: torch.Tensor) -> torch.Tensor:
@@ -81,30 +81,20 @@ def residual_precision(residuals: torch.Tensor) -> torch.Tensor:
     return (1.0 / variance.clamp_min(floor)).to(torch.float32)
 
 
-def build_prior(mean: str, split: PairSplit, *, mapper: Mapper | None, pistar_head: torch.Tensor) -> HeadPrior:
-    """The prior of ``mean`` (one of :data:`PRIOR_MEANS`) from the training pairs of ``split``, at
-    strength 0 (choose it with :func:`choose_strength`)."""
-    if mean not in PRIOR_MEANS:
-        raise UserError(f"unknown prior mean {mean!r}; expected one of {', '.join(PRIOR_MEANS)}")
+def build_prior(split: PairSplit, mapper: Mapper | None) -> HeadPrior:
+    """The prior whose mean is ``mapper``'s map (zero without one), its precision from the training
+    pairs of ``split``, at strength 0 (choose it with :func:`choose_strengths`)."""
     w_da = split.w_da_train.to(torch.float32)
-    constant: torch.Tensor | None
-    if mean == "mapper":
-        if mapper is None:
-            raise UserError("the mapper prior needs a mapper; train one first (metadagger train-mapper)")
-        constant, means = None, mapper.map_tensor(split.w_bc_train.to(torch.float32), split.context_train)
+    if mapper is None:
+        means = torch.zeros_like(w_da)
     else:
-        constant = {
-            "pistar-head": pistar_head.to(torch.float32),
-            "mean-da": w_da.mean(dim=0),
-            "zero": torch.zeros(w_da.shape[1]),
-        }[mean]
-        means = constant.expand_as(w_da)
-    return HeadPrior(mean=mean, constant=constant, precision=residual_precision(w_da - means))
+        means = mapper.map_tensor(split.w_bc_train.to(torch.float32), split.context_train)
+    return HeadPrior(mean=ZERO if mapper is None else mapper.kind, precision=residual_precision(w_da - means))
 
 
 @dataclass(frozen=True)
 class StrengthChoice:
-    """The strength :func:`choose_strength` kept, and each strength's mean squared distance to w_DA."""
+    """The strength :func:`choose_strengths` kept, and each strength's mean squared distance to w_DA."""
 
     strength: float
     distances: dict[float, float]
@@ -114,53 +104,62 @@ class StrengthChoice:
         return {"strength": self.strength, "distances": {f"{k:g}": v for k, v in self.distances.items()}}
 
 
-def choose_strength(
-    prior: HeadPrior,
+def choose_strengths(
+    priors: Mapping[str, tuple[HeadPrior, Mapper | None]],
     task: Task,
     groundtruth: str,
     split: PairSplit,
     fit: BCConfig,
     *,
-    mapper: Mapper | None = None,
     strengths: Sequence[float] = STRENGTHS,
-) -> tuple[HeadPrior, StrengthChoice]:
-    """``prior`` at the strength whose fits of the validation seeds' demonstrations land nearest
-    their w_DA, and the distances of every strength.
+) -> dict[str, tuple[HeadPrior, StrengthChoice]]:
+    """Each prior (with the mapper of its mean, None for zero) at the strength whose fits of the
+    validation seeds' demonstrations land nearest their w_DA, and the distances of every strength.
 
-    Each validation seed's demonstration is fitted as the pairs fitted it (``fit``, seeded by the
-    seed, from the seed's fresh head), once per strength, the strengths batched in one kernel call;
-    no seed outside the validation split is read.
+    Each validation seed's demonstration is made once and fitted as the pairs fitted it (``fit``,
+    seeded by the seed, from the seed's fresh head), once per prior and strength, all of them
+    batched in one kernel call; no seed outside the validation split is read.
     """
     if not split.val_seeds:
         raise UserError("choosing a prior's strength needs validation pairs; keep some (pairs' split)")
-    totals = np.zeros(len(strengths))
+    totals = {mean: np.zeros(len(strengths)) for mean in priors}
     for row, seed in enumerate(split.val_seeds):
-        seed_fit = seeded(fit, seed)
         context = None if split.context_val is None else split.context_val[row]
-        mean_head = prior.mean_for(split.w_bc_val[row], context, mapper)
         with SeedLearner(task, groundtruth, seed, head_init_seed=fit.head_init_seed(seed)) as learner:
             data = demonstration(learner).to_dataset()
-            base = head_fit(learner.policy, data, seed_fit, learner.cache, called=f"the prior fit of pair seed {seed}")
+            base = head_fit(
+                learner.policy, data, seeded(fit, seed), learner.cache, called=f"the prior fit of pair seed {seed}"
+            )
         requests = [
-            dataclasses.replace(base, prior=dataclasses.replace(prior, strength=lam).prior(mean_head))
+            dataclasses.replace(
+                base,
+                prior=dataclasses.replace(prior, strength=lam).prior(mean_head(mapper, split.w_bc_val[row], context)),
+            )
+            for prior, mapper in priors.values()
             for lam in strengths
         ]
-        out_dim = int(learner.policy.net.head.out_features)
-        heads = fit_heads(requests, out_dim=out_dim, discrete=learner.policy.discrete)
+        heads = iter(
+            fit_heads(requests, out_dim=int(learner.policy.net.head.out_features), discrete=learner.policy.discrete)
+        )
         target = split.w_da_val[row].to(torch.float32)
-        totals += [float((fitted.head - target).double().square().mean()) for fitted in heads]
-    distances = {float(lam): float(total / len(split.val_seeds)) for lam, total in zip(strengths, totals)}
-    best = min(strengths, key=lambda lam: (distances[float(lam)], lam))
-    return dataclasses.replace(prior, strength=float(best)), StrengthChoice(float(best), distances)
+        for mean in priors:
+            totals[mean] += [float((next(heads).head - target).double().square().mean()) for _ in strengths]
+    chosen = {}
+    for mean, (prior, _) in priors.items():
+        distances = {float(lam): float(total / len(split.val_seeds)) for lam, total in zip(strengths, totals[mean])}
+        best = float(min(strengths, key=lambda lam: (distances[float(lam)], lam)))
+        chosen[mean] = (dataclasses.replace(prior, strength=best), StrengthChoice(best, distances))
+    return chosen
 
 
 __all__ = [
-    "PRIOR_MEANS",
     "STRENGTHS",
     "VARIANCE_FLOOR",
+    "ZERO",
     "HeadPrior",
     "StrengthChoice",
     "build_prior",
-    "choose_strength",
+    "choose_strengths",
+    "mean_head",
     "residual_precision",
 ]

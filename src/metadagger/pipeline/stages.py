@@ -40,6 +40,7 @@ from metadagger.evaluation.tensorboard import (
 )
 from metadagger.evaluation.video import FIXED_METHODS, check_methods, compose, require_imageio, seed_clips, write_video
 from metadagger.mapping.mappers import load_mapper
+from metadagger.mapping.priors import ZERO, HeadPrior, build_prior, choose_strengths
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
 from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
@@ -64,7 +65,7 @@ from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
 from metadagger.tasks.checks import check_task_code
 from metadagger.utils.executors import default_workers
-from metadagger.utils.io import read_json
+from metadagger.utils.io import read_json, write_json
 from metadagger.utils.kernels import pin_cpu_kernels
 from metadagger.utils.plotting import draw_figure
 
@@ -321,9 +322,10 @@ def stage_benchmark(
     bench = dataclasses.replace(bench, **changes) if changes else bench
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
-    kinds = config.evaluate.methods if "mdm" in bench.methods else ()
+    kinds = config.evaluate.methods if {"mdm", "prior"} & set(bench.methods) else ()
     mdi = config.mdi_config if "mdi" in bench.methods else None
     _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
+    priors = _benchmark_priors(layout, config, task, tuple(kinds), options) if "prior" in bench.methods else None
     rows = run_benchmark(
         task,
         layout,
@@ -335,10 +337,31 @@ def stage_benchmark(
         kinds=tuple(kinds),
         mdi=mdi,
         meta_queries=_meta_training_queries(layout, config),
+        priors=priors,
         options=options,
     )
     _log(layout, config, lambda: {"benchmark": benchmark_scalars(layout)})
     return rows
+
+
+def _benchmark_priors(
+    layout: RunLayout, config: RunConfig, task: Task, kinds: tuple[str, ...], options: StageOptions
+) -> dict[str, HeadPrior]:
+    """The ``prior`` method's priors, toward each of ``kinds``' heads and zero: precision from the
+    training pairs, strength chosen on the validation pairs (mapping/priors.py)."""
+    split = _current_split(layout, config, task)
+    means = {kind: load_mapper(layout.mapper(kind)) for kind in kinds} | {ZERO: None}
+    if options.progress:
+        print(f"priors: choosing strengths on {len(split.val_seeds)} validation pairs", file=sys.stderr, flush=True)
+    chosen = choose_strengths(
+        {mean: (build_prior(split, mapper), mapper) for mean, mapper in means.items()},
+        task,
+        str(layout.groundtruth),
+        split,
+        config.pairs.bc,
+    )
+    write_json(layout.benchmark_priors, {mean: choice.as_dict() for mean, (_, choice) in chosen.items()})
+    return {mean: prior for mean, (prior, _) in chosen.items()}
 
 
 @records_config

@@ -149,6 +149,11 @@ class RunLayout:
         return self.benchmark_dir / "summary.json"
 
     @property
+    def benchmark_priors(self) -> Path:
+        """The ``prior`` method's strengths and each strength's distance on the validation pairs."""
+        return self.benchmark_dir / "priors.json"
+
+    @property
     def benchmark_figure(self) -> Path:
         """Success against mean expert queries."""
         return self.benchmark_dir / "queries.png"
