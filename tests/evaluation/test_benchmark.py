@@ -42,7 +42,15 @@ CONFIG = BenchmarkConfig(
 ROUNDS = 2
 
 
-def _run(layout: RunLayout, config: BenchmarkConfig = CONFIG, **kwargs) -> list[dict]:
+def _run(
+    layout: RunLayout,
+    config: BenchmarkConfig = CONFIG,
+    *,
+    kinds: tuple[str, ...] = ("pistar-head",),
+    mdi=None,
+    priors: dict | None = None,
+    **kwargs,
+) -> list[dict]:
     return run_benchmark(
         CorridorTask(),
         layout,
@@ -51,9 +59,10 @@ def _run(layout: RunLayout, config: BenchmarkConfig = CONFIG, **kwargs) -> list[
         bc=BC,
         dagger_bc=BC,
         early_stop=None,
-        kinds=("pistar-head",),
-        mdi=None,
+        kinds=kinds,
+        mdi=mdi,
         meta_queries={"pistar": 900, "pairs": 100},
+        priors=priors,
         options=StageOptions(**{"workers": 1, "progress": False, **kwargs}),
     )
 
@@ -264,19 +273,8 @@ def test_the_mdi_rows_run_in_the_seeds_lanes_and_do_not_depend_on_workers(toy_ru
 
     def run(name: str, lanes: int, workers: int = 1) -> list[dict]:
         config = dataclasses.replace(CONFIG, methods=("bc", "mdi"), lanes=lanes)
-        return run_benchmark(
-            CorridorTask(),
-            _copy_run(toy_run, tmp_path / name),
-            config,
-            rounds=ROUNDS,
-            bc=BC,
-            dagger_bc=BC,
-            early_stop=None,
-            kinds=(),
-            mdi=mdi,
-            meta_queries={"pistar": 900, "pairs": 100},
-            options=StageOptions(workers=workers, progress=False, executor="inline" if workers == 1 else "local"),
-        )
+        executor = "inline" if workers == 1 else "local"
+        return _run(_copy_run(toy_run, tmp_path / name), config, kinds=(), mdi=mdi, workers=workers, executor=executor)
 
     alone = run("alone", 1)
     assert in_lane == [False] * len(SEEDS)
@@ -335,22 +333,8 @@ def test_rows_made_alone_are_not_reused_for_lanes(toy_run, tmp_path):
         dataclasses.replace(config, lanes=0)
 
 
-def _prior_run(layout: RunLayout, priors: dict, **kwargs) -> list[dict]:
-    config = dataclasses.replace(CONFIG, methods=("bc", "prior"), grids={}, demo_fractions=(0.5, 1.0))
-    return run_benchmark(
-        CorridorTask(),
-        layout,
-        config,
-        rounds=ROUNDS,
-        bc=BC,
-        dagger_bc=BC,
-        early_stop=None,
-        kinds=("pistar-head",),
-        mdi=None,
-        meta_queries={"pistar": 900, "pairs": 100},
-        priors=priors,
-        options=StageOptions(workers=1, progress=False, **kwargs),
-    )
+def _prior_run(layout: RunLayout, priors: dict) -> list[dict]:
+    return _run(layout, dataclasses.replace(CONFIG, methods=("bc", "prior"), grids={}), priors=priors)
 
 
 def test_bc_with_a_prior_spends_the_demonstrations_queries_toward_each_mean(toy_run, tmp_path):

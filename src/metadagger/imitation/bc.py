@@ -487,24 +487,11 @@ class HeadAdamEpoch:
 
 
 class DeviceEpoch:
-    """The reference epoch on a GPU (the run's compute device): the network and the data there
-    while it trains, the network back on the CPU whenever it is read (:meth:`write_back`)."""
+    """The reference epoch on a GPU (the run's compute device), built on the network and the data
+    there: the network back on the CPU whenever it is read (:meth:`write_back`)."""
 
-    def __init__(
-        self,
-        model: torch.nn.Module,
-        params: list[torch.nn.Parameter],
-        inputs: torch.Tensor,
-        targets: torch.Tensor,
-        config: BCConfig,
-        discrete: bool,
-        generator: torch.Generator,
-        device: torch.device,
-    ) -> None:
-        self.model, self.device = model.to(device), device
-        self.reference = ReferenceEpoch(
-            model, params, inputs.to(device), targets.to(device), config, discrete, generator
-        )
+    def __init__(self, reference: ReferenceEpoch, device: torch.device) -> None:
+        self.reference, self.model, self.device = reference, reference.model, device
 
     def __call__(self, epoch: int, order: torch.Tensor) -> list[float]:
         self.model.to(self.device)
@@ -531,7 +518,9 @@ def _epochs(
     if config.head_only and LinearHeadAdam.supports(model):
         yield HeadAdamEpoch(model, inputs, targets, config, discrete)  # type: ignore[arg-type]
     elif device.type != "cpu":
-        epoch = DeviceEpoch(model, params, inputs, targets, config, discrete, generator, device)
+        model.to(device)
+        reference = ReferenceEpoch(model, params, inputs.to(device), targets.to(device), config, discrete, generator)
+        epoch = DeviceEpoch(reference, device)
         try:
             yield epoch
         finally:
