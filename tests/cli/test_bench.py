@@ -80,6 +80,26 @@ def test_bench_bc_head_only_refit_is_faster_than_the_full_fit():
     assert 0 < big["inference_ms_batch1"] < 1000
 
 
+def test_bench_fit_times_pistars_fit_on_the_cpu_and_a_gpu_where_there_is_one():
+    import torch
+
+    from metadagger.cli.bench import bench_fit
+
+    result = bench_fit("carracing", preset="ci", steps=2)
+    assert result["task"] == "carracing" and result["steps"] == 2 and result["cpu_s_per_step"] > 0
+    assert ("gpu_speedup" in result) == torch.cuda.is_available()
+
+
+def test_bench_prior_times_prior_fits_beside_plain_ones():
+    from metadagger.cli.bench import bench_prior
+
+    result = bench_prior(fits=3, rows=20, epochs=2, repeats=1)
+    assert result["head_size"] == 20 * 65
+    for count in ("fits_1", "fits_3"):
+        timing = result[count]
+        assert timing["plain_s"] > 0 and timing["prior_over_plain"] == timing["prior_s"] / timing["plain_s"]
+
+
 def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
     from toy_task import TINY_PRESETS, RunCorridorTask
 
