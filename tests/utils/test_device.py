@@ -6,16 +6,14 @@ runs them on a machine that has one (docs/performance.md, "On a GPU").
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 import torch
 import yaml
 from toy_task import CorridorTask
+from typer.testing import CliRunner
 
+from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.collect import collect
@@ -31,13 +29,12 @@ from metadagger.utils.kernels import kernel_stamp
 gpu = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (scripts/gpu_check.sh)")
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "metadagger.cli", *args],
-        capture_output=True,
-        text=True,
-        env={**os.environ, "MUJOCO_GL": "egl"},
-    )
+def _refused(*args: str) -> str:
+    """The command's one error line (exit 2), run in this process."""
+    result = CliRunner().invoke(app, [str(a) for a in args])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), result.output
+    return lines[0]
 
 
 def test_a_device_value_resolves_or_is_one_line_naming_the_fix(monkeypatch):
@@ -75,16 +72,14 @@ def test_a_gpu_device_on_a_machine_without_one_is_one_error_line_before_any_work
     if torch.cuda.is_available():
         pytest.skip("this machine has a GPU")
     new = tmp_path / "new"
-    done = _cli("groundtruth", "--task", "carracing", "--preset", "ci", "--out", str(new), "--device", "cuda")
-    assert done.returncode == 2 and done.stderr.count("\n") == 1
-    assert "torch sees no CUDA GPU" in done.stderr and not new.exists()
+    line = _refused("groundtruth", "--task", "carracing", "--preset", "ci", "--out", new, "--device", "cuda")
+    assert "torch sees no CUDA GPU" in line and not new.exists()
     # a folder made on a GPU, resumed on a machine without one
     made = tmp_path / "made"
     init_run(made, "carracing", "ci")
     config = made / "config.yaml"
     config.write_text(config.read_text().replace("device: cpu", "device: cuda"))
-    done = _cli("pairs", "--out", str(made))
-    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "torch sees no CUDA GPU" in done.stderr
+    assert "torch sees no CUDA GPU" in _refused("pairs", "--out", made)
     assert not (made / "pairs").exists()
 
 
