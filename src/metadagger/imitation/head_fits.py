@@ -194,6 +194,7 @@ def _fit_group(
         share[: len(fit_rows), slot] = real.float() / fit_counts.unsqueeze(1).float()
     live = (share[:, :, 0] > 0).sum(1).tolist()  # step t's heads: every fit that has a step t
     device = compute_device()  # the whole problem on it; the heads and losses back on the CPU
+    share = share.to(device)
     params = torch.stack([_with_bias_column(fits[b].head, out_dim) for b in order]).to(device)
     exp_avg, exp_avg_sq = torch.zeros_like(params), torch.zeros_like(params)
     prior_mean = prior_weight = None
@@ -209,7 +210,7 @@ def _fit_group(
             features.to(device),
             (targets if discrete else targets.to(torch.float32)).to(device),
             rows.to(device),
-            share.to(device),
+            share,
             live,
             float(lr),
             float(weight_decay),
@@ -217,7 +218,7 @@ def _fit_group(
             prior_mean,
             prior_weight,
         )
-    step_losses = (row_losses * share.to(device)).sum(2).cpu()  # (T, B): each step's mean loss
+    step_losses = (row_losses * share).sum(2).cpu()  # (T, B): each step's mean loss
     params = params.cpu()
     fitted: list[FittedHead | None] = [None] * len(fits)
     for slot, b in enumerate(order):

@@ -17,7 +17,7 @@ as far as the seed's own data leaves the head undecided. A :class:`HeadPrior` ha
 
 The fit's loss is then the data's plus ``(lam / 2) * sum_j p_j (w_j - m_j)^2``
 (:class:`~metadagger.imitation.head_fits.Prior`; docs/method.md, "A prior for the head"). The
-same rule serves every mean, so the four differ only in where they pull.
+same rule serves every mean, so the priors differ only in where they pull.
 """
 
 from __future__ import annotations
@@ -130,12 +130,10 @@ def choose_strengths(
             base = head_fit(
                 learner.policy, data, seeded(fit, seed), learner.cache, called=f"the prior fit of pair seed {seed}"
             )
+        means = [mean_head(mapper, split.w_bc_val[row], context) for _, mapper in priors.values()]
         requests = [
-            dataclasses.replace(
-                base,
-                prior=dataclasses.replace(prior, strength=lam).prior(mean_head(mapper, split.w_bc_val[row], context)),
-            )
-            for prior, mapper in priors.values()
+            dataclasses.replace(base, prior=dataclasses.replace(prior, strength=lam).prior(mean))
+            for (prior, _), mean in zip(priors.values(), means)
             for lam in strengths
         ]
         heads = iter(
