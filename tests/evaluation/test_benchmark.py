@@ -185,7 +185,7 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
         gate = real(name, setting, **options)
 
         class Counting:
-            reads_expert = False
+            reads_expert = reads_heads = False
 
             def choose(self, *args, memory, **kwargs):
                 remembered.append([(len(e.features), e.succeeded) for e in memory.episodes])
@@ -364,8 +364,97 @@ def test_bc_with_a_prior_spends_the_demonstrations_queries_toward_each_mean(toy_
     stronger = {**priors, "pistar-head": dataclasses.replace(priors["pistar-head"], strength=100.0)}
     with pytest.raises(UserError, match="prior"):
         _prior_run(layout, stronger)
-    with pytest.raises(UserError, match=r"benchmark method prior needs the priors toward \['zero'\]"):
+    with pytest.raises(UserError, match=r"benchmark methods prior and prior-dagger need the priors toward \['zero'\]"):
         _prior_run(layout, {"pistar-head": priors["pistar-head"]})
+
+
+def test_dagger_with_a_prior_refits_every_round_with_it(toy_run, tmp_path):
+    """``prior-dagger`` makes a row per mean and round: round 1 labels every state of BC-with-the-
+    prior's rollout (the ``prior`` row's), and a prior of strength 0 pulls nowhere, whatever its mean."""
+    from metadagger.mapping.priors import HeadPrior
+    from metadagger.policies import load_policy
+
+    size = load_policy(toy_run.groundtruth).head_vector().numel()
+    priors = {mean: HeadPrior(mean, torch.ones(size), strength=0.0) for mean in ("pistar-head", "zero")}
+    layout = _copy_run(toy_run, tmp_path / "run")
+    config = dataclasses.replace(CONFIG, methods=("bc", "prior", "prior-dagger"), grids={}, demo_fractions=(1.0,))
+    rows = _run(layout, config, priors=priors)
+    table = {(r["method"], r["setting"], r["seed"]): r for r in rows}
+    for seed in SEEDS:
+        demo = table["bc", "", seed]["expert_queries"]
+        for mean in ("pistar-head", "zero"):
+            first = table[f"prior-dagger-{mean}", "1", seed]
+            assert first["expert_queries"] == demo + table[f"prior-{mean}", "", seed]["steps"]
+            assert table[f"prior-dagger-{mean}", str(ROUNDS), seed]["expert_queries"] > first["expert_queries"]
+        for r in range(1, ROUNDS + 1):
+            zero, pistar = table["prior-dagger-zero", str(r), seed], table["prior-dagger-pistar-head", str(r), seed]
+            assert {k: v for k, v in zero.items() if k != "method"} == {
+                k: v for k, v in pistar.items() if k != "method"
+            }
+    assert "DAgger, prior toward zero" in "\n".join(benchmark_section(layout))
+
+
+def test_the_disagreement_gate_compares_the_current_head_with_the_kinds_head(toy_run, tmp_path, monkeypatch):
+    """``disagree-<kind>`` runs DAgger's rounds from w_BC with the disagreement gate, its reference the
+    kind's head for w_BC (pi*'s head here) and its current head the one each round's rollout acted
+    with; its queries are the demonstration's and the states it chose (its ledger)."""
+    from metadagger.imitation.gates import DisagreementGate
+    from metadagger.policies import load_policy
+
+    pistar = load_policy(toy_run.groundtruth).head_vector()
+    seen = []
+    choose = DisagreementGate.choose
+
+    def spy(self, *args, **kwargs):
+        seen.append(kwargs["heads"])
+        return choose(self, *args, **kwargs)
+
+    monkeypatch.setattr(DisagreementGate, "choose", spy)
+    layout = _copy_run(toy_run, tmp_path / "run")
+    config = dataclasses.replace(CONFIG, methods=("bc", "disagree"), grids={}, demo_fractions=(1.0,))
+    rows = _run(layout, config, executor="inline", workers=None)  # in this process: the spy sees every choice
+    assert len(seen) == len(SEEDS) * 3 * ROUNDS  # every seed, quantile and round
+    assert all(torch.equal(h.reference, pistar) for h in seen)
+    assert any(not torch.equal(h.current, h.reference) for h in seen)
+    table = {(r["method"], r["setting"], r["seed"]): r for r in rows}
+    for seed in SEEDS:
+        demo = table["bc", "", seed]["expert_queries"]
+        for q in ("0.5", "0.8", "0.95"):
+            row = table["disagree-pistar-head", q, seed]
+            asked = sum(
+                stop - start for record in row["labels"] if record["round"] > 0 for start, stop in record["runs"]
+            )
+            assert row["expert_queries"] == demo + asked
+    assert "DAgger, gate: disagreement with pi*-head (control)" in "\n".join(benchmark_section(layout))
+
+
+def test_every_round_of_dagger_refits_with_the_prior_it_is_given(toy_run):
+    """A strong prior pulls every round's refitted head toward its mean (Adam moves a weight by about
+    the learning rate a step: a pull, not a jump); a gate that compares heads without a reference
+    head is refused."""
+    from metadagger.imitation.gates import DisagreementGate
+    from metadagger.imitation.head_fits import Prior
+    from metadagger.metal.method import dagger_rounds
+
+    with SeedLearner(CorridorTask(), str(toy_run.groundtruth), SEEDS[0], head_init_seed=SEEDS[0]) as learner:
+        demo = demonstration(learner)
+        w_bc = bc_head(learner, demo.to_dataset(), seeded(BC, SEEDS[0]))
+        first = learner.roll(w_bc)
+        mean = torch.linspace(-1.0, 1.0, len(w_bc))
+        prior = Prior(mean=mean, weight=torch.full_like(mean, 1e4))
+        heads = [
+            r.head
+            for r in dagger_rounds(learner, start=w_bc, first_rollout=first, demo=demo, rounds=2, fit=BC, prior=prior)
+        ]
+        plain = [r.head for r in dagger_rounds(learner, start=w_bc, first_rollout=first, demo=demo, rounds=2, fit=BC)]
+        for head, other in zip(heads, plain):
+            assert (torch.from_numpy(head) - mean).norm() < (torch.from_numpy(other) - mean).norm() - 0.1
+        with pytest.raises(UserError, match="DisagreementGate compares the current head with a reference head"):
+            next(
+                dagger_rounds(
+                    learner, start=w_bc, first_rollout=first, demo=demo, rounds=1, fit=BC, gate=DisagreementGate(0.5)
+                )
+            )
 
 
 def test_a_round_that_labels_nothing_rolls_nothing_out_again(toy_run, monkeypatch):

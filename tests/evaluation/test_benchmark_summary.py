@@ -73,3 +73,29 @@ def test_the_area_under_the_curve_is_the_mean_success_over_log_spaced_budgets():
 @pytest.mark.parametrize("drop", ["dagger", "bc"])
 def test_no_budget_reading_without_dagger_or_bc(drop):
     assert budget_reading([r for r in _rows() if r["method"] != drop]) is None
+
+
+def test_each_metal_method_is_read_against_its_constant_twins_bc_refitted_and_the_best_gate():
+    """``prior-ridge`` (a learned kind's prior) against ``prior-mean-da`` and ``prior-zero`` (its
+    twins that ran), ``bc-refit`` and the best gate, at every budget and by the area; a twin itself
+    is compared with nothing."""
+    rows = _rows()
+    for seed in range(6):
+        rows += [
+            _row("bc-refit", "2", seed, False, 100),
+            _row("prior-ridge", "", seed, seed < 4, 100),
+            _row("prior-mean-da", "", seed, seed < 1, 100),
+            _row("prior-zero", "", seed, False, 100),
+        ]
+    reading = budget_reading(rows)
+    for budget in reading["budgets"]:
+        pairs = {(c["method"], c["against"]): c for c in budget["metal"]}
+        assert set(pairs) == {
+            ("prior-ridge", "prior-mean-da"),
+            ("prior-ridge", "prior-zero"),
+            ("prior-ridge", "bc-refit"),
+            ("prior-ridge", "dagger-safe"),
+        }
+        assert pairs["prior-ridge", "prior-zero"]["only_a"] == 4 and pairs["prior-ridge", "prior-zero"]["only_b"] == 0
+    auc = {(c["method"], c["against"]): c for c in reading["auc_metal"]}
+    assert auc["prior-ridge", "prior-zero"]["difference"] == pytest.approx(4 / 6)

@@ -297,3 +297,48 @@ def test_score_gates_report_the_scores_they_chose_by(discrete):
         assert chosen.scores is not None and chosen.scores.shape == (len(features),)
         assert torch.equal(chosen.mask, make_gate(name, 0.5).select(features, learner, labelled, generator=gen()))
     assert make_gate("random", 0.5).choose(features, learner, labelled, generator=gen()).scores is None
+
+
+def _heads(features: int, outputs: int, seed: int) -> torch.Tensor:
+    return torch.randn(outputs * (features + 1), generator=gen(seed))
+
+
+@both
+def test_the_disagreement_gate_labels_where_the_two_heads_act_apart(discrete):
+    """Equal heads label nothing; otherwise the states above the round's quantile of the heads'
+    total variation distance (class distributions) or squared distance (actions) are labelled."""
+    from metadagger.imitation.gates import DisagreementGate, HeadPair, head_disagreement
+
+    outputs = 3 if discrete else 2
+    features, learner, labelled = scene(discrete)
+    current = _heads(F, outputs, 3)
+    gate = DisagreementGate(0.5)
+    same = gate.choose(features, learner, labelled, generator=gen(), heads=HeadPair(current, current.clone(), outputs))
+    assert not same.mask.any() and torch.equal(same.scores, torch.zeros(len(features), dtype=torch.float64))
+    reference = _heads(F, outputs, 4)
+    chosen = gate.choose(features, learner, labelled, generator=gen(), heads=HeadPair(current, reference, outputs))
+    expected = head_disagreement(HeadPair(current, reference, outputs), features, discrete)
+    assert torch.equal(chosen.scores, expected) and torch.equal(chosen.mask, above_quantile(expected, 0.5))
+
+    def out(head: torch.Tensor) -> torch.Tensor:
+        weight, bias = head[: outputs * F].view(outputs, F), head[outputs * F :]
+        return features.double() @ weight.double().T + bias.double()
+
+    if discrete:
+        direct = 0.5 * (out(current).softmax(dim=1) - out(reference).softmax(dim=1)).abs().sum(dim=1)
+        assert float(expected.min()) >= 0.0 and float(expected.max()) <= 1.0
+    else:
+        direct = (out(current) - out(reference)).square().sum(dim=1)
+    assert torch.allclose(expected, direct)
+
+
+def test_the_disagreement_gate_needs_two_heads_of_one_length():
+    from metadagger.imitation.gates import DisagreementGate, HeadPair
+
+    features, learner, labelled = scene(True)
+    with pytest.raises(UserError, match="the disagreement gate compares two heads"):
+        DisagreementGate(0.5).choose(features, learner, labelled, generator=gen())
+    with pytest.raises(UserError, match="HeadPair heads must be flat and of one length"):
+        HeadPair(torch.zeros(9), torch.zeros(8), 3)
+    with pytest.raises(UserError, match=r"DisagreementGate.quantile must be in \[0, 1\)"):
+        DisagreementGate(1.0)

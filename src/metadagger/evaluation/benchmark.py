@@ -30,6 +30,7 @@ query ledger (:mod:`metadagger.evaluation.ledger`). The summary and its statisti
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -50,10 +51,12 @@ from metadagger.evaluation.methods import (
     MDI_MAPPER,
     MDI_METHODS,
     BCKey,
+    DisagreeKey,
     GateKey,
     MapperKey,
     MethodKey,
     PriorKey,
+    PriorRoundKey,
     RefitKey,
     RoundKey,
     ShotKey,
@@ -67,11 +70,12 @@ from metadagger.evaluation.methods import (
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gate_registry import built_in_grids, gate_of_method, get_gate, make_gate
-from metadagger.imitation.gates import Gate
+from metadagger.imitation.gates import DisagreementGate, Gate
+from metadagger.imitation.head_fits import Prior
 from metadagger.imitation.lanes import Lanes, check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
-from metadagger.mapping.priors import HeadPrior, mean_head
+from metadagger.mapping.priors import ZERO, HeadPrior, mean_head
 from metadagger.metal.method import (
     Round,
     SeedLearner,
@@ -320,7 +324,7 @@ def _start(
     needs_context = any(
         cached_mapper(job.mappers[key.mapper_kind]).needs_context
         for key in keys
-        if isinstance(key, (MapperKey, PriorKey)) and key.mapper_kind is not None
+        if key.mapper_kind is not None and not isinstance(key, ShotKey)
     )
     context = seed_context(learner.cache, data, first.to_dataset()) if needs_context else None
     return _Start(demo, fresh, w_bc, first, context)
@@ -351,19 +355,47 @@ def _mapper_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner
     return {key: _row(key, job.seed, rollout, 0, [])}
 
 
+def _seed_prior(job: BenchmarkJob, start: _Start, mean: str) -> Prior:
+    """The seed's prior toward ``mean``: its kind's head for w_BC (and context), or zero."""
+    prior = job.priors[mean]
+    mapper = None if mean == ZERO else cached_mapper(job.mappers[mean])
+    context = None if start.context is None else torch.from_numpy(start.context)
+    return prior.prior(mean_head(mapper, torch.from_numpy(start.w_bc), context))
+
+
+def _bc_with_prior(job: BenchmarkJob, start: _Start, prior: Prior, learner: SeedLearner) -> np.ndarray:
+    """BC's fit of the demonstration from the fresh head, the prior added to its loss."""
+    learner.load(start.fresh)
+    return bc_head(learner, start.demo.to_dataset(), seeded(job.bc, job.seed), called="BC with a prior", prior=prior)
+
+
 def _prior_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # BC's fit from the fresh head with a prior toward the mean kind's head for w_BC (and context)
     [key] = keys
     assert isinstance(key, PriorKey)
-    mapper = None if key.mapper_kind is None else cached_mapper(job.mappers[key.mapper_kind])
-    context = None if start.context is None else torch.from_numpy(start.context)
-    prior = job.priors[key.mean].prior(mean_head(mapper, torch.from_numpy(start.w_bc), context))
-    learner.load(start.fresh)
-    head = bc_head(learner, start.demo.to_dataset(), seeded(job.bc, job.seed), called="BC with a prior", prior=prior)
+    head = _bc_with_prior(job, start, _seed_prior(job, start, key.mean), learner)
     return {key: _row(key, job.seed, learner.roll(head, early_stop=job.early_stop), start.queries, start.labels())}
 
 
-def _rounds(job: BenchmarkJob, start: _Start, learner: SeedLearner, gate: Gate | None) -> Iterator[Round]:
+def _prior_dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
+    # DAgger from BC with a prior, the same prior in every refit: every visited state labelled
+    mean = keys[0].prior_mean
+    assert mean is not None
+    prior = _seed_prior(job, start, mean)
+    head = _bc_with_prior(job, start, prior, learner)
+    first = learner.roll(head, early_stop=job.early_stop)
+    rounds = _rounds(job, dataclasses.replace(start, w_bc=head, first=first), learner, None, prior=prior)
+    return _round_rows(job, start, keys, rounds)
+
+
+def _rounds(
+    job: BenchmarkJob,
+    start: _Start,
+    learner: SeedLearner,
+    gate: Gate | None,
+    *,
+    prior: Prior | None = None,
+    reference: np.ndarray | None = None,
+) -> Iterator[Round]:
     return dagger_rounds(
         learner,
         start=start.w_bc,
@@ -373,13 +405,20 @@ def _rounds(job: BenchmarkJob, start: _Start, learner: SeedLearner, gate: Gate |
         fit=seeded(job.dagger_bc, job.seed),
         gate=gate,
         early_stop=job.early_stop,
+        prior=prior,
+        reference=reference,
     )
 
 
 def _dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    by_round = {key.round: key for key in keys}
+    return _round_rows(job, start, keys, _rounds(job, start, learner, None))
+
+
+def _round_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], rounds: Iterator[Round]) -> Rows:
+    """A row after each round that ``keys`` name (their ``round``), each with its ledger so far."""
+    by_round = {key.round: key for key in keys}  # type: ignore[attr-defined]
     labels, rows = start.labels(), {}
-    for r in _rounds(job, start, learner, None):
+    for r in rounds:
         labels = [*labels, round_record(r.index, r.asked, r.scores)]
         if r.index in by_round:
             rows[by_round[r.index]] = _row(by_round[r.index], job.seed, r.rollout, r.queries, labels)
@@ -389,11 +428,25 @@ def _dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learne
 def _gate_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
     [key] = keys
     gate = make_gate(key.gate, key.value, **job.config.options_of(key.method))
+    return {key: _last_round_row(job, start, key, _rounds(job, start, learner, gate))}
+
+
+def _disagree_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
+    # DAgger from w_BC labelling where the kind's head for w_BC and the current head act apart
+    [key] = keys
+    assert isinstance(key, DisagreeKey)
+    reference = map_head(cached_mapper(job.mappers[key.kind]), start.w_bc, start.context)
+    rounds = _rounds(job, start, learner, DisagreementGate(key.value), reference=reference)
+    return {key: _last_round_row(job, start, key, rounds)}
+
+
+def _last_round_row(job: BenchmarkJob, start: _Start, key: MethodKey, rounds: Iterator[Round]) -> dict[str, Any]:
+    """The row after the last of ``rounds``, with every round's ledger."""
     labels = start.labels()
-    for last in _rounds(job, start, learner, gate):
+    for last in rounds:
         # only the last round's rollout makes the row: the earlier ones are let go as they end
         labels.append(round_record(last.index, last.asked, last.scores))
-    return {key: _row(key, job.seed, last.rollout, last.queries, labels)}
+    return _row(key, job.seed, last.rollout, last.queries, labels)
 
 
 def _refit_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
@@ -411,8 +464,10 @@ _CHAINS: dict[type, Callable[[BenchmarkJob, _Start, list[MethodKey], SeedLearner
     BCKey: _bc_row,
     MapperKey: _mapper_row,
     PriorKey: _prior_row,
+    PriorRoundKey: _prior_dagger_rows,
     RoundKey: _dagger_rows,
     GateKey: _gate_row,
+    DisagreeKey: _disagree_row,
     RefitKey: _refit_row,
 }
 
@@ -541,9 +596,11 @@ def run_benchmark(
             "drop mdi from --methods (or benchmark.methods), or add an mdi section"
         )
     keys = method_keys(config, rounds=rounds, kinds=kinds, mdi=with_mdi)
-    missing = sorted({key.mean for key in keys if isinstance(key, PriorKey)} - set(priors or {}))
+    missing = sorted({key.prior_mean for key in keys if key.prior_mean is not None} - set(priors or {}))
     if missing:
-        raise UserError(f"benchmark method prior needs the priors toward {missing}; build them from the pairs first")
+        raise UserError(
+            f"benchmark methods prior and prior-dagger need the priors toward {missing}; build them from the pairs"
+        )
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
     settings.update(lanes_stamp(config.lanes))  # stamped unless 1: rows made alone stay current
     mdi_mapper = mdi.mapper if with_mdi and mdi is not None else None

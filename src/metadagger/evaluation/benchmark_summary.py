@@ -15,7 +15,10 @@ every method but the zero-query controls reads as a failure):
 
 At each budget the best method (references aside) is named, with paired intervals against each
 reference: the zero-query controls, BC refitted and the best gate at that budget. The oracle is a
-ceiling: tabled, never ranked.
+ceiling: tabled, never ranked. Each MetaL DAgger method that reads a learned mapper's head (MDM,
+the priors, the disagreement gate) is also read against its constant twins (the same method with
+a control's head, or zero, in the mapper's place: :func:`~metadagger.evaluation.methods.metal_twins`),
+BC refitted and the best gate, at each budget and by the area under the curve.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metadagger.evaluation.methods import BC_REFIT, MDM_PREFIX, gated_methods, reference_methods
+from metadagger.evaluation.methods import BC_REFIT, MDM_PREFIX, gated_methods, metal_twins, reference_methods
 from metadagger.evaluation.paired import paired_comparison, paired_difference
 from metadagger.imitation.metrics import summarize, wilson_interval
 from metadagger.mapping.registry import control_names
@@ -195,9 +198,14 @@ def budget_reading(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
                     for ref in refs
                     if ref != best
                 ],
+                "metal": [
+                    {**_curve_dict(c), **_against(ref), **_paired(read_at[c], read_at[ref])}
+                    for c, ref in _metal_pairs(ran, best_gate)
+                ],
             }
         )
     best_auc = max(ranked, key=lambda c: _auc_mean(auc[c]), default=None)
+    best_gate_auc = max((c for c in ran if c[0] in gated), key=lambda c: _auc_mean(auc[c]), default=None)
     return {
         "seeds": seeds,
         "shares": list(BUDGET_SHARES),
@@ -205,6 +213,10 @@ def budget_reading(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
         "budgets": budgets,
         "auc": [{**_curve_dict(c), "mean": _auc_mean(auc[c]), "per_seed": auc[c]} for c in ran],
         "best_auc": None if best_auc is None else _curve_dict(best_auc),
+        "auc_metal": [
+            {**_curve_dict(c), **_against(ref), **paired_difference(auc[c], auc[ref])}
+            for c, ref in _metal_pairs(ran, best_gate_auc)
+        ],
         "auc_comparisons": []
         if best_auc is None
         else [
@@ -213,6 +225,19 @@ def budget_reading(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
             if ref != best_auc and (ref[0] in _controls() or ref[0] in gated or ref[0] in reference_methods())
         ],
     }
+
+
+def _metal_pairs(ran: list[Curve], best_gate: Curve | None) -> list[tuple[Curve, Curve]]:
+    """Each MetaL DAgger curve that reads a learned mapper (:func:`metal_twins`) with each of its
+    references that ran: its constant twins, BC refitted and ``best_gate``."""
+    pairs = []
+    for curve in ran:
+        twins = metal_twins(curve[0])
+        if not twins:
+            continue
+        refs = [(t, curve[1]) for t in twins] + [(BC_REFIT, 1.0)] + ([best_gate] if best_gate is not None else [])
+        pairs += [(curve, ref) for ref in refs if ref in ran and ref != curve]
+    return pairs
 
 
 def _dagger_final(rows: list[dict[str, Any]]) -> dict[int, int]:

@@ -28,6 +28,15 @@ from metadagger.mapping.registry import control_names
 MDM_PREFIX = "mdm-"
 #: Prefix of BC with a prior (:mod:`metadagger.mapping.priors`): ``prior-<mapper kind>``, ``prior-zero``.
 PRIOR_PREFIX = "prior-"
+#: Prefix of DAgger with a prior in every fit: ``prior-dagger-<mapper kind>``, ``prior-dagger-zero``.
+PRIOR_DAGGER_PREFIX = "prior-dagger-"
+#: Prefix of DAgger with the disagreement gate (:class:`~metadagger.imitation.gates.DisagreementGate`)
+#: against a mapper kind's head: ``disagree-<mapper kind>``.
+DISAGREE_PREFIX = "disagree-"
+#: The benchmark methods whose fits carry a prior (the stage builds their priors from the pairs).
+PRIOR_METHODS = ("prior", "prior-dagger")
+#: The disagreement gate's default sweep: the score gates' quantiles (labels about 50%, 20%, 5%).
+DISAGREE_GRID = (0.5, 0.8, 0.95)
 #: The control that refits w_BC as DAgger does, with no new label.
 BC_REFIT = "bc-refit"
 #: The MDI protocol's methods (:mod:`metadagger.evaluation.mdi`) and their names in the benchmark,
@@ -86,6 +95,11 @@ class MethodKey:
         """The mapper kind whose file its rows read, if any."""
         return None
 
+    @property
+    def prior_mean(self) -> str | None:
+        """The mean of the prior its fits carry (a mapper kind or ``zero``), if any."""
+        return None
+
     def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
         """What its rows are made from beyond what every row shares; a mapper's fingerprint is added by the caller."""
         return {} if self.demo_fraction == 1.0 else {"demo_fraction": self.demo_fraction}
@@ -139,8 +153,28 @@ class PriorKey(MethodKey):
     def mapper_kind(self) -> str | None:
         return None if self.mean == ZERO else self.mean
 
+    @property
+    def prior_mean(self) -> str | None:
+        return self.mean
+
     def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
         return {**super().own_stamp(inputs), "prior": inputs.priors[self.mean]}
+
+
+@dataclass(frozen=True)
+class PriorRoundKey(PriorKey):
+    """DAgger after ``round`` rounds (every visited state labelled) from BC with a prior, the same
+    prior in every round's refit (its mean a mapper kind's head for w_BC, or ``zero``)."""
+
+    round: int
+
+    @property
+    def chain(self) -> str:
+        return f"{self.method}@demo{self.demo_fraction:g}"  # one chain makes every round's row
+
+    @property
+    def starts_from_demonstration(self) -> bool:
+        return False
 
 
 @dataclass(frozen=True)
@@ -174,6 +208,22 @@ class GateKey(MethodKey):
 
     def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
         return {**super().own_stamp(inputs), "gate": inputs.gate_options(self.method)}
+
+
+@dataclass(frozen=True)
+class DisagreeKey(MethodKey):
+    """DAgger from w_BC after every round, labelling where a mapper kind's head for w_BC and the
+    current head act apart (:class:`~metadagger.imitation.gates.DisagreementGate` at ``value``)."""
+
+    kind: str
+    value: float
+
+    @property
+    def mapper_kind(self) -> str | None:
+        return self.kind
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        return {**super().own_stamp(inputs), "gate": "disagree"}
 
 
 @dataclass(frozen=True)
@@ -223,6 +273,18 @@ def _prior(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], m
     return [PriorKey(PRIOR_PREFIX + mean, "", mean=mean) for mean in (*kinds, ZERO)]
 
 
+def _prior_dagger(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    return [
+        PriorRoundKey(PRIOR_DAGGER_PREFIX + mean, str(r), mean=mean, round=r)
+        for mean in (*kinds, ZERO)
+        for r in range(1, rounds + 1)
+    ]
+
+
+def _disagree(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    return [DisagreeKey(DISAGREE_PREFIX + kind, f"{q:g}", kind=kind, value=q) for kind in kinds for q in DISAGREE_GRID]
+
+
 def _dagger(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     return [RoundKey("dagger", str(r), round=r) for r in range(1, rounds + 1)]
 
@@ -264,6 +326,18 @@ _BUILT_IN = (
         "BC with a prior",
         "BC on the demonstration with a Gaussian prior toward each mapper kind's head (and zero), no further query",
         _prior,
+    ),
+    BenchmarkMethod(
+        "prior-dagger",
+        "DAgger with a prior",
+        "DAgger from BC with a prior, the same Gaussian prior (toward each kind's head, and zero) in every refit",
+        _prior_dagger,
+    ),
+    BenchmarkMethod(
+        "disagree",
+        "DAgger, disagreement gate",
+        "DAgger labelling where each mapper kind's head for w_BC and the current head act apart, above a quantile",
+        _disagree,
     ),
 )
 _MDI = BenchmarkMethod(
@@ -314,3 +388,17 @@ def with_demo_fractions(keys: Sequence[MethodKey], fractions: Sequence[float]) -
         for key in keys
         for k in (key, *(dataclasses.replace(key, demo_fraction=f) for f in shorter if key.starts_from_demonstration))
     ]
+
+
+def metal_twins(method: str) -> tuple[str, ...]:
+    """The constant twins of a MetaL DAgger method that reads a learned mapper kind's head: the same
+    method with each control's head (and, for the priors, zero) in the mapper's place; () for any
+    other method. ``prior-ridge`` -> ``prior-pistar``, ``prior-mean-da``, ``prior-zero``."""
+    for prefix in (PRIOR_DAGGER_PREFIX, DISAGREE_PREFIX, PRIOR_PREFIX, MDM_PREFIX):
+        if method.startswith(prefix):
+            kind = method[len(prefix) :]
+            if kind == ZERO or kind in control_names():
+                return ()
+            constants = (*control_names(), ZERO) if prefix in (PRIOR_PREFIX, PRIOR_DAGGER_PREFIX) else control_names()
+            return tuple(prefix + c for c in constants)
+    return ()

@@ -209,7 +209,58 @@ def _budgets(reading: dict[str, Any] | None) -> list[str]:
             + ("; ".join(parts) if parts else "nothing")
             + "."
         )
-    return lines + [""]
+    return lines + [""] + _metal_twins(reading)
+
+
+def _metal_twins(reading: dict[str, Any]) -> list[str]:
+    """Each method that reads a learned mapper's head against its constant twins, BC refitted and the
+    best gate: the paired difference of success at each budget and of the area under the curve."""
+    pairs: dict[tuple[str, float, str, float], list[str]] = {}
+    for b in reading["budgets"]:
+        for c in b.get("metal", []):
+            pairs.setdefault(_pair_key(c), []).append(
+                f"{_points(c['difference'])} ({_points(c['ci_low'])} to {_points(c['ci_high'])})"
+            )
+    auc = {
+        _pair_key(c): f"{c['difference']:+.3f} ({c['ci_low']:+.3f} to {c['ci_high']:+.3f})"
+        for c in reading.get("auc_metal", [])
+    }
+    if not pairs:
+        return []
+    header = (
+        "method",
+        "against",
+        *(f"at demonstration + {b['share']:.0%}, points" for b in reading["budgets"]),
+        "area under the curve",
+    )
+    cells = [
+        (
+            _curve_label({"method": m, "demo_fraction": f}),
+            _curve_label({"against": a, "against_demo_fraction": g}, "against"),
+            *row,
+            auc.get((m, f, a, g), "-"),
+        )
+        for (m, f, a, g), row in pairs.items()
+    ]
+    return [
+        "### MetaL DAgger against its constant twins",
+        "",
+        "Each method that reads a learned mapper's head, paired on the same seeds with the same method reading a "
+        "control's head (or zero) instead, with BC refitted and with the best gate, all at the same budgets: "
+        "the difference in success (95% interval, points) and in the area under the curve.",
+        "",
+        *markdown_table(header, cells),
+        "",
+    ]
+
+
+def _pair_key(comparison: dict[str, Any]) -> tuple[str, float, str, float]:
+    return (
+        comparison["method"],
+        float(comparison["demo_fraction"]),
+        comparison["against"],
+        float(comparison["against_demo_fraction"]),
+    )
 
 
 def _budget_comparisons(comparisons: list[dict[str, Any]]) -> str:

@@ -7,7 +7,13 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
-from metadagger.evaluation.methods import MDI_LABELS, PRIOR_PREFIX, benchmark_methods
+from metadagger.evaluation.methods import (
+    DISAGREE_PREFIX,
+    MDI_LABELS,
+    PRIOR_DAGGER_PREFIX,
+    PRIOR_PREFIX,
+    benchmark_methods,
+)
 from metadagger.imitation.metrics import summarize
 from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import get_kind, kind_names
@@ -30,14 +36,21 @@ def method_label(method: str) -> str:
         return MDI_PROTOCOL_LABELS[method]
     if method.startswith("mdm-"):
         return f"MDM {get_kind(method.removeprefix('mdm-')).label}"
+    if method.startswith(PRIOR_DAGGER_PREFIX):
+        return f"DAgger, prior toward {_mean_label(method.removeprefix(PRIOR_DAGGER_PREFIX))}"
     if method.startswith(PRIOR_PREFIX):
-        mean = method.removeprefix(PRIOR_PREFIX)
-        return f"BC, prior toward {'zero' if mean == ZERO else get_kind(mean).label}"
+        return f"BC, prior toward {_mean_label(method.removeprefix(PRIOR_PREFIX))}"
+    if method.startswith(DISAGREE_PREFIX):
+        return f"DAgger, gate: disagreement with {get_kind(method.removeprefix(DISAGREE_PREFIX)).label}"
     if method.startswith("oneshot-"):
         return f"one-shot {get_kind(method.removeprefix('oneshot-')).label}"
     if method.startswith("dagger-mdi-"):
         return f"control: DAgger-MDI initialised by {method.removeprefix('dagger-mdi-')}"
     return get_kind(method).label
+
+
+def _mean_label(mean: str) -> str:
+    return "zero" if mean == ZERO else get_kind(mean).label
 
 
 def method_order(methods: Iterable[str]) -> list[str]:

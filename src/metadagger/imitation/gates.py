@@ -24,6 +24,9 @@ The gates:
   states and labels exactly those where the learner is wrong (:class:`OracleGate`).
 
 Each is declared once, with its label and default grid, in :mod:`metadagger.imitation.gate_registry`.
+One more reads two heads instead (:class:`DisagreementGate`): where a mapper's head for the seed
+and the current head act apart. It is MetaL DAgger's query rule, and its benchmark methods
+(``disagree-<kind>``, one per mapper kind) are declared with the methods that need a mapper.
 
 Score-based gates label a state when its score is strictly above the ``quantile``-quantile of
 this round's scores (:func:`above_quantile`), so about a ``1 - quantile`` share of distinct
@@ -50,6 +53,7 @@ import torch
 from torch import Tensor
 
 from metadagger.errors import UserError
+from metadagger.imitation.head_fits import head_outputs
 
 
 @dataclass(frozen=True)
@@ -215,6 +219,8 @@ class Gate(ABC):
     """The field set by the sweep value of :func:`~metadagger.imitation.gate_registry.make_gate`."""
     reads_expert: ClassVar[bool] = False
     """Whether the gate reads the expert's labels of the round's states: only a reference may (the oracle)."""
+    reads_heads: ClassVar[bool] = False
+    """Whether the gate reads the current head and a reference head (:class:`HeadPair`)."""
 
     def choose(
         self,
@@ -225,13 +231,14 @@ class Gate(ABC):
         generator: torch.Generator,
         memory: GateMemory | None = None,
         expert_labels: Tensor | None = None,
+        heads: HeadPair | None = None,
     ) -> Selection:
         """As :meth:`select`, with the scores the choice was made on; ``expert_labels`` (this round's
-        states' labels, laid out as ``labelled.labels``) is read by a reference gate alone."""
+        states' labels, laid out as ``labelled.labels``) is read by a reference gate alone, ``heads``
+        by a gate that compares two heads."""
         _check_round(features, learner_actions, labelled)
-        chosen = self._select(
-            features, learner_actions, labelled, generator, GateMemory() if memory is None else memory
-        )
+        memory = GateMemory() if memory is None else memory
+        chosen = self._choose(features, learner_actions, labelled, generator, memory, expert_labels, heads)
         return chosen if isinstance(chosen, Selection) else Selection(chosen)
 
     def select(
@@ -258,7 +265,20 @@ class Gate(ABC):
         """
         return self.choose(features, learner_actions, labelled, generator=generator, memory=memory).mask
 
-    @abstractmethod
+    def _choose(
+        self,
+        features: Tensor,
+        learner_actions: Tensor,
+        labelled: Labelled,
+        generator: torch.Generator,
+        memory: GateMemory,
+        expert_labels: Tensor | None,
+        heads: HeadPair | None,
+    ) -> Tensor | Selection:
+        """The choice from every input a round may give; a gate that reads the expert's labels or two
+        heads overrides this, every other gate :meth:`_select`."""
+        return self._select(features, learner_actions, labelled, generator, memory)
+
     def _select(
         self,
         features: Tensor,
@@ -268,6 +288,7 @@ class Gate(ABC):
         memory: GateMemory,
     ) -> Tensor | Selection:
         """The states to label: a bool mask [N], or a :class:`Selection` with the scores behind it."""
+        raise NotImplementedError(f"{type(self).__name__} must implement _select (docs/benchmark.md, 'Adding a gate')")
 
 
 @dataclass(frozen=True)
@@ -581,17 +602,16 @@ class OracleGate(Gate):
     def __post_init__(self) -> None:
         _check_quantile("OracleGate", self.quantile)
 
-    def choose(
+    def _choose(
         self,
         features: Tensor,
         learner_actions: Tensor,
         labelled: Labelled,
-        *,
         generator: torch.Generator,
-        memory: GateMemory | None = None,
-        expert_labels: Tensor | None = None,
+        memory: GateMemory,
+        expert_labels: Tensor | None,
+        heads: HeadPair | None,
     ) -> Selection:
-        _check_round(features, learner_actions, labelled)
         if expert_labels is None or expert_labels.shape != learner_actions.shape:
             raise UserError(
                 "the oracle gate needs the expert's labels of this round's states, laid out as the learner's actions "
@@ -604,12 +624,67 @@ class OracleGate(Gate):
         threshold = torch.quantile(errors[wrong], self.quantile)
         return Selection(wrong & (errors >= threshold), errors)
 
-    def _select(
+
+@dataclass(frozen=True)
+class HeadPair:
+    """The two heads a :class:`DisagreementGate` compares, flat (weight rows, then bias)."""
+
+    current: Tensor
+    """The head whose rollout the round gates."""
+    reference: Tensor
+    """The head it is compared with: a mapper's for the seed (the MetaL rule), or a constant one (its twin)."""
+    outputs: int
+    """The heads' outputs: classes (discrete) or the action's length."""
+
+    def __post_init__(self) -> None:
+        if self.current.shape != self.reference.shape or self.current.ndim != 1:
+            raise UserError(
+                f"HeadPair heads must be flat and of one length, got {tuple(self.current.shape)} and "
+                f"{tuple(self.reference.shape)}; compare heads of one policy"
+            )
+
+
+def head_disagreement(heads: HeadPair, features: Tensor, discrete: bool) -> Tensor:
+    """Per state [N], how far apart the two heads act: the total variation distance between their
+    class distributions (discrete, in [0, 1]), or the squared distance between their actions."""
+    x = features.double()
+    a = head_outputs(heads.current.double(), x, heads.outputs)
+    b = head_outputs(heads.reference.double(), x, heads.outputs)
+    if discrete:
+        return 0.5 * (a.softmax(dim=1) - b.softmax(dim=1)).abs().sum(dim=1)
+    return (a - b).square().sum(dim=1)
+
+
+@dataclass(frozen=True)
+class DisagreementGate(Gate):
+    """Label where a reference head and the current head act apart: MetaL DAgger's query rule.
+
+    The reference is a mapper's head for the seed (from its w_BC), made before any label is bought:
+    where the head the pair seeds point to and the seed's current head disagree, the current head
+    may be wrong. A state's score is :func:`head_disagreement`; the states strictly above the
+    round's ``quantile`` are labelled (:func:`above_quantile`). Its control is the same rule with a
+    constant head (mean-DA's, pi*'s) as the reference.
+    """
+
+    setting: ClassVar[str] = "quantile"
+    reads_heads: ClassVar[bool] = True
+    quantile: float
+    """Scores strictly above this quantile of the round's scores are labelled, in [0, 1)."""
+
+    def __post_init__(self) -> None:
+        _check_quantile("DisagreementGate", self.quantile)
+
+    def _choose(
         self,
         features: Tensor,
         learner_actions: Tensor,
         labelled: Labelled,
         generator: torch.Generator,
         memory: GateMemory,
-    ) -> Tensor:
-        raise UserError("the oracle gate reads the expert's labels: call choose(..., expert_labels=...)")
+        expert_labels: Tensor | None,
+        heads: HeadPair | None,
+    ) -> Selection:
+        if heads is None:
+            raise UserError("the disagreement gate compares two heads: pass heads=HeadPair(current, reference, ...)")
+        scores = head_disagreement(heads, features, labelled.discrete)
+        return Selection(above_quantile(scores, self.quantile), scores)

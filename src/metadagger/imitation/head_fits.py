@@ -228,6 +228,23 @@ def _fit_group(
     return fitted  # type: ignore[return-value]
 
 
+def split_head(heads: torch.Tensor, outputs: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Flat heads ``[..., d]`` (weight rows, then bias) as weights ``[..., outputs, F]`` and biases."""
+    if heads.shape[-1] % outputs or heads.shape[-1] <= outputs:
+        raise ValueError(
+            f"a head of length {heads.shape[-1]} is not a layer with {outputs} outputs (weights then biases)"
+        )
+    features = heads.shape[-1] // outputs - 1
+    weight = heads[..., : outputs * features].reshape(*heads.shape[:-1], outputs, features)
+    return weight, heads[..., outputs * features :]
+
+
+def head_outputs(head: torch.Tensor, features: torch.Tensor, outputs: int) -> torch.Tensor:
+    """A flat head's outputs ``[S, outputs]`` on trunk ``features`` ``[S, F]``: class logits or the action."""
+    weight, bias = split_head(head, outputs)
+    return features @ weight.T + bias
+
+
 def _with_bias_column(head: torch.Tensor, out_dim: int) -> torch.Tensor:
     """A flat head (weight rows, then bias) as (out_dim, d + 1), the bias the last column."""
     head = head.to(torch.float32)

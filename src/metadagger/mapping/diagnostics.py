@@ -18,23 +18,15 @@ import itertools
 
 import torch
 
+from metadagger.imitation.head_fits import head_outputs, split_head
+
 __all__ = ["canonical_heads", "function_error", "head_outputs", "memorisation", "pairwise_spread", "weight_error"]
-
-
-def _split(heads: torch.Tensor, outputs: int) -> tuple[torch.Tensor, torch.Tensor]:
-    if heads.shape[-1] % outputs or heads.shape[-1] <= outputs:
-        raise ValueError(
-            f"a head of length {heads.shape[-1]} is not a layer with {outputs} outputs (weights then biases)"
-        )
-    features = heads.shape[-1] // outputs - 1
-    weight = heads[..., : outputs * features].reshape(*heads.shape[:-1], outputs, features)
-    return weight, heads[..., outputs * features :]
 
 
 def canonical_heads(heads: torch.Tensor, outputs: int) -> torch.Tensor:
     """Discrete heads ``[..., d]`` with the softmax's free shift removed (each weight column and
     the bias centred over the ``outputs`` classes)."""
-    weight, bias = _split(heads, outputs)
+    weight, bias = split_head(heads, outputs)
     weight = weight - weight.mean(dim=-2, keepdim=True)
     bias = bias - bias.mean(dim=-1, keepdim=True)
     return torch.cat([weight.flatten(-2), bias], dim=-1)
@@ -45,12 +37,6 @@ def weight_error(predicted: torch.Tensor, truth: torch.Tensor, *, outputs: int, 
     if discrete:
         predicted, truth = canonical_heads(predicted, outputs), canonical_heads(truth, outputs)
     return (predicted - truth).pow(2).mean(dim=-1)
-
-
-def head_outputs(head: torch.Tensor, features: torch.Tensor, outputs: int) -> torch.Tensor:
-    """Layer n's outputs ``[S, outputs]`` on trunk ``features`` ``[S, F]``."""
-    weight, bias = _split(head, outputs)
-    return features @ weight.T + bias
 
 
 def function_error(

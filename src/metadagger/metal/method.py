@@ -32,10 +32,11 @@ from typing import Any, Callable, Iterator, Protocol, Sequence, TypeVar
 import numpy as np
 import torch
 
+from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
 from metadagger.imitation.data import Aggregate, Dataset, take_rows
 from metadagger.imitation.early_stop import CosineEarlyStop
-from metadagger.imitation.gates import Episode, Gate, GateMemory, Labelled
+from metadagger.imitation.gates import Episode, Gate, GateMemory, HeadPair, Labelled
 from metadagger.imitation.head_fits import Prior, fit_heads
 from metadagger.imitation.lanes import EpisodeRequest, Lane, Lanes, current_lane, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
@@ -257,6 +258,8 @@ def dagger_rounds(
     fit: BCConfig,
     gate: Gate | None = None,
     early_stop: float | None = None,
+    prior: Prior | None = None,
+    reference: np.ndarray | None = None,
 ) -> Iterator[Round]:
     """Step 4: ``rounds`` DAgger rounds from head ``start``, whose rollout ``first_rollout`` round 1 labels.
 
@@ -274,7 +277,12 @@ def dagger_rounds(
         gate: the query rule (:mod:`metadagger.imitation.gates`); its randomness is seeded by the
             env seed. None labels every visited state.
         early_stop: the cosine early stop of the rollouts.
+        prior: a Gaussian prior every round's refit adds to its loss (:mod:`metadagger.mapping.priors`).
+        reference: the head a gate that compares heads compares the current one with (a mapper's
+            for the seed, or a constant head).
     """
+    if gate is not None and gate.reads_heads and reference is None:
+        raise UserError(f"{type(gate).__name__} compares the current head with a reference head; pass reference=")
     generator = torch.Generator().manual_seed(learner.seed)
     data = Aggregate([demo.to_dataset()])
     actions = demo.expert_labels
@@ -292,7 +300,8 @@ def dagger_rounds(
         if gate is None:
             keep = np.ones(trajectory.steps, dtype=bool)
         else:
-            keep, scores = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory)
+            heads = None if reference is None else _head_pair(learner, reference)
+            keep, scores = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory, heads)
         labelled = None
         if keep.any():
             labelled = Dataset(
@@ -303,7 +312,7 @@ def dagger_rounds(
             data = data.append(labelled)
             actions = np.concatenate([actions, trajectory.learner_actions[keep]])
             queries += int(keep.sum())
-            learner.fit(data, fit, called=f"DAgger round {index}'s refit")
+            learner.fit(data, fit, called=f"DAgger round {index}'s refit", prior=prior)
         head = learner.head()
         if labelled is not None:
             trajectory = learner.roll(head, early_stop=early_stop)
@@ -329,6 +338,7 @@ def _gate_mask(
     trajectory: Trajectory,
     generator: torch.Generator,
     memory: GateMemory,
+    heads: HeadPair | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far
     and the run's finished episodes (``memory``), to which ``trajectory`` is then added; and the
@@ -343,10 +353,17 @@ def _gate_mask(
         generator=generator,
         memory=memory,
         expert_labels=_tensor(trajectory.expert_labels) if gate.reads_expert else None,
+        heads=heads if gate.reads_heads else None,
     )
     memory.episodes.append(Episode(features=features, succeeded=bool(trajectory.success)))
     scores = None if chosen.scores is None else chosen.scores.double().numpy()
     return chosen.mask.numpy(), scores
+
+
+def _head_pair(learner: SeedLearner, reference: np.ndarray) -> HeadPair:
+    """The learner's current head (the one its last rollout acted with) beside ``reference``."""
+    outputs = int(learner.policy.net.head.out_features)
+    return HeadPair(torch.from_numpy(learner.head()), torch.as_tensor(reference, dtype=torch.float32), outputs)
 
 
 def _tensor(values: np.ndarray) -> torch.Tensor:

@@ -28,6 +28,7 @@ from metadagger.evaluation.curves import plot_curves
 from metadagger.evaluation.diagnose import diagnose_mappers
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import evaluate_run
+from metadagger.evaluation.methods import PRIOR_METHODS
 from metadagger.evaluation.report import build_report
 from metadagger.evaluation.tensorboard import (
     Scalar,
@@ -322,10 +323,11 @@ def stage_benchmark(
     bench = dataclasses.replace(bench, **changes) if changes else bench
     task = run_task(config)
     pistar = _current_groundtruth(layout, config, task)
-    kinds = config.evaluate.methods if {"mdm", "prior"} & set(bench.methods) else ()
+    kinds = config.evaluate.methods if {"mdm", *PRIOR_METHODS, "disagree"} & set(bench.methods) else ()
     mdi = config.mdi_config if "mdi" in bench.methods else None
     _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
-    priors = _benchmark_priors(layout, config, task, tuple(kinds), options) if "prior" in bench.methods else None
+    with_priors = bool(set(PRIOR_METHODS) & set(bench.methods))
+    priors = _benchmark_priors(layout, config, task, tuple(kinds), options) if with_priors else None
     rows = run_benchmark(
         task,
         layout,
@@ -347,8 +349,8 @@ def stage_benchmark(
 def _benchmark_priors(
     layout: RunLayout, config: RunConfig, task: Task, kinds: tuple[str, ...], options: StageOptions
 ) -> dict[str, HeadPrior]:
-    """The ``prior`` method's priors, toward each of ``kinds``' heads and zero: precision from the
-    training pairs, strength chosen on the validation pairs (mapping/priors.py)."""
+    """The priors of the ``prior`` and ``prior-dagger`` methods, toward each of ``kinds``' heads and
+    zero: precision from the training pairs, strength chosen on the validation pairs (mapping/priors.py)."""
     split = _current_split(layout, config, task)
     means = {kind: load_mapper(layout.mapper(kind)) for kind in kinds} | {ZERO: None}
     if options.progress:
