@@ -131,6 +131,25 @@ def test_queries_are_counted_exactly(toy_run, rows):
             assert math.ceil(demos[seed] / 2) <= halves[method, setting, seed]["expert_queries"]
 
 
+def test_each_dagger_row_carries_the_coverage_gap_of_the_states_visited_so_far(toy_run, rows):
+    """Plain DAgger's rows hold the gap of every state its rounds visited up to theirs
+    (evaluation/coverage.py), recomputed here from the seed's demonstration and rollouts; the summary
+    reads the last round's."""
+    from metadagger.evaluation.coverage import coverage_gap
+
+    table = {(r["method"], str(r["setting"]), r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
+    seed = SEEDS[0]
+    with SeedLearner(CorridorTask(), str(toy_run.groundtruth), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
+        demo = demonstration(learner)
+        first = learner.roll(bc_head(learner, demo.to_dataset(), seeded(BC, seed)))
+        features = learner.cache.features_of(demo.to_dataset())
+        expected = coverage_gap(features, learner.cache.features_of(first.to_dataset()))
+    assert table["dagger", "1", seed]["coverage_gap"] == pytest.approx(expected, abs=1e-9)
+    assert all(0.0 <= table["dagger", str(r), s]["coverage_gap"] <= 1.0 for r in (1, 2) for s in SEEDS)
+    summary = json.loads(toy_run.benchmark_summary.read_text())
+    assert summary["coverage"]["gaps"] == [table["dagger", "2", s]["coverage_gap"] for s in SEEDS]
+
+
 def test_bc_refit_is_w_bc_refitted_as_dagger_refits_it_on_the_demonstration_alone(toy_run, rows):
     table = {(r["method"], r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
     for seed in SEEDS:

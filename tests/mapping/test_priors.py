@@ -116,3 +116,36 @@ def test_the_strength_is_chosen_on_the_validation_pairs_alone(toy_run, monkeypat
     both = choose_strengths(two, task, groundtruth, at_mean, FIT, strengths=(0.0, 1.0))
     assert seen == list(VAL_SEEDS)  # one demonstration a seed, whatever the number of priors
     assert both[ZERO][1] == both["pistar-head"][1]  # the same mean (zero): the same distances
+
+
+def test_a_choice_is_read_back_while_its_inputs_hold_and_made_again_when_one_changes(toy_run, tmp_path, monkeypatch):
+    """``chosen_priors`` writes its choice with a stamp; the same inputs, split and fit read it back,
+    and another input, split or a new mean chooses again."""
+    from metadagger.mapping import priors as priors_module
+
+    task, groundtruth = CorridorTask(), str(toy_run.groundtruth)
+    size = load_policy(groundtruth).head_vector().numel()
+    split = _split(torch.zeros(len(VAL_SEEDS), size), size)
+    record = tmp_path / "priors.json"
+    calls = []
+    original = priors_module.choose_strengths
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(priors_module, "choose_strengths", counting)
+
+    def chosen(split: PairSplit, inputs: dict, means: dict | None = None) -> dict:
+        means = {ZERO: None} if means is None else means
+        return priors_module.chosen_priors(means, task, groundtruth, split, FIT, record=record, inputs=inputs)
+
+    first = chosen(split, {"groundtruth": "a"})
+    again = chosen(split, {"groundtruth": "a"})
+    assert len(calls) == 1 and again[ZERO].strength == first[ZERO].strength == max(STRENGTHS)
+    assert torch.equal(again[ZERO].precision, first[ZERO].precision)
+    chosen(split, {"groundtruth": "b"})
+    other = dataclasses.replace(split, w_da_val=split.w_da_val + 1.0)
+    chosen(other, {"groundtruth": "b"})
+    chosen(other, {"groundtruth": "b"}, {ZERO: None, "pistar-head": Mapper.pistar_head(torch.zeros(size))})
+    assert len(calls) == 4

@@ -206,7 +206,12 @@ collect_pairs(SlowCorridorTask(), RunLayout(sys.argv[1]), PAIRS, StageOptions(wo
 """
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+@pytest.mark.parametrize(
+    "sig",
+    # SIGINT's path (KeyboardInterrupt through the driver) is also the command line's, tested in tests/cli
+    [signal.SIGKILL, pytest.param(signal.SIGINT, marks=pytest.mark.slow)],
+    ids=["SIGKILL", "SIGINT"],
+)
 def test_killed_pairs_run_resumes_without_redoing_or_losing_seeds(gt_run, tmp_path, sig):
     env = {**os.environ, "PYTHONPATH": PYTHONPATH}
     with_pistar(gt_run, tmp_path)

@@ -310,9 +310,15 @@ def test_the_prior_method_chooses_its_strengths_on_the_validation_pairs_and_rows
     shutil.rmtree(layout.benchmark_dir, ignore_errors=True)
     _ok(["benchmark", "--out", layout.root, "--seeds", "5000", "--methods", "bc,prior"])
     kinds = list(load_run(layout.root).evaluate.methods)
-    priors = json.loads(layout.benchmark_priors.read_text())
+    record = json.loads(layout.benchmark_priors.read_text())
+    priors = record["chosen"]
     assert set(priors) == {*kinds, "zero"}
     for choice in priors.values():
         assert choice["strength"] in STRENGTHS and len(choice["distances"]) == len(STRENGTHS)
     rows = read_csv(layout.benchmark_table)
     assert {r["method"] for r in rows} >= {"bc", *(f"prior-{kind}" for kind in kinds), "prior-zero"}
+    # another call (DAgger with the priors) reads the choice back instead of making it again
+    made = layout.benchmark_priors.stat().st_mtime_ns
+    _ok(["benchmark", "--out", layout.root, "--seeds", "5000", "--methods", "bc,dagger,prior-dagger"])
+    assert layout.benchmark_priors.stat().st_mtime_ns == made
+    assert {r["method"] for r in read_csv(layout.benchmark_table)} >= {f"prior-dagger-{kind}" for kind in kinds}

@@ -44,6 +44,8 @@ import torch
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark_figure import plot_queries
 from metadagger.evaluation.benchmark_summary import summarize_benchmark
+from metadagger.evaluation.coverage import coverage_gap
+from metadagger.evaluation.coverage_figure import has_twins, plot_coverage
 from metadagger.evaluation.ledger import demonstration_record, ledger_lines, round_record, tally
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
 from metadagger.evaluation.methods import (
@@ -411,7 +413,20 @@ def _rounds(
 
 
 def _dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    return _round_rows(job, start, keys, _rounds(job, start, learner, None))
+    # each row also carries the coverage gap of the states DAgger visited up to its round
+    demo = learner.cache.features_of(start.demo.to_dataset())
+    visited: list[torch.Tensor] = []
+
+    def with_gap(rounds: Iterator[Round]) -> Iterator[Round]:
+        for r in rounds:
+            assert r.labelled is not None  # plain DAgger labels every visited state
+            visited.append(learner.cache.features_of(r.labelled))
+            yield r
+
+    rows = _round_rows(job, start, keys, with_gap(_rounds(job, start, learner, None)))
+    for key, row in rows.items():
+        row["coverage_gap"] = coverage_gap(demo, torch.cat(visited[: key.round]))  # type: ignore[attr-defined]
+    return rows
 
 
 def _round_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], rounds: Iterator[Round]) -> Rows:
@@ -648,4 +663,6 @@ def run_benchmark(
     summary = summarize_benchmark(rows, meta_queries)
     write_json(layout.benchmark_summary, summary)
     draw_figure(layout.benchmark_figure, lambda path: plot_queries(summary, path))
+    if has_twins(summary["coverage"]):
+        draw_figure(layout.benchmark_coverage_figure, lambda path: plot_coverage(summary["coverage"], path))
     return rows

@@ -27,6 +27,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from metadagger.evaluation.coverage import VARIANCE_SHARE, gap_against_gain
 from metadagger.evaluation.methods import BC_REFIT, MDM_PREFIX, gated_methods, metal_twins, reference_methods
 from metadagger.evaluation.paired import paired_comparison, paired_difference
 from metadagger.imitation.metrics import summarize, wilson_interval
@@ -72,12 +73,14 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
             }
         )
     refs = references(entries)
+    reading = budget_reading(rows)
     return {
         "entries": entries,
         "meta_training_queries": dict(meta_queries),
         "references": refs,
         "comparisons": comparisons(groups, refs),
-        "budgets": budget_reading(rows),
+        "budgets": reading,
+        "coverage": coverage_reading(rows, reading),
     }
 
 
@@ -238,6 +241,33 @@ def _metal_pairs(ran: list[Curve], best_gate: Curve | None) -> list[tuple[Curve,
         refs = [(t, curve[1]) for t in twins] + [(BC_REFIT, 1.0)] + ([best_gate] if best_gate is not None else [])
         pairs += [(curve, ref) for ref in refs if ref in ran and ref != curve]
     return pairs
+
+
+def coverage_reading(rows: list[dict[str, Any]], reading: dict[str, Any] | None) -> dict[str, Any] | None:
+    """Each seed's coverage gap (plain DAgger's last row's, :mod:`metadagger.evaluation.coverage`),
+    and for each MetaL DAgger curve and constant twin, the per-seed gain in the area under the
+    curve and its rank correlation with the gap; None without gaps or a budget reading."""
+    last: dict[int, dict[str, Any]] = {}
+    for r in rows:
+        if r["method"] == "dagger" and "coverage_gap" in r:
+            if r["seed"] not in last or int(r["setting"]) > int(last[r["seed"]]["setting"]):
+                last[r["seed"]] = r
+    if not last or reading is None:
+        return None
+    seeds = [s for s in reading["seeds"] if s in last]
+    gaps = [float(last[s]["coverage_gap"]) for s in seeds]
+    auc = {(a["method"], float(a["demo_fraction"])): dict(zip(reading["seeds"], a["per_seed"])) for a in reading["auc"]}
+    methods = []
+    for (method, fraction), mine in auc.items():
+        for twin in metal_twins(method):
+            other = auc.get((twin, fraction))
+            if other is None:
+                continue
+            gains = [mine[s] - other[s] for s in seeds]
+            methods.append(
+                {**_curve_dict((method, fraction)), "against": twin, **gap_against_gain(gaps, gains), "gains": gains}
+            )
+    return {"variance_share": VARIANCE_SHARE, "seeds": seeds, "gaps": gaps, "methods": methods}
 
 
 def _dagger_final(rows: list[dict[str, Any]]) -> dict[int, int]:

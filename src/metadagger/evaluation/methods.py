@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from metadagger.errors import UserError
+from metadagger.evaluation.coverage import VARIANCE_SHARE
 from metadagger.imitation.gate_registry import GATED_PREFIX, gate_declarations
 from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import control_names
@@ -186,6 +187,10 @@ class RoundKey(MethodKey):
     @property
     def chain(self) -> str:
         return f"{self.method}@demo{self.demo_fraction:g}"  # one chain makes every round's row
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        # its rows carry the coverage gap of the states visited so far (evaluation/coverage.py)
+        return {**super().own_stamp(inputs), "coverage_share": VARIANCE_SHARE}
 
 
 @dataclass(frozen=True)

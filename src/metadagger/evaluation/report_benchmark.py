@@ -11,6 +11,7 @@ import math
 from typing import Any
 
 from metadagger.evaluation.benchmark_figure import plot_queries
+from metadagger.evaluation.coverage_figure import has_twins, plot_coverage
 from metadagger.evaluation.methods import MDM_PREFIX, reference_methods
 from metadagger.evaluation.paired import verdict
 from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
@@ -18,6 +19,8 @@ from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json
 
 FIGURE = "queries.png"
+#: The coverage figure's name in the report's figures.
+COVERAGE_FIGURE = "coverage.png"
 #: The share of DAgger's final success a method must reach to count as matching it.
 MATCH_SHARE = 0.9
 
@@ -68,6 +71,7 @@ def benchmark_section(layout: RunLayout) -> list[str]:
         + [""]
         + _paired(entries, summary.get("references", []), summary.get("comparisons", []))
         + _budgets(summary.get("budgets"))
+        + _coverage(layout, summary.get("coverage"))
         + _matching(entries)
         + _amortisation(entries, summary["meta_training_queries"])
     )
@@ -250,6 +254,45 @@ def _metal_twins(reading: dict[str, Any]) -> list[str]:
         "the difference in success (95% interval, points) and in the area under the curve.",
         "",
         *markdown_table(header, cells),
+        "",
+    ]
+
+
+def _coverage(layout: RunLayout, coverage: dict[str, Any] | None) -> list[str]:
+    """Whether the seeds' coverage gap predicts what a mapper adds over its constant twin: the figure
+    and each comparison's rank correlation."""
+    if not has_twins(coverage):
+        return []
+    assert coverage is not None
+    cells = [
+        (
+            _curve_label(c),
+            method_label(c["against"]),
+            str(c["seeds"]),
+            "-" if c["rho"] is None else f"{c['rho']:+.2f}",
+            "-" if c["p_value"] is None else f"{c['p_value']:.3f}",
+        )
+        for c in coverage["methods"]
+    ]
+    gaps = coverage["gaps"]
+    return [
+        "### Coverage gap against the gain over the twin",
+        "",
+        f"A seed's coverage gap is the share of the energy of the states plain DAgger visited (centred at the "
+        f"demonstration's mean) outside the principal directions holding {coverage['variance_share']:.0%} of the "
+        f"demonstration's feature variance (docs/benchmark.md, 'Coverage'); here from {min(gaps):.3f} to "
+        f"{max(gaps):.3f}, median {sorted(gaps)[len(gaps) // 2]:.3f}. A mapper can only add where the seed's "
+        "own data says little: if it does, a larger gap goes with a larger gain in the area under the curve over "
+        "the constant twin (Spearman's rho above 0).",
+        "",
+        *figure_lines(
+            layout.figures,
+            COVERAGE_FIGURE,
+            "coverage gap against the gain over the constant twin",
+            lambda path: plot_coverage(coverage, path),
+        ),
+        "",
+        *markdown_table(("method", "against", "seeds", "Spearman's rho", "p-value"), cells),
         "",
     ]
 

@@ -23,7 +23,9 @@ same rule serves every mean, so the priors differ only in where they pull.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -35,7 +37,9 @@ from metadagger.imitation.head_fits import Prior, fit_heads
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal.method import SeedLearner, demonstration, seeded
 from metadagger.metal.store import PairSplit
+from metadagger.runfolder.stamps import data_fingerprint, stamp_of
 from metadagger.tasks.base import Task
+from metadagger.utils.io import read_json, write_json
 
 #: The mean of a prior without a mapper: the zero head.
 ZERO = "zero"
@@ -150,6 +154,60 @@ def choose_strengths(
     return chosen
 
 
+def split_fingerprint(split: PairSplit) -> str:
+    """A short hash of everything a prior is built and chosen from in ``split``: its seeds and heads."""
+    tensors = [
+        split.w_bc_train,
+        split.w_da_train,
+        split.w_bc_val,
+        split.w_da_val,
+        split.context_train,
+        split.context_val,
+    ]
+    arrays = [b"" if t is None else t.to(torch.float32).contiguous().numpy().tobytes() for t in tensors]
+    return data_fingerprint(list(split.train_seeds), list(split.val_seeds), *arrays)
+
+
+def chosen_priors(
+    means: Mapping[str, Mapper | None],
+    task: Task,
+    groundtruth: str,
+    split: PairSplit,
+    fit: BCConfig,
+    *,
+    record: Path,
+    inputs: Mapping[str, Any],
+    progress: bool = False,
+) -> dict[str, HeadPrior]:
+    """The prior toward each of ``means`` (a mapper, or None for zero), built from ``split``'s
+    training pairs, at the strength :func:`choose_strengths` keeps on its validation pairs.
+
+    The choice is written to ``record`` (JSON: its stamp and each mean's
+    :meth:`StrengthChoice.as_dict`) and read back instead of made again while it was made from the
+    same ``inputs`` (the caller's: pi*, the mappers, the kernels), split, fit and grid, for every mean.
+    """
+    stamp = {
+        **inputs,
+        "split": split_fingerprint(split),
+        "fit": stamp_of(fit),
+        "strengths": list(STRENGTHS),
+        "variance_floor": VARIANCE_FLOOR,
+    }
+    built = {mean: build_prior(split, mapper) for mean, mapper in means.items()}
+    made = read_json(record, "the priors' strengths") if record.is_file() else None
+    if made is not None and made.get("stamp") == stamp and set(means) <= set(made.get("chosen", {})):
+        return {
+            mean: dataclasses.replace(p, strength=float(made["chosen"][mean]["strength"])) for mean, p in built.items()
+        }
+    if progress:
+        print(f"priors: choosing strengths on {len(split.val_seeds)} validation pairs", file=sys.stderr, flush=True)
+    chosen = choose_strengths(
+        {mean: (built[mean], mapper) for mean, mapper in means.items()}, task, groundtruth, split, fit
+    )
+    write_json(record, {"stamp": stamp, "chosen": {mean: choice.as_dict() for mean, (_, choice) in chosen.items()}})
+    return {mean: prior for mean, (prior, _) in chosen.items()}
+
+
 __all__ = [
     "STRENGTHS",
     "VARIANCE_FLOOR",
@@ -158,6 +216,8 @@ __all__ = [
     "StrengthChoice",
     "build_prior",
     "choose_strengths",
+    "chosen_priors",
     "mean_head",
     "residual_precision",
+    "split_fingerprint",
 ]

@@ -41,7 +41,7 @@ from metadagger.evaluation.tensorboard import (
 )
 from metadagger.evaluation.video import FIXED_METHODS, check_methods, compose, require_imageio, seed_clips, write_video
 from metadagger.mapping.mappers import load_mapper
-from metadagger.mapping.priors import ZERO, HeadPrior, build_prior, choose_strengths
+from metadagger.mapping.priors import ZERO, HeadPrior, chosen_priors
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
 from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
@@ -61,13 +61,14 @@ from metadagger.policies import Policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
-from metadagger.runfolder.stamps import describe_changes
+from metadagger.runfolder.stamps import describe_changes, file_fingerprint
 from metadagger.tasks import make_task
 from metadagger.tasks.base import Task
 from metadagger.tasks.checks import check_task_code
+from metadagger.tasks.identity import task_stamp
 from metadagger.utils.executors import default_workers
-from metadagger.utils.io import read_json, write_json
-from metadagger.utils.kernels import pin_cpu_kernels
+from metadagger.utils.io import read_json
+from metadagger.utils.kernels import kernel_stamp, pin_cpu_kernels
 from metadagger.utils.plotting import draw_figure
 
 STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnose", "report")
@@ -352,18 +353,22 @@ def _benchmark_priors(
     """The priors of the ``prior`` and ``prior-dagger`` methods, toward each of ``kinds``' heads and
     zero: precision from the training pairs, strength chosen on the validation pairs (mapping/priors.py)."""
     split = _current_split(layout, config, task)
-    means = {kind: load_mapper(layout.mapper(kind)) for kind in kinds} | {ZERO: None}
-    if options.progress:
-        print(f"priors: choosing strengths on {len(split.val_seeds)} validation pairs", file=sys.stderr, flush=True)
-    chosen = choose_strengths(
-        {mean: (build_prior(split, mapper), mapper) for mean, mapper in means.items()},
+    inputs = {
+        **kernel_stamp(),
+        **task_stamp(task),
+        "groundtruth": file_fingerprint(layout.groundtruth),
+        "mappers": {kind: file_fingerprint(layout.mapper(kind)) for kind in kinds},
+    }
+    return chosen_priors(
+        {kind: load_mapper(layout.mapper(kind)) for kind in kinds} | {ZERO: None},
         task,
         str(layout.groundtruth),
         split,
         config.pairs.bc,
+        record=layout.benchmark_priors,
+        inputs=inputs,
+        progress=options.progress,
     )
-    write_json(layout.benchmark_priors, {mean: choice.as_dict() for mean, (_, choice) in chosen.items()})
-    return {mean: prior for mean, (prior, _) in chosen.items()}
 
 
 @records_config

@@ -158,6 +158,11 @@ class RunLayout:
         """Success against mean expert queries."""
         return self.benchmark_dir / "queries.png"
 
+    @property
+    def benchmark_coverage_figure(self) -> Path:
+        """Each seed's coverage gap against a MetaL DAgger method's gain over its constant twin."""
+        return self.benchmark_dir / "coverage.png"
+
     # mapping diagnostics
     @property
     def diagnostics_dir(self) -> Path:

@@ -1,0 +1,90 @@
+"""The coverage figure: each unseen seed's coverage gap against a MetaL DAgger method's gain over
+its constant twin (the area under the success-against-queries curve), one panel per method family.
+
+A family is the methods of one kind of use of a mapper (MDM, BC with a prior, DAgger with a prior,
+the disagreement gate); each learned kind is one colour, compared with the family's mean-DA twin
+(its first twin where mean-DA did not run). Spearman's rho of each kind is in the legend.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from matplotlib.figure import Figure
+
+from metadagger.evaluation.benchmark_figure import PALETTE
+from metadagger.evaluation.methods import DISAGREE_PREFIX, MDM_PREFIX, PRIOR_DAGGER_PREFIX, PRIOR_PREFIX
+from metadagger.evaluation.tables import method_label
+from metadagger.utils.plotting import plt, save_figure
+
+#: The families, one panel each, by method prefix (the longer prefix first: ``prior-dagger-`` is not ``prior-``).
+FAMILIES = {
+    PRIOR_DAGGER_PREFIX: "DAgger with a prior",
+    PRIOR_PREFIX: "BC with a prior",
+    DISAGREE_PREFIX: "disagreement gate",
+    MDM_PREFIX: "MDM",
+}
+#: The twin each method is drawn against, where it ran.
+PREFERRED_TWIN = "mean-da"
+
+
+def _family(method: str) -> str:
+    return next(prefix for prefix in FAMILIES if method.startswith(prefix))
+
+
+def drawn_comparisons(coverage: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
+    """Per family, one comparison per method on the whole demonstration: against its mean-DA twin,
+    else against its first twin that ran."""
+    chosen: dict[str, dict[str, Any]] = {}
+    for c in coverage["methods"]:
+        if float(c["demo_fraction"]) != 1.0:
+            continue
+        preferred = _family(c["method"]) + PREFERRED_TWIN
+        held = chosen.get(c["method"])
+        if held is None or (c["against"] == preferred and held["against"] != preferred):
+            chosen[c["method"]] = c
+    families: dict[str, list[dict[str, Any]]] = {}
+    for method, c in chosen.items():
+        families.setdefault(_family(method), []).append(c)
+    return families
+
+
+def draw_coverage(coverage: dict[str, Any]) -> Figure:
+    """The figure of a summary's ``coverage`` reading (``coverage_reading`` in benchmark_summary.py)."""
+    families = drawn_comparisons(coverage)
+    if not families:
+        raise ValueError("no MetaL DAgger method with a learned mapper kind and a constant twin ran")
+    fig, axes = plt.subplots(1, len(families), figsize=(4.2 * len(families), 3.8), squeeze=False, sharey=True)
+    for ax, (prefix, comparisons) in zip(axes[0], families.items()):
+        for index, c in enumerate(comparisons):
+            rho = "n/a" if c["rho"] is None else f"{c['rho']:+.2f} (p {c['p_value']:.2f})"
+            ax.scatter(
+                coverage["gaps"],
+                c["gains"],
+                s=18,
+                color=PALETTE[index % len(PALETTE)],
+                label=f"{method_label(c['method'])}: rho {rho}",
+                alpha=0.8,
+            )
+        ax.axhline(0.0, color="grey", linewidth=0.8)
+        twin = comparisons[0]["against"]
+        ax.set_title(f"{FAMILIES[prefix]} (against {method_label(twin)})", fontsize="small")
+        ax.set_xlabel(f"coverage gap (outside {coverage['variance_share']:.0%} of the demonstration's variance)")
+        ax.legend(fontsize="x-small", frameon=False)
+    axes[0][0].set_ylabel("gain in area under the curve over the twin")
+    fig.tight_layout()
+    return fig
+
+
+def plot_coverage(coverage: dict[str, Any], path: Path) -> Path:
+    """Draw :func:`draw_coverage` and save it as PNG at ``path``; the path written."""
+    return save_figure(draw_coverage(coverage), path)
+
+
+def has_twins(coverage: dict[str, Any] | None) -> bool:
+    """Whether a coverage reading holds a comparison the figure draws."""
+    return bool(coverage) and any(float(c["demo_fraction"]) == 1.0 for c in coverage["methods"])
+
+
+__all__ = ["FAMILIES", "draw_coverage", "drawn_comparisons", "has_twins", "plot_coverage"]
