@@ -383,20 +383,30 @@ def test_bc_with_a_prior_spends_the_demonstrations_queries_toward_each_mean(toy_
     stronger = {**priors, "pistar-head": dataclasses.replace(priors["pistar-head"], strength=100.0)}
     with pytest.raises(UserError, match="prior"):
         _prior_run(layout, stronger)
-    with pytest.raises(UserError, match=r"benchmark methods prior and prior-dagger need the priors toward \['zero'\]"):
+    with pytest.raises(
+        UserError, match=r"benchmark methods prior, prior-dagger, prior-gated need the priors toward \['zero'\]"
+    ):
         _prior_run(layout, {"pistar-head": priors["pistar-head"]})
 
 
 def test_dagger_with_a_prior_refits_every_round_with_it(toy_run, tmp_path):
     """``prior-dagger`` makes a row per mean and round: round 1 labels every state of BC-with-the-
-    prior's rollout (the ``prior`` row's), and a prior of strength 0 pulls nowhere, whatever its mean."""
+    prior's rollout (the ``prior`` row's), and a prior of strength 0 pulls nowhere, whatever its mean.
+    ``prior-gated`` runs each gated method of the run with the same prior: a random gate that labels
+    every state is ``prior-dagger``'s last round, one that labels none BC-with-the-prior's row."""
     from metadagger.mapping.priors import HeadPrior
     from metadagger.policies import load_policy
 
     size = load_policy(toy_run.groundtruth).head_vector().numel()
     priors = {mean: HeadPrior(mean, torch.ones(size), strength=0.0) for mean in ("pistar-head", "zero")}
     layout = _copy_run(toy_run, tmp_path / "run")
-    config = dataclasses.replace(CONFIG, methods=("bc", "prior", "prior-dagger"), grids={}, demo_fractions=(1.0,))
+    config = dataclasses.replace(
+        CONFIG,
+        methods=("bc", "prior", "prior-dagger", "prior-gated", "dagger-random"),
+        grids={"dagger-random": [0.0, 1.0]},
+        ceiling=False,
+        demo_fractions=(1.0,),
+    )
     rows = _run(layout, config, priors=priors)
     table = {(r["method"], r["setting"], r["seed"]): r for r in rows}
     for seed in SEEDS:
@@ -410,7 +420,15 @@ def test_dagger_with_a_prior_refits_every_round_with_it(toy_run, tmp_path):
             assert {k: v for k, v in zero.items() if k != "method"} == {
                 k: v for k, v in pistar.items() if k != "method"
             }
-    assert "DAgger, prior toward zero" in "\n".join(benchmark_section(layout))
+    outcome = ("success", "reward", "steps", "expert_queries", "takeovers", "episodes_asked")
+    for seed in SEEDS:
+        for mean in ("pistar-head", "zero"):
+            gated = f"dagger-random+prior-{mean}"
+            every, none = table[gated, "1", seed], table[gated, "0", seed]
+            assert all(every[k] == table[f"prior-dagger-{mean}", str(ROUNDS), seed][k] for k in outcome)
+            assert all(none[k] == table[f"prior-{mean}", "", seed][k] for k in outcome)
+    text = "\n".join(benchmark_section(layout))
+    assert "DAgger, prior toward zero" in text and "DAgger, random gate, prior toward zero" in text
 
 
 def test_the_disagreement_gate_compares_the_current_head_with_the_kinds_head(toy_run, tmp_path, monkeypatch):

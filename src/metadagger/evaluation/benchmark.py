@@ -52,11 +52,13 @@ from metadagger.evaluation.methods import (
     BC_REFIT,
     MDI_MAPPER,
     MDI_METHODS,
+    PRIOR_METHODS,
     BCKey,
     DisagreeKey,
     GateKey,
     MapperKey,
     MethodKey,
+    PriorGateKey,
     PriorKey,
     PriorRoundKey,
     RefitKey,
@@ -71,7 +73,7 @@ from metadagger.evaluation.methods import (
 )
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
-from metadagger.imitation.gate_registry import built_in_grids, gate_of_method, get_gate, make_gate
+from metadagger.imitation.gate_registry import GATED_PREFIX, built_in_grids, gate_of_method, get_gate, make_gate
 from metadagger.imitation.gates import DisagreementGate, Gate
 from metadagger.imitation.head_fits import Prior
 from metadagger.imitation.lanes import Lanes, check_lanes, lanes_stamp
@@ -384,9 +386,8 @@ def _prior_dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], 
     assert mean is not None
     prior = _seed_prior(job, start, mean)
     head = _bc_with_prior(job, start, prior, learner)
-    first = learner.roll(head, early_stop=job.early_stop)
-    rounds = _rounds(job, dataclasses.replace(start, w_bc=head, first=first), learner, None, prior=prior)
-    return _round_rows(job, start, keys, rounds)
+    begun = dataclasses.replace(start, w_bc=head, first=learner.roll(head, early_stop=job.early_stop))
+    return _round_rows(job, start, keys, _rounds(job, begun, learner, None, prior=prior))
 
 
 def _rounds(
@@ -446,6 +447,17 @@ def _gate_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: 
     return {key: _last_round_row(job, start, key, _rounds(job, start, learner, gate))}
 
 
+def _prior_gate_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
+    # gated DAgger from BC with a prior, the same prior in every refit
+    [key] = keys
+    assert isinstance(key, PriorGateKey)
+    prior = _seed_prior(job, start, key.mean)
+    head = _bc_with_prior(job, start, prior, learner)
+    begun = dataclasses.replace(start, w_bc=head, first=learner.roll(head, early_stop=job.early_stop))
+    gate = make_gate(key.gate, key.value, **job.config.options_of(GATED_PREFIX + key.gate))
+    return {key: _last_round_row(job, begun, key, _rounds(job, begun, learner, gate, prior=prior))}
+
+
 def _disagree_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
     # DAgger from w_BC labelling where the kind's head for w_BC and the current head act apart
     [key] = keys
@@ -482,6 +494,7 @@ _CHAINS: dict[type, Callable[[BenchmarkJob, _Start, list[MethodKey], SeedLearner
     PriorRoundKey: _prior_dagger_rows,
     RoundKey: _dagger_rows,
     GateKey: _gate_row,
+    PriorGateKey: _prior_gate_row,
     DisagreeKey: _disagree_row,
     RefitKey: _refit_row,
 }
@@ -614,7 +627,7 @@ def run_benchmark(
     missing = sorted({key.prior_mean for key in keys if key.prior_mean is not None} - set(priors or {}))
     if missing:
         raise UserError(
-            f"benchmark methods prior and prior-dagger need the priors toward {missing}; build them from the pairs"
+            f"benchmark methods {', '.join(PRIOR_METHODS)} need the priors toward {missing}; build them from the pairs"
         )
     settings = {"rounds": rounds, "bc": stamp_of(bc), "dagger_bc": stamp_of(dagger_bc), "early_stop": early_stop}
     settings.update(lanes_stamp(config.lanes))  # stamped unless 1: rows made alone stay current

@@ -2,8 +2,9 @@
 its constant twin (the area under the success-against-queries curve), one panel per method family.
 
 A family is the methods of one kind of use of a mapper (MDM, BC with a prior, DAgger with a prior,
-the disagreement gate); each learned kind is one colour, compared with the family's mean-DA twin
-(its first twin where mean-DA did not run). Spearman's rho of each kind is in the legend.
+each gated DAgger with a prior, the disagreement gate); each learned kind is one colour, compared
+with the family's mean-DA twin (its first twin where mean-DA did not run). Spearman's rho of each
+kind is in the legend.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 from matplotlib.figure import Figure
 
 from metadagger.evaluation.benchmark_figure import PALETTE
-from metadagger.evaluation.methods import DISAGREE_PREFIX, MDM_PREFIX, PRIOR_DAGGER_PREFIX, PRIOR_PREFIX
+from metadagger.evaluation.methods import DISAGREE_PREFIX, GATED_PRIOR, MDM_PREFIX, PRIOR_DAGGER_PREFIX, PRIOR_PREFIX
 from metadagger.evaluation.tables import method_label
 from metadagger.utils.plotting import plt, save_figure
 
@@ -30,7 +31,16 @@ PREFERRED_TWIN = "mean-da"
 
 
 def _family(method: str) -> str:
+    """A method's family: its gated method with a prior (``dagger-<gate>+prior-``), else its prefix."""
+    if GATED_PRIOR in method:
+        return method.split(GATED_PRIOR, 1)[0] + GATED_PRIOR
     return next(prefix for prefix in FAMILIES if method.startswith(prefix))
+
+
+def _family_title(family: str) -> str:
+    if family.endswith(GATED_PRIOR):
+        return f"{method_label(family.removesuffix(GATED_PRIOR))} with a prior"
+    return FAMILIES[family]
 
 
 def drawn_comparisons(coverage: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
@@ -69,7 +79,7 @@ def draw_coverage(coverage: dict[str, Any]) -> Figure:
             )
         ax.axhline(0.0, color="grey", linewidth=0.8)
         twin = comparisons[0]["against"]
-        ax.set_title(f"{FAMILIES[prefix]} (against {method_label(twin)})", fontsize="small")
+        ax.set_title(f"{_family_title(prefix)} (against {method_label(twin)})", fontsize="small")
         ax.set_xlabel(f"coverage gap (outside {coverage['variance_share']:.0%} of the demonstration's variance)")
         ax.legend(fontsize="x-small", frameon=False)
     axes[0][0].set_ylabel("gain in area under the curve over the twin")

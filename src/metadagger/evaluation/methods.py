@@ -31,11 +31,13 @@ MDM_PREFIX = "mdm-"
 PRIOR_PREFIX = "prior-"
 #: Prefix of DAgger with a prior in every fit: ``prior-dagger-<mapper kind>``, ``prior-dagger-zero``.
 PRIOR_DAGGER_PREFIX = "prior-dagger-"
+#: Between a gated method and its prior's mean in a gated method with a prior: ``dagger-<gate>+prior-<mean>``.
+GATED_PRIOR = "+prior-"
 #: Prefix of DAgger with the disagreement gate (:class:`~metadagger.imitation.gates.DisagreementGate`)
 #: against a mapper kind's head: ``disagree-<mapper kind>``.
 DISAGREE_PREFIX = "disagree-"
 #: The benchmark methods whose fits carry a prior (the stage builds their priors from the pairs).
-PRIOR_METHODS = ("prior", "prior-dagger")
+PRIOR_METHODS = ("prior", "prior-dagger", "prior-gated")
 #: The disagreement gate's default sweep: the score gates' quantiles (labels about 50%, 20%, 5%).
 DISAGREE_GRID = (0.5, 0.8, 0.95)
 #: The control that refits w_BC as DAgger does, with no new label.
@@ -216,6 +218,30 @@ class GateKey(MethodKey):
 
 
 @dataclass(frozen=True)
+class PriorGateKey(GateKey):
+    """Gated DAgger after every round, its gate at one value, from BC with a prior and the same prior
+    in every round's refit (its mean a mapper kind's head for w_BC, or ``zero``)."""
+
+    mean: str
+
+    @property
+    def starts_from_demonstration(self) -> bool:
+        return False
+
+    @property
+    def mapper_kind(self) -> str | None:
+        return None if self.mean == ZERO else self.mean
+
+    @property
+    def prior_mean(self) -> str | None:
+        return self.mean
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        gate = inputs.gate_options(GATED_PREFIX + self.gate)
+        return {**MethodKey.own_stamp(self, inputs), "gate": gate, "prior": inputs.priors[self.mean]}
+
+
+@dataclass(frozen=True)
 class DisagreeKey(MethodKey):
     """DAgger from w_BC after every round, labelling where a mapper kind's head for w_BC and the
     current head act apart (:class:`~metadagger.imitation.gates.DisagreementGate` at ``value``)."""
@@ -286,6 +312,17 @@ def _prior_dagger(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[flo
     ]
 
 
+def _prior_gated(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    gates = {d.method: d.name for d in gate_declarations().values() if not d.reference}
+    return [
+        PriorGateKey(method + GATED_PRIOR + mean, f"{value:g}", gate=gates[method], value=float(value), mean=mean)
+        for method, grid in grids.items()
+        if method in gates
+        for mean in (*kinds, ZERO)
+        for value in grid
+    ]
+
+
 def _disagree(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     return [DisagreeKey(DISAGREE_PREFIX + kind, f"{q:g}", kind=kind, value=q) for kind in kinds for q in DISAGREE_GRID]
 
@@ -337,6 +374,12 @@ _BUILT_IN = (
         "DAgger with a prior",
         "DAgger from BC with a prior, the same Gaussian prior (toward each kind's head, and zero) in every refit",
         _prior_dagger,
+    ),
+    BenchmarkMethod(
+        "prior-gated",
+        "gated DAgger with a prior",
+        "each gated method of the run at each setting, from BC with a prior and the prior in every refit, per mean",
+        _prior_gated,
     ),
     BenchmarkMethod(
         "disagree",
@@ -398,7 +441,12 @@ def with_demo_fractions(keys: Sequence[MethodKey], fractions: Sequence[float]) -
 def metal_twins(method: str) -> tuple[str, ...]:
     """The constant twins of a MetaL DAgger method that reads a learned mapper kind's head: the same
     method with each control's head (and, for the priors, zero) in the mapper's place; () for any
-    other method. ``prior-ridge`` -> ``prior-pistar``, ``prior-mean-da``, ``prior-zero``."""
+    other method. ``prior-ridge`` -> ``prior-mean-da``, ``prior-pistar-head``, ``prior-zero``;
+    ``dagger-safe+prior-ridge`` -> ``dagger-safe+prior-mean-da``, ..."""
+    if GATED_PRIOR in method:
+        gated, kind = method.split(GATED_PRIOR, 1)
+        learned = kind != ZERO and kind not in control_names()
+        return tuple(gated + GATED_PRIOR + c for c in (*control_names(), ZERO)) if learned else ()
     for prefix in (PRIOR_DAGGER_PREFIX, DISAGREE_PREFIX, PRIOR_PREFIX, MDM_PREFIX):
         if method.startswith(prefix):
             kind = method[len(prefix) :]

@@ -9,6 +9,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 from metadagger.evaluation.methods import (
     DISAGREE_PREFIX,
+    GATED_PRIOR,
     MDI_LABELS,
     PRIOR_DAGGER_PREFIX,
     PRIOR_PREFIX,
@@ -36,6 +37,9 @@ def method_label(method: str) -> str:
         return MDI_PROTOCOL_LABELS[method]
     if method.startswith("mdm-"):
         return f"MDM {get_kind(method.removeprefix('mdm-')).label}"
+    if GATED_PRIOR in method:
+        gated, mean = method.split(GATED_PRIOR, 1)
+        return f"{method_label(gated)}, prior toward {_mean_label(mean)}"
     if method.startswith(PRIOR_DAGGER_PREFIX):
         return f"DAgger, prior toward {_mean_label(method.removeprefix(PRIOR_DAGGER_PREFIX))}"
     if method.startswith(PRIOR_PREFIX):
