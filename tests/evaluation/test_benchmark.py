@@ -435,7 +435,7 @@ def test_the_disagreement_gate_compares_the_current_head_with_the_kinds_head(toy
     """``disagree-<kind>`` runs DAgger's rounds from w_BC with the disagreement gate, its reference the
     kind's head for w_BC (pi*'s head here) and its current head the one each round's rollout acted
     with; its queries are the demonstration's and the states it chose (its ledger)."""
-    from metadagger.imitation.gates import DisagreementGate
+    from metadagger.imitation.reading_gates import DisagreementGate
     from metadagger.policies import load_policy
 
     pistar = load_policy(toy_run.groundtruth).head_vector()
@@ -469,8 +469,8 @@ def test_every_round_of_dagger_refits_with_the_prior_it_is_given(toy_run):
     """A strong prior pulls every round's refitted head toward its mean (Adam moves a weight by about
     the learning rate a step: a pull, not a jump); a gate that compares heads without a reference
     head is refused."""
-    from metadagger.imitation.gates import DisagreementGate
     from metadagger.imitation.head_fits import Prior
+    from metadagger.imitation.reading_gates import DisagreementGate
     from metadagger.metal.method import dagger_rounds
 
     with SeedLearner(CorridorTask(), str(toy_run.groundtruth), SEEDS[0], head_init_seed=SEEDS[0]) as learner:

@@ -8,7 +8,6 @@ import torch
 from metadagger.errors import UserError
 from metadagger.imitation.gate_registry import gated_names, make_gate
 from metadagger.imitation.gates import (
-    ConformalGate,
     EnsembleGate,
     Episode,
     GateMemory,
@@ -16,10 +15,9 @@ from metadagger.imitation.gates import (
     NoveltyGate,
     RandomGate,
     SafeGate,
-    ThriftyGate,
     above_quantile,
-    conformal_threshold,
 )
+from metadagger.imitation.memory_gates import ConformalGate, ThriftyGate, conformal_threshold
 
 F = 32
 N_NEAR = N_FAR = 100
@@ -307,7 +305,8 @@ def _heads(features: int, outputs: int, seed: int) -> torch.Tensor:
 def test_the_disagreement_gate_labels_where_the_two_heads_act_apart(discrete):
     """Equal heads label nothing; otherwise the states above the round's quantile of the heads'
     total variation distance (class distributions) or squared distance (actions) are labelled."""
-    from metadagger.imitation.gates import DisagreementGate, HeadPair, head_disagreement
+    from metadagger.imitation.gates import HeadPair
+    from metadagger.imitation.reading_gates import DisagreementGate, head_disagreement
 
     outputs = 3 if discrete else 2
     features, learner, labelled = scene(discrete)
@@ -333,7 +332,8 @@ def test_the_disagreement_gate_labels_where_the_two_heads_act_apart(discrete):
 
 
 def test_the_disagreement_gate_needs_two_heads_of_one_length():
-    from metadagger.imitation.gates import DisagreementGate, HeadPair
+    from metadagger.imitation.gates import HeadPair
+    from metadagger.imitation.reading_gates import DisagreementGate
 
     features, learner, labelled = scene(True)
     with pytest.raises(UserError, match="the disagreement gate compares two heads"):

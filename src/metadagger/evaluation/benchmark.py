@@ -74,9 +74,10 @@ from metadagger.evaluation.methods import (
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gate_registry import GATED_PREFIX, built_in_grids, gate_of_method, get_gate, make_gate
-from metadagger.imitation.gates import DisagreementGate, Gate
+from metadagger.imitation.gates import Gate
 from metadagger.imitation.head_fits import Prior
 from metadagger.imitation.lanes import Lanes, check_lanes, lanes_stamp
+from metadagger.imitation.reading_gates import DisagreementGate
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.priors import ZERO, HeadPrior, mean_head

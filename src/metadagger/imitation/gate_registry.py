@@ -15,16 +15,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from metadagger.errors import UserError
-from metadagger.imitation.gates import (
-    ConformalGate,
-    EnsembleGate,
-    Gate,
-    NoveltyGate,
-    OracleGate,
-    RandomGate,
-    SafeGate,
-    ThriftyGate,
-)
+from metadagger.imitation.gates import EnsembleGate, Gate, NoveltyGate, RandomGate, SafeGate
+from metadagger.imitation.memory_gates import ConformalGate, ThriftyGate
+from metadagger.imitation.reading_gates import OracleGate
 from metadagger.utils.plugins import load_plugins
 
 #: Entry-point group through which installed packages add gates.

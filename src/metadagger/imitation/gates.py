@@ -14,18 +14,14 @@ The gates:
 - ``safe(quantile)``: a ridge classifier of "the learner's action differs from the expert's" fitted
   on the labelled states; a state's score is its predicted mismatch.
 - ``novelty(k, quantile)``: a state's score is its distance to the ``k``-th nearest labelled state.
-- ``thrifty(rate)``: ThriftyDAgger's two tests (Hoque et al., CoRL 2021): a state is labelled when
-  it is novel (the ensemble's output variance) or risky (a learned estimate that an episode from
-  it fails), each threshold the ``1 - rate`` quantile of every estimate of the run so far.
-- ``conformal(alpha)``: CRSAIL's rule (arXiv 2512.00453): the distance to the ``k``-th nearest
-  labelled state, above one threshold calibrated by conformal prediction on the first round's
-  states (the first policy's rollout) at miscoverage ``alpha``, then kept for the whole run.
-- ``oracle(quantile)``: the ceiling, not a method: it reads the expert's labels of the round's
-  states and labels exactly those where the learner is wrong (:class:`OracleGate`).
+- ``thrifty(rate)`` and ``conformal(alpha)``: ThriftyDAgger's and CRSAIL's rules, which set their
+  thresholds from the run so far (:mod:`metadagger.imitation.memory_gates`).
+- ``oracle(quantile)``, the ceiling, which reads the expert's labels of the round's states, and
+  the disagreement gate, which reads two heads, MetaL DAgger's query rule
+  (:mod:`metadagger.imitation.reading_gates`).
 
-Each is declared once, with its label and default grid, in :mod:`metadagger.imitation.gate_registry`.
-One more reads two heads instead (:class:`DisagreementGate`): where a mapper's head for the seed
-and the current head act apart. It is MetaL DAgger's query rule, and its benchmark methods
+Each gate but the disagreement gate is declared once, with its label and default grid, in
+:mod:`metadagger.imitation.gate_registry`; the disagreement gate's benchmark methods
 (``disagree-<kind>``, one per mapper kind) are declared with the methods that need a mapper.
 
 Score-based gates label a state when its score is strictly above the ``quantile``-quantile of
@@ -44,7 +40,6 @@ label + 1.
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -53,7 +48,6 @@ import torch
 from torch import Tensor
 
 from metadagger.errors import UserError
-from metadagger.imitation.head_fits import head_outputs
 
 
 @dataclass(frozen=True)
@@ -142,18 +136,18 @@ def _check_round(features: Tensor, learner_actions: Tensor, labelled: Labelled) 
         )
 
 
-def _check_quantile(owner: str, quantile: float) -> None:
+def check_quantile(owner: str, quantile: float) -> None:
     if not 0.0 <= quantile < 1.0:
         raise UserError(f"{owner}.quantile must be in [0, 1), got {quantile!r}")
 
 
-def _check_share(owner: str, value: float) -> None:
+def check_share(owner: str, value: float) -> None:
     """A setting that is a share strictly between 0 and 1 (``owner`` as ``Gate.field``)."""
     if not 0.0 < value < 1.0:
         raise UserError(f"{owner} must be in (0, 1), got {value!r}")
 
 
-def _check_count(owner: str, value: int, least: int) -> None:
+def check_count(owner: str, value: int, least: int) -> None:
     """An integer setting of at least ``least`` (``owner`` as ``Gate.field``)."""
     if not isinstance(value, int) or value < least:
         raise UserError(f"{owner} must be an integer >= {least}, got {value!r}")
@@ -178,21 +172,21 @@ def above_quantile(scores: Tensor, quantile: float) -> Tensor:
     return scores.double() > threshold
 
 
-def _ridge(features: Tensor, targets: Tensor, ridge: float) -> Tensor:
+def ridge_weights(features: Tensor, targets: Tensor, ridge: float) -> Tensor:
     """Weights [F + 1, T] (bias last) of a ridge regression of ``targets`` [M, T] on ``features`` [M, F]."""
-    x = _with_bias(features)
+    x = with_bias(features)
     gram = x.T @ x
     # the penalty scales with the features' mean energy, so one ridge value suits every trunk
     gram.diagonal().add_(ridge * gram.diagonal().mean())
     return torch.linalg.solve(gram, x.T @ targets.double())
 
 
-def _with_bias(features: Tensor) -> Tensor:
+def with_bias(features: Tensor) -> Tensor:
     x = features.double()
     return torch.cat([x, torch.ones(len(x), 1, dtype=x.dtype)], dim=1)
 
 
-def _check_ridge(owner: str, ridge: float) -> None:
+def check_ridge(owner: str, ridge: float) -> None:
     if not ridge > 0:
         raise UserError(f"{owner}.ridge must be > 0, got {ridge!r}")
 
@@ -205,6 +199,25 @@ class Selection:
     """Bool [N]: True for a state to label."""
     scores: Tensor | None = None
     """The score [N] the choice was made on (higher: more worth a query); None for a gate without one."""
+
+
+@dataclass(frozen=True)
+class HeadPair:
+    """The two heads a :class:`DisagreementGate` compares, flat (weight rows, then bias)."""
+
+    current: Tensor
+    """The head whose rollout the round gates."""
+    reference: Tensor
+    """The head it is compared with: a mapper's for the seed (the MetaL rule), or a constant one (its twin)."""
+    outputs: int
+    """The heads' outputs: classes (discrete) or the action's length."""
+
+    def __post_init__(self) -> None:
+        if self.current.shape != self.reference.shape or self.current.ndim != 1:
+            raise UserError(
+                f"HeadPair heads must be flat and of one length, got {tuple(self.current.shape)} and "
+                f"{tuple(self.reference.shape)}; compare heads of one policy"
+            )
 
 
 class Gate(ABC):
@@ -359,9 +372,9 @@ class EnsembleGate(ScoreGate):
     """Ridge penalty relative to the features' mean energy, > 0."""
 
     def __post_init__(self) -> None:
-        _check_quantile("EnsembleGate", self.quantile)
-        _check_count("EnsembleGate.K", self.K, 2)
-        _check_ridge("EnsembleGate", self.ridge)
+        check_quantile("EnsembleGate", self.quantile)
+        check_count("EnsembleGate.K", self.K, 2)
+        check_ridge("EnsembleGate", self.ridge)
 
     def scores(
         self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
@@ -385,11 +398,11 @@ def bootstrap_outputs(
     targets = labelled.labels
     if labelled.discrete:
         targets = torch.nn.functional.one_hot(targets, int(targets.max()) + 1)
-    m, x = len(targets), _with_bias(features)
+    m, x = len(targets), with_bias(features)
     outputs = []
     for _ in range(heads):
         rows = torch.randint(m, (m,), generator=generator)
-        outputs.append(x @ _ridge(labelled.features[rows], targets[rows], ridge))
+        outputs.append(x @ ridge_weights(labelled.features[rows], targets[rows], ridge))
     return torch.stack(outputs)
 
 
@@ -413,8 +426,8 @@ class SafeGate(ScoreGate):
     mismatch targets are noisy, and the classifier should smooth them rather than fit them)."""
 
     def __post_init__(self) -> None:
-        _check_quantile("SafeGate", self.quantile)
-        _check_ridge("SafeGate", self.ridge)
+        check_quantile("SafeGate", self.quantile)
+        check_ridge("SafeGate", self.ridge)
 
     def _select(
         self,
@@ -432,8 +445,8 @@ class SafeGate(ScoreGate):
         self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
     ) -> Tensor:
         """Predicted mismatch of the learner's action at each state [N]."""
-        weights = _ridge(labelled.features, _mismatch(labelled).double().unsqueeze(1), self.ridge)
-        return (_with_bias(features) @ weights).squeeze(1)
+        weights = ridge_weights(labelled.features, _mismatch(labelled).double().unsqueeze(1), self.ridge)
+        return (with_bias(features) @ weights).squeeze(1)
 
 
 def _mismatch(labelled: Labelled) -> Tensor:
@@ -455,8 +468,8 @@ class NoveltyGate(ScoreGate):
     """Which nearest labelled neighbour measures the distance, >= 1 (at most the labelled count)."""
 
     def __post_init__(self) -> None:
-        _check_quantile("NoveltyGate", self.quantile)
-        _check_count("NoveltyGate.k", self.k, 1)
+        check_quantile("NoveltyGate", self.quantile)
+        check_count("NoveltyGate.k", self.k, 1)
 
     def scores(
         self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
@@ -470,221 +483,3 @@ def neighbour_distance(features: Tensor, labelled: Labelled, k: int, owner: str)
     if k > len(labelled.features):
         raise UserError(f"{owner}.k = {k} needs at least {k} labelled states, got {len(labelled.features)}; lower k")
     return torch.cdist(features, labelled.features).kthvalue(k, dim=1).values
-
-
-@dataclass(frozen=True)
-class ThriftyGate(Gate):
-    """ThriftyDAgger's query rule: label a state that is novel or risky.
-
-    Novelty is the variance of ``K`` bootstrap ridge heads' outputs, summed over output dimensions
-    (one-hot class scores for a discrete task). Risk is one minus a ridge regression's estimate,
-    on the trunk features, that an episode through the state succeeds, fitted on every state of
-    the run's finished episodes (the demonstration and the rollouts of earlier rounds) with its
-    episode's outcome; while those episodes hold one outcome only there is nothing to learn risk
-    from, and novelty decides alone. Each threshold is the ``1 - rate`` quantile of that
-    estimate over every state the run's gate has scored so far (this round's included), so at
-    most about ``2 * rate`` of the states are labelled, fewer as the learner's states grow
-    familiar.
-    """
-
-    setting: ClassVar[str] = "rate"
-    rate: float
-    """The target share of states each test flags, in (0, 1)."""
-    K: int = 5
-    """Bootstrap heads of the novelty test, >= 2."""
-    ridge: float = 1e-3
-    """Ridge penalty of the novelty heads, relative to the features' mean energy, > 0."""
-    risk_ridge: float = 0.1
-    """Ridge penalty of the risk estimate (smoothing noisy 0/1 outcomes, as the safe gate's), > 0."""
-
-    def __post_init__(self) -> None:
-        _check_share("ThriftyGate.rate", self.rate)
-        _check_count("ThriftyGate.K", self.K, 2)
-        _check_ridge("ThriftyGate", self.ridge)
-        _check_ridge("ThriftyGate.risk", self.risk_ridge)
-
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor:
-        record = memory.notes.setdefault("thrifty", {"novelty": [], "risk": []})
-        novelty = (
-            bootstrap_outputs(features, labelled, self.K, self.ridge, generator).var(dim=0, unbiased=False).sum(dim=1)
-        )
-        record["novelty"].append(novelty)
-        mask = novelty > torch.quantile(torch.cat(record["novelty"]), 1.0 - self.rate)
-        risk = self.risk(features, memory.episodes)
-        if risk is not None:
-            record["risk"].append(risk)
-            mask |= risk > torch.quantile(torch.cat(record["risk"]), 1.0 - self.rate)
-        return mask
-
-    def risk(self, features: Tensor, episodes: list[Episode]) -> Tensor | None:
-        """One minus the estimated chance that an episode through each state succeeds [N]; None
-        while the finished ``episodes`` hold one outcome only."""
-        if len({e.succeeded for e in episodes}) < 2:
-            return None
-        seen = torch.cat([e.features for e in episodes])
-        outcome = torch.cat(
-            [torch.full((len(e.features), 1), float(e.succeeded), dtype=torch.float64) for e in episodes]
-        )
-        return 1.0 - (_with_bias(features) @ _ridge(seen, outcome, self.risk_ridge)).squeeze(1)
-
-
-def conformal_threshold(scores: Tensor, alpha: float) -> float:
-    """The split-conformal threshold of calibration ``scores`` at miscoverage ``alpha``: the
-    ceil((n + 1)(1 - alpha))-th smallest score (infinite when that rank exceeds n), which a new
-    score from the same distribution exceeds with probability at most ``alpha``."""
-    n = len(scores)
-    rank = math.ceil((n + 1) * (1.0 - alpha))
-    return math.inf if rank > n else float(scores.double().sort().values[rank - 1])
-
-
-@dataclass(frozen=True)
-class ConformalGate(Gate):
-    """CRSAIL's query rule: label a state far from every labelled one, by one calibrated threshold.
-
-    The score is the distance to the ``k``-th nearest labelled state (the novelty gate's). In the
-    run's first round the threshold is calibrated once (:func:`conformal_threshold`) on that
-    round's scores, the first policy's rollout against the demonstration, and then kept: later
-    rounds label only the states farther than it from everything labelled by then.
-    """
-
-    setting: ClassVar[str] = "alpha"
-    alpha: float
-    """Miscoverage: about this share of the first round's states is labelled, in (0, 1)."""
-    k: int = 1
-    """Which nearest labelled neighbour measures the distance, >= 1."""
-
-    def __post_init__(self) -> None:
-        _check_share("ConformalGate.alpha", self.alpha)
-        _check_count("ConformalGate.k", self.k, 1)
-
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor:
-        scores = neighbour_distance(features, labelled, self.k, "ConformalGate")
-        if "conformal" not in memory.notes:
-            memory.notes["conformal"] = conformal_threshold(scores, self.alpha)
-        return Selection(scores.double() > memory.notes["conformal"], scores)
-
-
-def learner_error(learner_actions: Tensor, expert_labels: Tensor) -> Tensor:
-    """The learner's true error at each state [N]: 1 where its class differs from the expert's and 0
-    elsewhere (class indices), or the squared distance between the two actions (action vectors)."""
-    if expert_labels.dtype == torch.int64:
-        return (learner_actions != expert_labels).double()
-    return (learner_actions.double() - expert_labels.double()).square().sum(dim=1)
-
-
-@dataclass(frozen=True)
-class OracleGate(Gate):
-    """The ceiling of every gate, not a method: it reads the expert's labels of the round's states
-    and labels exactly the states where the learner is wrong (:func:`learner_error` above 0), those
-    whose error is at least the ``quantile``-quantile of the round's positive errors. With class
-    labels every wrong state has error 1, so every setting labels all of them; with action vectors
-    the setting keeps the largest errors. It is charged for the states it labels alone."""
-
-    setting: ClassVar[str] = "quantile"
-    reads_expert: ClassVar[bool] = True
-    quantile: float
-    """In [0, 1): which share of the wrong states' errors is too small to ask about."""
-
-    def __post_init__(self) -> None:
-        _check_quantile("OracleGate", self.quantile)
-
-    def _choose(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-        expert_labels: Tensor | None,
-        heads: HeadPair | None,
-    ) -> Selection:
-        if expert_labels is None or expert_labels.shape != learner_actions.shape:
-            raise UserError(
-                "the oracle gate needs the expert's labels of this round's states, laid out as the learner's actions "
-                f"{tuple(learner_actions.shape)}; pass expert_labels"
-            )
-        errors = learner_error(learner_actions, expert_labels)
-        wrong = errors > 0
-        if not wrong.any():
-            return Selection(wrong, errors)
-        threshold = torch.quantile(errors[wrong], self.quantile)
-        return Selection(wrong & (errors >= threshold), errors)
-
-
-@dataclass(frozen=True)
-class HeadPair:
-    """The two heads a :class:`DisagreementGate` compares, flat (weight rows, then bias)."""
-
-    current: Tensor
-    """The head whose rollout the round gates."""
-    reference: Tensor
-    """The head it is compared with: a mapper's for the seed (the MetaL rule), or a constant one (its twin)."""
-    outputs: int
-    """The heads' outputs: classes (discrete) or the action's length."""
-
-    def __post_init__(self) -> None:
-        if self.current.shape != self.reference.shape or self.current.ndim != 1:
-            raise UserError(
-                f"HeadPair heads must be flat and of one length, got {tuple(self.current.shape)} and "
-                f"{tuple(self.reference.shape)}; compare heads of one policy"
-            )
-
-
-def head_disagreement(heads: HeadPair, features: Tensor, discrete: bool) -> Tensor:
-    """Per state [N], how far apart the two heads act: the total variation distance between their
-    class distributions (discrete, in [0, 1]), or the squared distance between their actions."""
-    x = features.double()
-    a = head_outputs(heads.current.double(), x, heads.outputs)
-    b = head_outputs(heads.reference.double(), x, heads.outputs)
-    if discrete:
-        return 0.5 * (a.softmax(dim=1) - b.softmax(dim=1)).abs().sum(dim=1)
-    return (a - b).square().sum(dim=1)
-
-
-@dataclass(frozen=True)
-class DisagreementGate(Gate):
-    """Label where a reference head and the current head act apart: MetaL DAgger's query rule.
-
-    The reference is a mapper's head for the seed (from its w_BC), made before any label is bought:
-    where the head the pair seeds point to and the seed's current head disagree, the current head
-    may be wrong. A state's score is :func:`head_disagreement`; the states strictly above the
-    round's ``quantile`` are labelled (:func:`above_quantile`). Its control is the same rule with a
-    constant head (mean-DA's, pi*'s) as the reference.
-    """
-
-    setting: ClassVar[str] = "quantile"
-    reads_heads: ClassVar[bool] = True
-    quantile: float
-    """Scores strictly above this quantile of the round's scores are labelled, in [0, 1)."""
-
-    def __post_init__(self) -> None:
-        _check_quantile("DisagreementGate", self.quantile)
-
-    def _choose(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-        expert_labels: Tensor | None,
-        heads: HeadPair | None,
-    ) -> Selection:
-        if heads is None:
-            raise UserError("the disagreement gate compares two heads: pass heads=HeadPair(current, reference, ...)")
-        scores = head_disagreement(heads, features, labelled.discrete)
-        return Selection(above_quantile(scores, self.quantile), scores)
