@@ -12,9 +12,9 @@ import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
-from metadagger.evaluation import benchmark as bench
 from metadagger.evaluation import benchmark_figure as figure
-from metadagger.evaluation.benchmark import BenchmarkConfig, method_keys, run_benchmark
+from metadagger.evaluation import benchmark_seed as bench
+from metadagger.evaluation.benchmark import FIELDS, BenchmarkConfig, method_keys, run_benchmark
 from metadagger.evaluation.methods import GateKey
 from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
@@ -97,7 +97,7 @@ def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
     assert [(r["method"], r["setting"], r["demo_fraction"]) for r in rows] == [
         (key.method, key.setting, key.demo_fraction) for key in keys
     ] * len(SEEDS)
-    assert tuple(read_csv(toy_run.benchmark_table)[0]) == bench.FIELDS
+    assert tuple(read_csv(toy_run.benchmark_table)[0]) == FIELDS
 
 
 def test_queries_are_counted_exactly(toy_run, rows):
@@ -693,7 +693,9 @@ def test_a_failing_figure_keeps_the_rows_and_the_summary(toy_run, rows, tmp_path
     shutil.copytree(toy_run.root, layout.root)
     for path in (layout.benchmark_table, layout.benchmark_summary, layout.benchmark_figure):
         path.unlink()
-    monkeypatch.setattr(bench, "plot_queries", lambda summary, path: 1 / 0)
+    from metadagger.evaluation import benchmark
+
+    monkeypatch.setattr(benchmark, "plot_queries", lambda summary, path: 1 / 0)
     assert _run(layout) == rows  # every row from the log: nothing run again
     assert layout.benchmark_table.read_bytes() == toy_run.benchmark_table.read_bytes()
     assert layout.benchmark_summary.read_bytes() == toy_run.benchmark_summary.read_bytes()
@@ -762,11 +764,11 @@ def test_a_method_added_as_docs_benchmark_md_says_runs_beside_the_others(toy_run
         return [ExpertKey("expert", "")]
 
     def expert_row(job, start, keys, learner):
-        return {key: bench._row(key, job.seed, start.demo, start.queries, start.labels()) for key in keys}
+        return {key: bench.benchmark_row(key, job.seed, start.demo, start.queries, start.labels()) for key in keys}
 
     declared = methods.BenchmarkMethod("expert", "the expert", "the demonstration itself", expert_keys)
     monkeypatch.setattr(methods, "_BUILT_IN", (*methods._BUILT_IN, declared))
-    monkeypatch.setitem(bench._CHAINS, ExpertKey, expert_row)
+    monkeypatch.setitem(bench.CHAINS, ExpertKey, expert_row)
     layout = RunLayout(tmp_path / "run")
     shutil.copytree(toy_run.root, layout.root)
     config = dataclasses.replace(CONFIG, methods=("bc", "expert"), ceiling=False, demo_fractions=(1.0,))

@@ -24,46 +24,34 @@ so that the chart shows whether mapping can replace part of the demonstration.
 
 A row's outcome is one rollout of the policy after that many rounds (the rollout that also starts
 the next round, which is deterministic, so nothing is rolled out twice). Each row also keeps its
-query ledger (:mod:`metadagger.evaluation.ledger`). The summary and its statistics are in
+query ledger (:mod:`metadagger.evaluation.ledger`). One seed's chains of rollouts are in
+:mod:`metadagger.evaluation.benchmark_seed`, the summary and its statistics in
 :mod:`metadagger.evaluation.benchmark_summary`, the figure in :mod:`metadagger.evaluation.benchmark_figure`.
+The methods that read a mapper (``prior``, ``prior-dagger``, ``prior-gated``, ``disagree``) are in
+:mod:`metadagger.evaluation.methods` and docs/benchmark.md.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
-from contextlib import ExitStack
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
-import numpy as np
 import torch
 
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark_figure import plot_queries
+from metadagger.evaluation.benchmark_seed import BenchmarkJob, benchmark_seed
 from metadagger.evaluation.benchmark_summary import summarize_benchmark
-from metadagger.evaluation.coverage import coverage_gap
 from metadagger.evaluation.coverage_figure import has_twins, plot_coverage
-from metadagger.evaluation.ledger import demonstration_record, ledger_lines, round_record, tally
-from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
+from metadagger.evaluation.ledger import ledger_lines
+from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.methods import (
     BC_REFIT,
     MDI_MAPPER,
-    MDI_METHODS,
     PRIOR_METHODS,
-    BCKey,
-    DisagreeKey,
-    GateKey,
-    MapperKey,
     MethodKey,
-    PriorGateKey,
-    PriorKey,
-    PriorRoundKey,
-    RefitKey,
-    RoundKey,
-    ShotKey,
     StampInputs,
     benchmark_methods,
     check_methods,
@@ -73,27 +61,11 @@ from metadagger.evaluation.methods import (
 )
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
-from metadagger.imitation.gate_registry import GATED_PREFIX, built_in_grids, gate_of_method, get_gate, make_gate
-from metadagger.imitation.gates import Gate
-from metadagger.imitation.head_fits import Prior
-from metadagger.imitation.lanes import Lanes, check_lanes, lanes_stamp
-from metadagger.imitation.reading_gates import DisagreementGate
-from metadagger.imitation.rollouts import Trajectory
-from metadagger.mapping.mappers import MapperFile, cached_mapper
-from metadagger.mapping.priors import ZERO, HeadPrior, mean_head
-from metadagger.metal.method import (
-    Round,
-    SeedLearner,
-    bc_head,
-    dagger_rounds,
-    demonstration,
-    demonstration_share,
-    map_head,
-    run_steps,
-    seed_context,
-    seeded,
-)
-from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, Stamp, drive, plan
+from metadagger.imitation.gate_registry import built_in_grids, gate_of_method, get_gate, make_gate
+from metadagger.imitation.lanes import check_lanes, lanes_stamp
+from metadagger.mapping.mappers import MapperFile
+from metadagger.mapping.priors import HeadPrior
+from metadagger.runfolder.driver import RowLog, StageOptions, Stamp, drive, plan
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
 from metadagger.tasks.base import Task
@@ -211,26 +183,6 @@ class BenchmarkConfig:
         return {**shared, **self.gate_options.get(method, {})}
 
 
-@dataclass(frozen=True)
-class BenchmarkJob(SeedJob):
-    """One seed's benchmark; its ``methods`` are the ids of its ``keys``."""
-
-    keys: tuple[MethodKey, ...]
-    """The method keys this job runs (:mod:`metadagger.evaluation.methods`)."""
-    mappers: dict[str, MapperFile]
-    """Mapper file of every mapper kind this job reads (``mdi``: the MDI protocol's)."""
-    config: BenchmarkConfig
-    rounds: int
-    """R: the DAgger rounds of the pairs."""
-    bc: BCConfig
-    dagger_bc: BCConfig
-    early_stop: float | None
-    mdi: MDIConfig | None
-    """The run's MDI protocol (``bc`` resolved) when the job runs its methods."""
-    priors: dict[str, HeadPrior] = field(default_factory=dict)
-    """Each prior of the ``prior`` method, by its mean (a mapper kind or ``zero``)."""
-
-
 def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...], mdi: bool) -> list[MethodKey]:
     """Every method key the benchmark rows of one seed are made of, in table order (the ceiling last)."""
     methods = benchmark_methods()
@@ -239,302 +191,6 @@ def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...],
     names += ["mdi"] if "mdi" in config.methods else []
     keys = [key for name in names for key in methods[name].keys(rounds, kinds, grids, mdi)]
     return with_demo_fractions(keys, config.demo_fractions)
-
-
-Rows = dict[MethodKey, dict[str, Any]]
-"""Rows by key, as a chain makes them."""
-
-
-def _row(key: MethodKey, seed: int, traj: Trajectory, queries: int, labels: list[dict[str, Any]]) -> dict[str, Any]:
-    return {
-        "method": key.method,
-        "setting": key.setting,
-        "demo_fraction": key.demo_fraction,
-        "seed": seed,
-        "success": bool(traj.success),
-        "reward": float(traj.reward),
-        "steps": int(traj.steps),
-        "expert_queries": int(queries),
-        **tally(labels),
-        "labels": labels,
-    }
-
-
-def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
-    """Run the job's method keys on one seed; returns ``seed`` and ``entries`` (by key id).
-
-    With ``config.lanes`` above 1 every chain of rollouts (each gate setting's rounds, DAgger's,
-    each mapper's head, each refit, the MDI protocol's seed) steps in lockstep lanes
-    (:mod:`metadagger.imitation.lanes`); the MDI seed runs beside the first demonstration share's
-    chains.
-    """
-    seed, keys = job.seed, job.keys
-    rows: Rows = {}
-    shots = [key for key in keys if isinstance(key, ShotKey)]
-    mdi = [partial(_mdi_rows, job, shots)] if job.mdi is not None and shots else []
-    with ExitStack() as stack:
-        learner = stack.enter_context(
-            SeedLearner(job.task, job.groundtruth, seed, head_init_seed=job.bc.head_init_seed(seed))
-        )
-        lanes = None
-        if job.config.lanes > 1:
-            lanes = stack.enter_context(Lanes(job.task, learner.policy.net, width=job.config.lanes))
-        fresh = learner.head()
-        [demo] = run_steps(learner, [demonstration], lanes)
-        for fraction in sorted({key.demo_fraction for key in keys}, reverse=True):
-            mine = [key for key in keys if key.demo_fraction == fraction and not isinstance(key, ShotKey)]
-            if not mine:
-                continue
-            share = demonstration_share(demo, fraction)
-            [start] = run_steps(learner, [partial(_start, job, fresh, share, mine)], lanes)
-            for found in run_steps(learner, [*_chains(job, start, mine), *mdi], lanes):
-                rows.update(found)
-            mdi = []
-        for found in run_steps(learner, mdi, lanes):  # a run of MDI rows alone
-            rows.update(found)
-    return {"seed": seed, "entries": {key.id: [rows[key]] for key in keys if key in rows}}
-
-
-@dataclass(frozen=True)
-class _Start:
-    """Where every row of one demonstration share starts: w_BC and its rollout."""
-
-    demo: Trajectory
-    fresh: np.ndarray
-    """The seed's fresh head, which w_BC was fitted from."""
-    w_bc: np.ndarray
-    first: Trajectory
-    """w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round."""
-    context: np.ndarray | None
-    """The seed's context, where a mapper reads one."""
-
-    @property
-    def queries(self) -> int:
-        """The demonstration's queries."""
-        return len(self.demo.obs)
-
-    def labels(self) -> list[dict[str, Any]]:
-        """The ledger of a row that read the demonstration and nothing more."""
-        return [demonstration_record(self.queries)]
-
-
-def _start(
-    job: BenchmarkJob, fresh: np.ndarray, demo: Trajectory, keys: list[MethodKey], learner: SeedLearner
-) -> _Start:
-    """w_BC fitted on ``demo`` from the learner's fresh head, rolled out; the context if a mapper needs it."""
-    data = demo.to_dataset()
-    learner.load(fresh)
-    w_bc = bc_head(learner, data, seeded(job.bc, job.seed))
-    first = learner.roll(w_bc, early_stop=job.early_stop)
-    needs_context = any(
-        cached_mapper(job.mappers[key.mapper_kind]).needs_context
-        for key in keys
-        if key.mapper_kind is not None and not isinstance(key, ShotKey)
-    )
-    context = seed_context(learner.cache, data, first.to_dataset()) if needs_context else None
-    return _Start(demo, fresh, w_bc, first, context)
-
-
-Chain = Callable[[SeedLearner], Rows]
-"""A chain of rollouts that makes some rows: a step of :func:`~metadagger.metal.method.run_steps`."""
-
-
-def _chains(job: BenchmarkJob, start: _Start, keys: list[MethodKey]) -> list[Chain]:
-    """One chain per group of ``keys`` that one chain of rollouts makes (:attr:`MethodKey.chain`), in table order."""
-    groups: dict[str, list[MethodKey]] = {}
-    for key in keys:
-        groups.setdefault(key.chain, []).append(key)
-    return [partial(_CHAINS[type(group[0])], job, start, group) for group in groups.values()]
-
-
-def _bc_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    return {key: _row(key, job.seed, start.first, start.queries, start.labels()) for key in keys}
-
-
-def _mapper_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    [key] = keys
-    head = map_head(cached_mapper(job.mappers[key.mapper_kind]), start.w_bc, start.context)
-    rollout = learner.roll(head, early_stop=job.early_stop)
-    if key.reads_demonstration:
-        return {key: _row(key, job.seed, rollout, start.queries, start.labels())}
-    return {key: _row(key, job.seed, rollout, 0, [])}
-
-
-def _seed_prior(job: BenchmarkJob, start: _Start, mean: str) -> Prior:
-    """The seed's prior toward ``mean``: its kind's head for w_BC (and context), or zero."""
-    prior = job.priors[mean]
-    mapper = None if mean == ZERO else cached_mapper(job.mappers[mean])
-    context = None if start.context is None else torch.from_numpy(start.context)
-    return prior.prior(mean_head(mapper, torch.from_numpy(start.w_bc), context))
-
-
-def _bc_with_prior(job: BenchmarkJob, start: _Start, prior: Prior, learner: SeedLearner) -> np.ndarray:
-    """BC's fit of the demonstration from the fresh head, the prior added to its loss."""
-    learner.load(start.fresh)
-    return bc_head(learner, start.demo.to_dataset(), seeded(job.bc, job.seed), called="BC with a prior", prior=prior)
-
-
-def _prior_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    [key] = keys
-    assert isinstance(key, PriorKey)
-    head = _bc_with_prior(job, start, _seed_prior(job, start, key.mean), learner)
-    return {key: _row(key, job.seed, learner.roll(head, early_stop=job.early_stop), start.queries, start.labels())}
-
-
-def _prior_dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # DAgger from BC with a prior, the same prior in every refit: every visited state labelled
-    mean = keys[0].prior_mean
-    assert mean is not None
-    prior = _seed_prior(job, start, mean)
-    head = _bc_with_prior(job, start, prior, learner)
-    begun = dataclasses.replace(start, w_bc=head, first=learner.roll(head, early_stop=job.early_stop))
-    return _round_rows(job, start, keys, _rounds(job, begun, learner, None, prior=prior))
-
-
-def _rounds(
-    job: BenchmarkJob,
-    start: _Start,
-    learner: SeedLearner,
-    gate: Gate | None,
-    *,
-    prior: Prior | None = None,
-    reference: np.ndarray | None = None,
-) -> Iterator[Round]:
-    return dagger_rounds(
-        learner,
-        start=start.w_bc,
-        first_rollout=start.first,
-        demo=start.demo,
-        rounds=job.rounds,
-        fit=seeded(job.dagger_bc, job.seed),
-        gate=gate,
-        early_stop=job.early_stop,
-        prior=prior,
-        reference=reference,
-    )
-
-
-def _dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # each row also carries the coverage gap of the states DAgger visited up to its round
-    demo = learner.cache.features_of(start.demo.to_dataset())
-    visited: list[torch.Tensor] = []
-
-    def with_gap(rounds: Iterator[Round]) -> Iterator[Round]:
-        for r in rounds:
-            assert r.labelled is not None  # plain DAgger labels every visited state
-            visited.append(learner.cache.features_of(r.labelled))
-            yield r
-
-    rows = _round_rows(job, start, keys, with_gap(_rounds(job, start, learner, None)))
-    for key, row in rows.items():
-        row["coverage_gap"] = coverage_gap(demo, torch.cat(visited[: key.round]))  # type: ignore[attr-defined]
-    return rows
-
-
-def _round_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], rounds: Iterator[Round]) -> Rows:
-    """A row after each round that ``keys`` name (their ``round``), each with its ledger so far."""
-    by_round = {key.round: key for key in keys}  # type: ignore[attr-defined]
-    labels, rows = start.labels(), {}
-    for r in rounds:
-        labels = [*labels, round_record(r.index, r.asked, r.scores)]
-        if r.index in by_round:
-            rows[by_round[r.index]] = _row(by_round[r.index], job.seed, r.rollout, r.queries, labels)
-    return rows
-
-
-def _gate_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    [key] = keys
-    gate = make_gate(key.gate, key.value, **job.config.options_of(key.method))
-    return {key: _last_round_row(job, start, key, _rounds(job, start, learner, gate))}
-
-
-def _prior_gate_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # gated DAgger from BC with a prior, the same prior in every refit
-    [key] = keys
-    assert isinstance(key, PriorGateKey)
-    prior = _seed_prior(job, start, key.mean)
-    head = _bc_with_prior(job, start, prior, learner)
-    begun = dataclasses.replace(start, w_bc=head, first=learner.roll(head, early_stop=job.early_stop))
-    gate = make_gate(key.gate, key.value, **job.config.options_of(GATED_PREFIX + key.gate))
-    return {key: _last_round_row(job, begun, key, _rounds(job, begun, learner, gate, prior=prior))}
-
-
-def _disagree_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # DAgger from w_BC labelling where the kind's head for w_BC and the current head act apart
-    [key] = keys
-    assert isinstance(key, DisagreeKey)
-    reference = map_head(cached_mapper(job.mappers[key.kind]), start.w_bc, start.context)
-    rounds = _rounds(job, start, learner, DisagreementGate(key.value), reference=reference)
-    return {key: _last_round_row(job, start, key, rounds)}
-
-
-def _last_round_row(job: BenchmarkJob, start: _Start, key: MethodKey, rounds: Iterator[Round]) -> dict[str, Any]:
-    """The row after the last of ``rounds``, with every round's ledger."""
-    labels = start.labels()
-    for last in rounds:
-        # only the last round's rollout makes the row: the earlier ones are let go as they end
-        labels.append(round_record(last.index, last.asked, last.scores))
-    return _row(key, job.seed, last.rollout, last.queries, labels)
-
-
-def _refit_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # DAgger's refits (continuing from w_BC, DAgger's fit) on the demonstration alone
-    [key] = keys
-    data = start.demo.to_dataset()
-    learner.load(start.w_bc)
-    for index in range(1, key.rounds + 1):
-        bc_head(learner, data, seeded(job.dagger_bc, job.seed), called=f"BC's refit {index}")
-    return {key: _row(key, job.seed, learner.roll(early_stop=job.early_stop), len(data), start.labels())}
-
-
-#: The chain that makes each kind of key's rows (MDI's rows come from its own protocol).
-_CHAINS: dict[type, Callable[[BenchmarkJob, _Start, list[MethodKey], SeedLearner], Rows]] = {
-    BCKey: _bc_row,
-    MapperKey: _mapper_row,
-    PriorKey: _prior_row,
-    PriorRoundKey: _prior_dagger_rows,
-    RoundKey: _dagger_rows,
-    GateKey: _gate_row,
-    PriorGateKey: _prior_gate_row,
-    DisagreeKey: _disagree_row,
-    RefitKey: _refit_row,
-}
-
-
-def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey], learner: SeedLearner) -> Rows:
-    """Table 6's one- and two-shot outcomes of DAgger-MDI, DAgger-BC and DAgger on this seed, by the
-    MDI protocol's own learner of the seed (in ``learner``'s lane, where it has one)."""
-    assert job.mdi is not None
-    mdi_job = MDIJob(
-        task=job.task,
-        groundtruth=job.groundtruth,
-        seed=job.seed,
-        methods=tuple(MDI_METHODS),
-        mappers={"dagger-mdi": job.mappers[MDI_MAPPER]},
-        config=job.mdi,
-        context_early_stop=job.early_stop,
-    )
-    outcomes = {method: rows[0] for method, rows in evaluate_mdi_seed(mdi_job)["entries"].items()}
-    out: Rows = {}
-    for key in keys:
-        r = outcomes[key.mdi_method]
-        two = key.shot == "twoshot" and r["two_shot_run"]
-        labels = [demonstration_record(r["demo_steps"])]
-        if two:  # the two-shot test's DAgger round labels every state of the one-shot head's rollout
-            labels.append(round_record(1, np.arange(r["expert_queries"] - r["demo_steps"]), None))
-        out[key] = {
-            "method": key.method,
-            "setting": key.setting,
-            "demo_fraction": key.demo_fraction,
-            "seed": job.seed,
-            "success": r["two_shot_success"] if key.shot == "twoshot" else r["one_shot_success"],
-            "reward": r["two_shot_reward"] if two else r["one_shot_reward"],
-            "steps": r["two_shot_steps"] if two else r["one_shot_steps"],
-            "expert_queries": r["expert_queries"] if key.shot == "twoshot" else r["demo_steps"],
-            **tally(labels),
-            "labels": labels,
-        }
-    return out
 
 
 def benchmark_stamps(
