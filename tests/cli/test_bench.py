@@ -167,3 +167,26 @@ def test_bench_lanes_times_one_benchmark_seed_at_each_width_without_touching_the
     assert result["speedup_wall"]["1"] == 1.0 and result["speedup_wall"]["4"] > 0
     with pytest.raises(UserError, match="--lanes from 1 to 256"):
         bench_lanes(run, widths=(0,))
+
+
+def test_bench_reproduce_names_a_bad_request_before_any_work():
+    from metadagger.cli.bench_reproduce import bench_reproduce
+
+    with pytest.raises(UserError, match="give at least one --set"):
+        bench_reproduce("carracing", preset="ci")
+    with pytest.raises(UserError, match="pairs.lanes must be an integer from 1 to 256, got 0"):
+        bench_reproduce("carracing", preset="ci", overrides=("pairs.lanes=0",))
+    with pytest.raises(UserError, match="unknown preset"):
+        bench_reproduce("carracing", preset="nope", overrides=("pairs.lanes=2",))
+
+
+@pytest.mark.slow  # two whole ci runs
+def test_bench_reproduce_times_the_preset_and_its_overrides_side_by_side():
+    from metadagger.cli.bench_reproduce import ARMS, TABLES, bench_reproduce
+
+    result = bench_reproduce("carracing", preset="ci", overrides=("benchmark.lanes=4",), workers=2, progress=False)
+    preset, laned = (result["arms"][arm] for arm in ARMS)
+    assert result["speedup"] == pytest.approx(preset["seconds"] / laned["seconds"])
+    assert set(preset["stages"]) >= {"groundtruth", "pairs", "benchmark"} and preset["peak_memory_mb"] > 100
+    # the lanes move the benchmark's last bits, nothing before it
+    assert preset["sha256"][TABLES[0]] == laned["sha256"][TABLES[0]]

@@ -139,6 +139,24 @@ def bench_lanes_cmd(
     )
 
 
+@bench_app.command("reproduce")
+@user_errors
+def bench_reproduce_cmd(
+    task: str = TASK,
+    preset: str = typer.Option("quick", "--preset", help="The built-in preset whose whole runs are timed."),
+    overrides: list[str] = SET,
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Workers of both runs (default: all cores)."),
+    out: Path = typer.Option(Path("runs/bench/reproduce.json"), "--out", help="JSON file to write."),
+) -> None:
+    """Whole runs of --preset as it is and with the --set overrides (e.g. lane widths), one after the
+    other: seconds per stage, the speed-up, peak memory and whether the tables agree."""
+    from metadagger.cli.bench_reproduce import bench_reproduce
+
+    _measure_and_write(
+        out, "--out", lambda: bench_reproduce(task, preset=preset, overrides=tuple(overrides), workers=workers)
+    )
+
+
 @bench_app.command("kernels")
 @user_errors
 def bench_kernels_cmd(
