@@ -9,6 +9,7 @@ kind is in the legend.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,8 @@ from matplotlib.figure import Figure
 from metadagger.evaluation.benchmark_figure import PALETTE
 from metadagger.evaluation.methods import DISAGREE_PREFIX, GATED_PRIOR, MDM_PREFIX, PRIOR_DAGGER_PREFIX, PRIOR_PREFIX
 from metadagger.evaluation.tables import method_label
+from metadagger.mapping.priors import ZERO
+from metadagger.mapping.registry import get_kind
 from metadagger.utils.plotting import plt, save_figure
 
 #: The families, one panel each, by method prefix (the longer prefix first: ``prior-dagger-`` is not ``prior-``).
@@ -60,13 +63,20 @@ def drawn_comparisons(coverage: dict[str, Any]) -> dict[str, list[dict[str, Any]
     return families
 
 
+def _kind_label(method: str, family: str) -> str:
+    """The learned kind a method reads, as the registry names it."""
+    return get_kind(method.removeprefix(family).split(GATED_PRIOR)[-1]).label
+
+
 def draw_coverage(coverage: dict[str, Any]) -> Figure:
     """The figure of a summary's ``coverage`` reading (``coverage_reading`` in benchmark_summary.py)."""
     families = drawn_comparisons(coverage)
     if not families:
         raise ValueError("no MetaL DAgger method with a learned mapper kind and a constant twin ran")
-    fig, axes = plt.subplots(1, len(families), figsize=(4.2 * len(families), 3.8), squeeze=False, sharey=True)
-    for ax, (prefix, comparisons) in zip(axes[0], families.items()):
+    columns = min(3, len(families))
+    rows = math.ceil(len(families) / columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.6 * columns, 3.6 * rows), squeeze=False, sharey=True)
+    for ax, (family, comparisons) in zip(axes.flat, families.items()):
         for index, c in enumerate(comparisons):
             rho = "n/a" if c["rho"] is None else f"{c['rho']:+.2f} (p {c['p_value']:.2f})"
             ax.scatter(
@@ -74,15 +84,21 @@ def draw_coverage(coverage: dict[str, Any]) -> Figure:
                 c["gains"],
                 s=18,
                 color=PALETTE[index % len(PALETTE)],
-                label=f"{method_label(c['method'])}: rho {rho}",
+                label=f"{_kind_label(c['method'], family)}: rho {rho}",
                 alpha=0.8,
             )
         ax.axhline(0.0, color="grey", linewidth=0.8)
-        twin = comparisons[0]["against"]
-        ax.set_title(f"{_family_title(prefix)} (against {method_label(twin)})", fontsize="small")
-        ax.set_xlabel(f"coverage gap (outside {coverage['variance_share']:.0%} of the demonstration's variance)")
+        twin = _kind_label(comparisons[0]["against"], family) if comparisons[0]["against"] != family + ZERO else "zero"
+        ax.set_title(f"{_family_title(family)}\nagainst its {twin} twin", fontsize="small")
         ax.legend(fontsize="x-small", frameon=False)
-    axes[0][0].set_ylabel("gain in area under the curve over the twin")
+    for ax in list(axes.flat)[len(families) :]:
+        ax.set_visible(False)
+    fig.supxlabel(
+        f"coverage gap: share of the energy of DAgger's states outside the directions of "
+        f"{coverage['variance_share']:.0%} of the demonstration's feature variance",
+        fontsize="small",
+    )
+    fig.supylabel("gain in area under the curve over the twin", fontsize="small")
     fig.tight_layout()
     return fig
 
