@@ -322,3 +322,20 @@ def test_the_prior_method_chooses_its_strengths_on_the_validation_pairs_and_rows
     _ok(["benchmark", "--out", layout.root, "--seeds", "5000", "--methods", "bc,dagger,prior-dagger"])
     assert layout.benchmark_priors.stat().st_mtime_ns == made
     assert {r["method"] for r in read_csv(layout.benchmark_table)} >= {f"prior-dagger-{kind}" for kind in kinds}
+
+
+def test_the_confirmation_seeds_run_the_same_methods_into_their_own_folder_and_report(finished, tmp_path):
+    """``benchmark.confirm_seeds``: the benchmark runs again on them into benchmark/confirm/, the
+    report reads them at equal budgets; a seed of pi*'s or of both sets is refused before any work."""
+    from metadagger.evaluation.report_benchmark import benchmark_section
+
+    layout = _copy(finished, tmp_path / "run")
+    _ok(["benchmark", "--out", layout.root, "--methods", "bc,dagger", "--set", "benchmark.confirm_seeds=[5003]"])
+    confirm = layout.confirmation()
+    assert {r["seed"] for r in read_csv(confirm.benchmark_table)} == {5003}
+    assert {r["method"] for r in read_csv(confirm.benchmark_table)} == {"bc", "dagger", "dagger-oracle"}
+    assert 5003 not in {r["seed"] for r in read_csv(layout.benchmark_table)}
+    text = "\n".join(benchmark_section(layout))
+    assert "### At equal budgets (confirmation seeds)" in text and "`benchmark.confirm_seeds`" in text
+    _refused(["benchmark", "--out", layout.root, "--set", "benchmark.confirm_seeds=[0]"], "must be unseen")
+    _refused(["benchmark", "--out", layout.root, "--set", "benchmark.confirm_seeds=[5000]"], "other seeds")

@@ -100,6 +100,9 @@ class BenchmarkConfig:
 
     seeds: tuple[int, ...] = tuple(range(5000, 5020))
     """Unseen seeds (never used for pi* or the pairs)."""
+    confirm_seeds: tuple[int, ...] = ()
+    """A second set of unseen seeds, fixed before any result is read, on which the same methods run
+    again into ``benchmark/confirm/``: a reading chosen on the first set is checked on these."""
     methods: tuple[str, ...] = ("bc", "mdm", "dagger", BC_REFIT, *(d for d in built_in_grids()))
     """Benchmark methods (``metadagger config show`` lists every one, plug-ins' included): ``bc``,
     ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, ``bc-refit`` (w_BC refitted as DAgger
@@ -132,6 +135,9 @@ class BenchmarkConfig:
     def __post_init__(self) -> None:
         if not self.seeds:
             raise UserError("benchmark.seeds must not be empty")
+        both = sorted(set(self.seeds) & set(self.confirm_seeds))
+        if both:
+            raise UserError(f"benchmark.confirm_seeds must be other seeds than benchmark.seeds, both hold {both[:5]}")
         if not self.methods:
             raise UserError(f"benchmark.methods must not be empty; allowed: {', '.join(benchmark_methods())}")
         check_methods(self.methods, "benchmark.methods")

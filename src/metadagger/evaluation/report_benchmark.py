@@ -71,6 +71,7 @@ def benchmark_section(layout: RunLayout) -> list[str]:
         + [""]
         + _paired(entries, summary.get("references", []), summary.get("comparisons", []))
         + _budgets(summary.get("budgets"))
+        + _confirmation(layout)
         + _coverage(layout, summary.get("coverage"))
         + _matching(entries)
         + _amortisation(entries, summary["meta_training_queries"])
@@ -164,8 +165,9 @@ def _curve_label(entry: dict[str, Any], side: str = "method") -> str:
     return label if share == 1.0 else f"{label}, {share:.0%} of the demonstration"
 
 
-def _budgets(reading: dict[str, Any] | None) -> list[str]:
-    """Every method at equal budgets and by its area under the curve, and the best at each, paired."""
+def _budgets(reading: dict[str, Any] | None, where: str = "") -> list[str]:
+    """Every method at equal budgets and by its area under the curve, and the best at each, paired;
+    ``where`` names the seeds in the headings (the confirmation seeds')."""
     if not reading:
         return []
     budgets = reading["budgets"]
@@ -186,7 +188,7 @@ def _budgets(reading: dict[str, Any] | None) -> list[str]:
         "area under the curve",
     )
     lines = [
-        "### At equal budgets",
+        f"### At equal budgets{where}",
         "",
         f"Every method read at the same spend on each of {len(reading['seeds'])} seeds: the demonstration's "
         "queries plus a share of plain DAgger's final queries beyond them on that seed (mean budget in "
@@ -213,10 +215,27 @@ def _budgets(reading: dict[str, Any] | None) -> list[str]:
             + ("; ".join(parts) if parts else "nothing")
             + "."
         )
-    return lines + [""] + _metal_twins(reading)
+    return lines + [""] + _metal_twins(reading, where)
 
 
-def _metal_twins(reading: dict[str, Any]) -> list[str]:
+def _confirmation(layout: RunLayout) -> list[str]:
+    """The equal-budget reading of the confirmation seeds (``benchmark.confirm_seeds``), if they ran."""
+    confirm = layout.confirmation()
+    if not confirm.benchmark_summary.is_file():
+        return []
+    reading = read_json(confirm.benchmark_summary, "the confirmation seeds' benchmark summary").get("budgets")
+    if not reading:
+        return []
+    heading, blank, *rest = _budgets(reading, " (confirmation seeds)")
+    intro = (
+        f"The same methods on {len(reading['seeds'])} other unseen seeds (`benchmark.confirm_seeds`), fixed before "
+        "any result was read, check what the seeds above chose (the best method and the best gate among them); "
+        "their rows and summary are in `benchmark/confirm/`."
+    )
+    return [heading, blank, intro, "", *rest]
+
+
+def _metal_twins(reading: dict[str, Any], where: str = "") -> list[str]:
     """Each method that reads a learned mapper's head against its constant twins, BC refitted and the
     best gate: the paired difference of success at each budget and of the area under the curve."""
     pairs: dict[tuple[str, float, str, float], list[str]] = {}
@@ -247,7 +266,7 @@ def _metal_twins(reading: dict[str, Any]) -> list[str]:
         for (m, f, a, g), row in pairs.items()
     ]
     return [
-        "### MetaL DAgger against its constant twins",
+        f"### MetaL DAgger against its constant twins{where}",
         "",
         "Each method that reads a learned mapper's head, paired on the same seeds with the same method reading a "
         "control's head (or zero) instead, with BC refitted and with the best gate, all at the same budgets: "

@@ -105,12 +105,12 @@ class RunConfig:
         unseen = (
             set(self.evaluate.seeds)
             | (set(self.mdi.seeds) if self.mdi else set())
-            | (set(self.benchmark.seeds) if self.benchmark else set())
+            | (set(self.benchmark.seeds) | set(self.benchmark.confirm_seeds) if self.benchmark else set())
         )
         seen = sorted((gt | set(self.pairs.seeds)) & unseen)
         if seen:
             raise UserError(
-                f"evaluate.seeds, mdi.seeds and benchmark.seeds must be unseen, but {seen[:5]} are pi*'s or pairs' "
+                f"evaluate.seeds, mdi.seeds and benchmark's seeds must be unseen, but {seen[:5]} are pi*'s or pairs' "
                 "seeds; pick disjoint ranges"
             )
         unknown = sorted(set(self.mappers) - set(learned_names()))

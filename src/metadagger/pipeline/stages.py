@@ -18,6 +18,7 @@ The entry points a Python program starts with (:func:`reproduce`, :func:`init_ru
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
@@ -329,10 +330,9 @@ def stage_benchmark(
     _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
     with_priors = bool(set(PRIOR_METHODS) & set(bench.methods))
     priors = _benchmark_priors(layout, config, task, tuple(kinds), options) if with_priors else None
-    rows = run_benchmark(
+    run = functools.partial(
+        run_benchmark,
         task,
-        layout,
-        bench,
         rounds=config.pairs.dagger_rounds,
         bc=config.pairs.bc,
         dagger_bc=config.pairs.dagger_bc,
@@ -343,6 +343,10 @@ def stage_benchmark(
         priors=priors,
         options=options,
     )
+    rows = run(layout, bench)
+    if bench.confirm_seeds and seeds is None:
+        # the second set: the same methods on seeds fixed before any result was read
+        run(layout.confirmation(), dataclasses.replace(bench, seeds=bench.confirm_seeds, confirm_seeds=()))
     _log(layout, config, lambda: {"benchmark": benchmark_scalars(layout)})
     return rows
 

@@ -128,6 +128,10 @@ class RunLayout:
         """Success against expert queries."""
         return self.root / "benchmark"
 
+    def confirmation(self) -> RunLayout:
+        """The same run with the benchmark's files in ``benchmark/confirm/``: its second set of seeds."""
+        return ConfirmationLayout(self.root)
+
     @property
     def benchmark_log(self) -> Path:
         """The benchmark's resume log."""
@@ -224,3 +228,14 @@ class RunLayout:
     def demo_dir(self) -> Path:
         """``metadagger demo``'s output."""
         return self.root / "demo"
+
+
+class ConfirmationLayout(RunLayout):
+    """A run folder whose benchmark files are those of its confirmation seeds (``benchmark/confirm/``)."""
+
+    @property
+    def benchmark_dir(self) -> Path:
+        return self.root / "benchmark" / "confirm"
+
+    def confirmation(self) -> RunLayout:
+        return self
