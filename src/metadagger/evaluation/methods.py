@@ -141,16 +141,10 @@ class MapperKey(MethodKey):
         return {**super().own_stamp(inputs), **charged}
 
 
-@dataclass(frozen=True)
-class PriorKey(MethodKey):
-    """BC on the demonstration with a Gaussian prior on the head, toward a mapper kind's head for
-    w_BC (``zero``: toward the zero head), its strength chosen on the validation pairs."""
+class TowardMean:
+    """What a key whose fits carry a prior (its ``mean``: a mapper kind, or ``zero``) reads and stamps."""
 
     mean: str
-
-    @property
-    def starts_from_demonstration(self) -> bool:
-        return True
 
     @property
     def mapper_kind(self) -> str | None:
@@ -160,8 +154,24 @@ class PriorKey(MethodKey):
     def prior_mean(self) -> str | None:
         return self.mean
 
+    def prior_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        """The prior's strength and precision as the run stamped them."""
+        return {"prior": inputs.priors[self.mean]}
+
+
+@dataclass(frozen=True)
+class PriorKey(TowardMean, MethodKey):
+    """BC on the demonstration with a Gaussian prior on the head, toward a mapper kind's head for
+    w_BC (``zero``: toward the zero head), its strength chosen on the validation pairs."""
+
+    mean: str
+
+    @property
+    def starts_from_demonstration(self) -> bool:
+        return True
+
     def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
-        return {**super().own_stamp(inputs), "prior": inputs.priors[self.mean]}
+        return {**super().own_stamp(inputs), **self.prior_stamp(inputs)}
 
 
 @dataclass(frozen=True)
@@ -218,7 +228,7 @@ class GateKey(MethodKey):
 
 
 @dataclass(frozen=True)
-class PriorGateKey(GateKey):
+class PriorGateKey(TowardMean, GateKey):
     """Gated DAgger after every round, its gate at one value, from BC with a prior and the same prior
     in every round's refit (its mean a mapper kind's head for w_BC, or ``zero``)."""
 
@@ -228,17 +238,9 @@ class PriorGateKey(GateKey):
     def starts_from_demonstration(self) -> bool:
         return False
 
-    @property
-    def mapper_kind(self) -> str | None:
-        return None if self.mean == ZERO else self.mean
-
-    @property
-    def prior_mean(self) -> str | None:
-        return self.mean
-
     def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
         gate = inputs.gate_options(GATED_PREFIX + self.gate)
-        return {**MethodKey.own_stamp(self, inputs), "gate": gate, "prior": inputs.priors[self.mean]}
+        return {**MethodKey.own_stamp(self, inputs), "gate": gate, **self.prior_stamp(inputs)}
 
 
 @dataclass(frozen=True)
