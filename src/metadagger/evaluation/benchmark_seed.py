@@ -80,7 +80,7 @@ class BenchmarkJob(SeedJob):
     mdi: MDIConfig | None
     """The run's MDI protocol (``bc`` resolved) when the job runs its methods."""
     priors: dict[str, HeadPrior] = field(default_factory=dict)
-    """Each prior of the ``prior`` method, by its mean (a mapper kind or ``zero``)."""
+    """Each prior of the methods whose fits carry one, by its mean (a mapper kind or ``zero``)."""
 
 
 Rows = dict[MethodKey, dict[str, Any]]
@@ -213,27 +213,26 @@ def _seed_prior(job: BenchmarkJob, start: _Start, mean: str) -> Prior:
     return prior.prior(mean_head(mapper, torch.from_numpy(start.w_bc), context))
 
 
-def _bc_with_prior(job: BenchmarkJob, start: _Start, prior: Prior, learner: SeedLearner) -> np.ndarray:
-    """BC's fit of the demonstration from the fresh head, the prior added to its loss."""
+def _start_with_prior(job: BenchmarkJob, start: _Start, mean: str, learner: SeedLearner) -> tuple[_Start, Prior]:
+    """Where a method with a prior toward ``mean`` starts: BC's fit of the demonstration from the fresh
+    head, the seed's prior added to its loss, in ``w_bc``, and its rollout; and that prior."""
+    prior = _seed_prior(job, start, mean)
     learner.load(start.fresh)
-    return bc_head(learner, start.demo.to_dataset(), seeded(job.bc, job.seed), called="BC with a prior", prior=prior)
+    head = bc_head(learner, start.demo.to_dataset(), seeded(job.bc, job.seed), called="BC with a prior", prior=prior)
+    return dataclasses.replace(start, w_bc=head, first=learner.roll(head, early_stop=job.early_stop)), prior
 
 
 def _prior_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
     [key] = keys
     assert isinstance(key, PriorKey)
-    head = _bc_with_prior(job, start, _seed_prior(job, start, key.mean), learner)
-    rollout = learner.roll(head, early_stop=job.early_stop)
-    return {key: benchmark_row(key, job.seed, rollout, start.queries, start.labels())}
+    begun, _ = _start_with_prior(job, start, key.mean, learner)
+    return {key: benchmark_row(key, job.seed, begun.first, start.queries, start.labels())}
 
 
 def _prior_dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
     # DAgger from BC with a prior, the same prior in every refit: every visited state labelled
-    mean = keys[0].prior_mean
-    assert mean is not None
-    prior = _seed_prior(job, start, mean)
-    head = _bc_with_prior(job, start, prior, learner)
-    begun = dataclasses.replace(start, w_bc=head, first=learner.roll(head, early_stop=job.early_stop))
+    assert isinstance(keys[0], PriorKey)
+    begun, prior = _start_with_prior(job, start, keys[0].mean, learner)
     return _round_rows(job, start, keys, _rounds(job, begun, learner, None, prior=prior))
 
 
@@ -298,9 +297,7 @@ def _prior_gate_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], lea
     # gated DAgger from BC with a prior, the same prior in every refit
     [key] = keys
     assert isinstance(key, PriorGateKey)
-    prior = _seed_prior(job, start, key.mean)
-    head = _bc_with_prior(job, start, prior, learner)
-    begun = dataclasses.replace(start, w_bc=head, first=learner.roll(head, early_stop=job.early_stop))
+    begun, prior = _start_with_prior(job, start, key.mean, learner)
     gate = make_gate(key.gate, key.value, **job.config.options_of(GATED_PREFIX + key.gate))
     return {key: _last_round_row(job, begun, key, _rounds(job, begun, learner, gate, prior=prior))}
 

@@ -247,11 +247,7 @@ def coverage_reading(rows: list[dict[str, Any]], reading: dict[str, Any] | None)
     """Each seed's coverage gap (plain DAgger's last row's, :mod:`metadagger.evaluation.coverage`),
     and for each MetaL DAgger curve and constant twin, the per-seed gain in the area under the
     curve and its rank correlation with the gap; None without gaps or a budget reading."""
-    last: dict[int, dict[str, Any]] = {}
-    for r in rows:
-        if r["method"] == "dagger" and "coverage_gap" in r:
-            if r["seed"] not in last or int(r["setting"]) > int(last[r["seed"]]["setting"]):
-                last[r["seed"]] = r
+    last = {seed: r for seed, r in _dagger_last(rows).items() if "coverage_gap" in r}
     if not last or reading is None:
         return None
     seeds = [s for s in reading["seeds"] if s in last]
@@ -270,13 +266,18 @@ def coverage_reading(rows: list[dict[str, Any]], reading: dict[str, Any] | None)
     return {"variance_share": VARIANCE_SHARE, "seeds": seeds, "gaps": gaps, "methods": methods}
 
 
-def _dagger_final(rows: list[dict[str, Any]]) -> dict[int, int]:
-    """Plain DAgger's queries after its last round, per seed."""
+def _dagger_last(rows: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
+    """Plain DAgger's row after its last round, per seed."""
     last: dict[int, dict[str, Any]] = {}
     for r in rows:
         if r["method"] == "dagger" and (r["seed"] not in last or int(r["setting"]) > int(last[r["seed"]]["setting"])):
             last[r["seed"]] = r
-    return {seed: int(r["expert_queries"]) for seed, r in last.items()}
+    return last
+
+
+def _dagger_final(rows: list[dict[str, Any]]) -> dict[int, int]:
+    """Plain DAgger's queries after its last round, per seed."""
+    return {seed: int(r["expert_queries"]) for seed, r in _dagger_last(rows).items()}
 
 
 def _rate(outcomes: list[dict[str, Any]]) -> float:

@@ -16,13 +16,20 @@ from typing import Any
 from matplotlib.figure import Figure
 
 from metadagger.evaluation.benchmark_figure import PALETTE
-from metadagger.evaluation.methods import DISAGREE_PREFIX, GATED_PRIOR, MDM_PREFIX, PRIOR_DAGGER_PREFIX, PRIOR_PREFIX
+from metadagger.evaluation.methods import (
+    DISAGREE_PREFIX,
+    GATED_PRIOR,
+    MDM_PREFIX,
+    PRIOR_DAGGER_PREFIX,
+    PRIOR_PREFIX,
+    metal_family,
+)
 from metadagger.evaluation.tables import method_label
 from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import get_kind
 from metadagger.utils.plotting import plt, save_figure
 
-#: The families, one panel each, by method prefix (the longer prefix first: ``prior-dagger-`` is not ``prior-``).
+#: The families' titles by method prefix, one panel each (a gated method with a prior is titled by its gate).
 FAMILIES = {
     PRIOR_DAGGER_PREFIX: "DAgger with a prior",
     PRIOR_PREFIX: "BC with a prior",
@@ -34,10 +41,10 @@ PREFERRED_TWIN = "mean-da"
 
 
 def _family(method: str) -> str:
-    """A method's family: its gated method with a prior (``dagger-<gate>+prior-``), else its prefix."""
-    if GATED_PRIOR in method:
-        return method.split(GATED_PRIOR, 1)[0] + GATED_PRIOR
-    return next(prefix for prefix in FAMILIES if method.startswith(prefix))
+    """A method's family: its prefix, or its gated method with a prior (``dagger-<gate>+prior-``)."""
+    found = metal_family(method)
+    assert found is not None, method  # the coverage reading holds MetaL methods alone
+    return found[0]
 
 
 def _family_title(family: str) -> str:
@@ -63,9 +70,10 @@ def drawn_comparisons(coverage: dict[str, Any]) -> dict[str, list[dict[str, Any]
     return families
 
 
-def _kind_label(method: str, family: str) -> str:
-    """The learned kind a method reads, as the registry names it."""
-    return get_kind(method.removeprefix(family).split(GATED_PRIOR)[-1]).label
+def _kind_label(method: str) -> str:
+    """The kind a method reads, as the registry names it (``zero`` as it is)."""
+    kind = metal_family(method)[1]  # type: ignore[index]
+    return kind if kind == ZERO else get_kind(kind).label
 
 
 def draw_coverage(coverage: dict[str, Any]) -> Figure:
@@ -84,11 +92,11 @@ def draw_coverage(coverage: dict[str, Any]) -> Figure:
                 c["gains"],
                 s=18,
                 color=PALETTE[index % len(PALETTE)],
-                label=f"{_kind_label(c['method'], family)}: rho {rho}",
+                label=f"{_kind_label(c['method'])}: rho {rho}",
                 alpha=0.8,
             )
         ax.axhline(0.0, color="grey", linewidth=0.8)
-        twin = _kind_label(comparisons[0]["against"], family) if comparisons[0]["against"] != family + ZERO else "zero"
+        twin = _kind_label(comparisons[0]["against"])
         ax.set_title(f"{_family_title(family)}\nagainst its {twin} twin", fontsize="small")
         ax.legend(fontsize="x-small", frameon=False)
     for ax in list(axes.flat)[len(families) :]:

@@ -440,20 +440,27 @@ def with_demo_fractions(keys: Sequence[MethodKey], fractions: Sequence[float]) -
     ]
 
 
+def metal_family(method: str) -> tuple[str, str] | None:
+    """A method that reads a mapper kind's head (or zero) as its family and that kind:
+    ``prior-dagger-ridge`` -> (``prior-dagger-``, ``ridge``), ``dagger-safe+prior-zero`` ->
+    (``dagger-safe+prior-``, ``zero``); None for any other method."""
+    if GATED_PRIOR in method:
+        gated, kind = method.split(GATED_PRIOR, 1)
+        return gated + GATED_PRIOR, kind
+    for prefix in (PRIOR_DAGGER_PREFIX, DISAGREE_PREFIX, PRIOR_PREFIX, MDM_PREFIX):  # the longer prefix first
+        if method.startswith(prefix):
+            return prefix, method.removeprefix(prefix)
+    return None
+
+
 def metal_twins(method: str) -> tuple[str, ...]:
     """The constant twins of a MetaL DAgger method that reads a learned mapper kind's head: the same
     method with each control's head (and, for the priors, zero) in the mapper's place; () for any
     other method. ``prior-ridge`` -> ``prior-mean-da``, ``prior-pistar-head``, ``prior-zero``;
     ``dagger-safe+prior-ridge`` -> ``dagger-safe+prior-mean-da``, ..."""
-    if GATED_PRIOR in method:
-        gated, kind = method.split(GATED_PRIOR, 1)
-        learned = kind != ZERO and kind not in control_names()
-        return tuple(gated + GATED_PRIOR + c for c in (*control_names(), ZERO)) if learned else ()
-    for prefix in (PRIOR_DAGGER_PREFIX, DISAGREE_PREFIX, PRIOR_PREFIX, MDM_PREFIX):
-        if method.startswith(prefix):
-            kind = method[len(prefix) :]
-            if kind == ZERO or kind in control_names():
-                return ()
-            constants = (*control_names(), ZERO) if prefix in (PRIOR_PREFIX, PRIOR_DAGGER_PREFIX) else control_names()
-            return tuple(prefix + c for c in constants)
-    return ()
+    found = metal_family(method)
+    if found is None or found[1] == ZERO or found[1] in control_names():
+        return ()
+    family = found[0]
+    with_zero = family in (PRIOR_PREFIX, PRIOR_DAGGER_PREFIX) or family.endswith(GATED_PRIOR)
+    return tuple(family + c for c in (*control_names(), *((ZERO,) if with_zero else ())))

@@ -300,7 +300,7 @@ def dagger_rounds(
         if gate is None:
             keep = np.ones(trajectory.steps, dtype=bool)
         else:
-            heads = None if reference is None else _head_pair(learner, reference)
+            heads = _head_pair(learner, reference) if reference is not None and gate.reads_heads else None
             keep, scores = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory, heads)
         labelled = None
         if keep.any():
@@ -353,7 +353,7 @@ def _gate_mask(
         generator=generator,
         memory=memory,
         expert_labels=_tensor(trajectory.expert_labels) if gate.reads_expert else None,
-        heads=heads if gate.reads_heads else None,
+        heads=heads,
     )
     memory.episodes.append(Episode(features=features, succeeded=bool(trajectory.success)))
     scores = None if chosen.scores is None else chosen.scores.double().numpy()

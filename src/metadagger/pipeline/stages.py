@@ -354,8 +354,9 @@ def stage_benchmark(
 def _benchmark_priors(
     layout: RunLayout, config: RunConfig, task: Task, kinds: tuple[str, ...], options: StageOptions
 ) -> dict[str, HeadPrior]:
-    """The priors of the ``prior`` and ``prior-dagger`` methods, toward each of ``kinds``' heads and
-    zero: precision from the training pairs, strength chosen on the validation pairs (mapping/priors.py)."""
+    """The priors of the methods whose fits carry one (``PRIOR_METHODS``), toward each of ``kinds``'
+    heads and zero: precision from the training pairs, strength chosen on the validation pairs
+    (mapping/priors.py)."""
     split = _current_split(layout, config, task)
     inputs = {
         **kernel_stamp(),
