@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.results import registry as registry_module
+from metadagger.results import staleness as staleness_module
 from metadagger.results.blocks import build
 from metadagger.results.registry import CanonicalRun, RegistryRun, add_run, load_registry
 from metadagger.results.tables import BlockContext, glance, manifest_line, report_section, runs_table
@@ -43,7 +44,9 @@ def registry(tmp_path_factory, carracing_ci_run) -> Path:
 
 @pytest.fixture()
 def canonical(monkeypatch):
-    monkeypatch.setattr(registry_module, "CANONICAL_RUNS", (CI_RUN, *registry_module.CANONICAL_RUNS))
+    runs = (CI_RUN, *registry_module.CANONICAL_RUNS)
+    monkeypatch.setattr(registry_module, "CANONICAL_RUNS", runs)
+    monkeypatch.setattr(staleness_module, "CANONICAL_RUNS", runs)
 
 
 def test_an_added_run_keeps_small_artifacts_and_a_manifest_of_what_made_it(registry, canonical):
@@ -137,7 +140,7 @@ def test_blocks_are_written_from_the_registry_and_check_names_a_stale_one(regist
     assert len(stale) == 1 and stale[0].endswith(':3 report carracing-ci "Success against expert queries"')
 
     result = runner.invoke(app, ["results", "check", "--root", str(tmp_path), "--results", str(registry)])
-    assert result.exit_code == 1 and "stale: " in result.output
+    assert result.exit_code == 1 and "differs from what build writes: " in result.output
 
 
 def _entry(method: str, setting: str, successes: int, queries: float) -> dict:
@@ -205,23 +208,27 @@ def test_the_manifest_line_shows_a_call_from_an_uncommitted_tree(tmp_path):
     }
     line = manifest_line(BlockContext({"fetch-quick": RegistryRun(tmp_path, manifest)}, tmp_path), "fetch-quick")
     assert line.endswith(
-        f"Stages made by {'a' * 10}, {'a' * 10}+dirty; checked current at {'a' * 10}+dirty; numerics current."
+        f"Stages made by {'a' * 10}, {'a' * 10}+dirty; checked current at {'a' * 10}+dirty; now current."
     )
 
 
-def test_a_run_made_with_older_numerics_is_marked_stale_where_its_numbers_show(tmp_path):
+def test_a_stale_run_is_marked_with_what_departed_where_its_numbers_show(tmp_path):
     run = tmp_path / "carracing-quick"
     (run / "benchmark").mkdir(parents=True)
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": [_entry("dagger", "3", 9, 3340)]}))
-    older = {"wall_seconds": 60.0, "machine": {"cpu": "CPU", "numerics": NUMERICS - 1}}
-    context = BlockContext({"carracing-quick": RegistryRun(run, older)}, tmp_path)
-    assert any(line.startswith("| `carracing-quick` (older numerics) |") for line in glance(context).splitlines())
+    runs = {"carracing-quick": RegistryRun(run, CURRENT | {"wall_seconds": 60.0})}
+    why = ["benchmark.lanes: 1 -> 8", f"NUMERICS {NUMERICS - 1} -> {NUMERICS}"]
+    context = BlockContext(runs, tmp_path, stale={"carracing-quick": why})
+    marked = f"*Stale: `carracing-quick`, made with benchmark.lanes: 1 -> 8; NUMERICS {NUMERICS - 1} -> {NUMERICS}"
+    assert any(line.startswith("| `carracing-quick` (stale) |") for line in glance(context).splitlines())
+    assert marked in glance(context)
     row = next(line for line in runs_table(context).splitlines() if line.startswith("| `carracing-quick`"))
-    assert f"| stale ({NUMERICS - 1}; now {NUMERICS}) |" in row
-    current = BlockContext({"carracing-quick": RegistryRun(run, CURRENT | {"wall_seconds": 60.0})}, tmp_path)
+    assert f"| stale: benchmark.lanes: 1 -> 8; NUMERICS {NUMERICS - 1} -> {NUMERICS} |" in row
+    current = BlockContext(runs, tmp_path)
     assert "| current |" in next(
         line for line in runs_table(current).splitlines() if line.startswith("| `carracing-quick`")
     )
+    assert "Stale" not in glance(current) and "(stale)" not in glance(current)
 
 
 def test_an_unknown_block_kind_is_one_line(registry, tmp_path):
@@ -238,15 +245,108 @@ def test_the_repositorys_readme_and_docs_are_what_build_writes():
     assert build(REPO, check=True) == [], "run `metadagger results build` and commit the result"
 
 
-def test_every_registry_run_is_what_its_canonical_command_makes_now():
-    from metadagger.pipeline.run_config import load_run, resolve_config
+def _with_lanes(task: str, preset: str, width: int):
+    """``load_preset`` as it is, but with ``benchmark.lanes: width`` in ``task``'s ``preset``."""
+    from metadagger.pipeline import run_config
 
-    for run in registry_module.CANONICAL_RUNS:
-        folder = REPO / "results" / run.name
-        if folder.is_dir():  # a canonical run not in the registry yet has no config to check
-            config = load_run(folder, run.overrides)
-            expected = resolve_config(run.task, run.preset, overrides=run.overrides)
-            assert registry_module.config_departures(config, expected) == [], f"make {run.name} again: `{run.command}`"
+    original = run_config.load_preset
+
+    def load_preset(t, p, presets_file=None):
+        data = original(t, p, presets_file)
+        if (t, p) == (task, preset):
+            data = {**data, "benchmark": {**data.get("benchmark", {}), "lanes": width}}
+        return data
+
+    return load_preset
+
+
+def test_a_changed_preset_marks_exactly_the_runs_whose_canonical_command_it_changes(monkeypatch, tmp_path):
+    import shutil
+
+    from metadagger.pipeline import run_config
+    from metadagger.results.staleness import registry_staleness
+
+    runs = load_registry(REPO / "results")
+    before = registry_staleness(runs)
+    monkeypatch.setattr(run_config, "load_preset", _with_lanes("carracing-family", "paper", 7))
+    after = registry_staleness(runs)
+    changed = {name for name in runs if after[name] != before[name]}
+    family_paper = {"carracing-family-paper", "carracing-family-paper-per-seed-init"}
+    assert changed == family_paper & set(runs)
+    for name in changed:
+        new = [r for r in after[name] if r not in before[name]]
+        assert len(new) == 1 and new[0].startswith("benchmark.lanes: ") and new[0].endswith(" -> 7")
+
+    # Every block that shows a changed run's numbers marks it; no other block changes (the docs as they
+    # are hold what build writes: test_the_repositorys_readme_and_docs_are_what_build_writes).
+    (tmp_path / "docs").mkdir()
+    pages = [tmp_path / "README.md", tmp_path / "docs" / "results.md"]
+    for page in pages:
+        shutil.copy(REPO / page.relative_to(tmp_path), page)
+    shutil.copytree(REPO / "results", tmp_path / "results")
+    differing = build(tmp_path, check=True, files=pages)
+    assert {block.split(" ")[1] for block in differing} >= {"glance", "runs"}
+    assert all(
+        any(name in block for name in changed) or block.split(" ")[1] in ("glance", "runs") for block in differing
+    )
+    build(tmp_path, files=pages[1:])
+    row = next(line for line in pages[1].read_text().splitlines() if line.startswith("| `carracing-family-paper` |"))
+    assert "| stale: benchmark.lanes: " in row and " -> 7 |" in row
+
+
+def test_status_lists_every_canonical_run_and_strict_check_fails_on_a_stale_one(registry, canonical, tmp_path):
+    import shutil
+
+    copy = tmp_path / "results"
+    shutil.copytree(registry, copy)
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "page.md").write_text("<!-- results: runs -->\n<!-- /results -->\n")
+    build(tmp_path, registry=copy)
+    options = ["--root", str(tmp_path), "--results", "results"]
+    assert runner.invoke(app, ["results", "check", "--strict", *options]).exit_code == 0
+
+    manifest = json.loads((copy / CI_RUN.name / "manifest.json").read_text())
+    manifest["machine"]["numerics"] = NUMERICS - 1  # as if made before this code's numerics
+    (copy / CI_RUN.name / "manifest.json").write_text(json.dumps(manifest))
+    status = runner.invoke(app, ["results", "status", *options])
+    assert status.exit_code == 0
+    lines = status.output.splitlines()
+    assert lines[0].startswith(f"{CI_RUN.name}: stale, last took ")
+    assert lines[1].strip() == f"NUMERICS {NUMERICS - 1} -> {NUMERICS}"
+    assert lines[2].strip() == f"make it: {CI_RUN.command}"
+    assert f"{registry_module.CANONICAL_RUNS[1].name}: missing, last took never made" in status.output
+    assert lines[-1] == f"0 current, 1 stale, {len(registry_module.CANONICAL_RUNS) - 1} missing"
+
+    check = runner.invoke(app, ["results", "check", *options])
+    assert check.exit_code == 1 and "differs from what build writes" in check.output  # the runs block marks it now
+    build(tmp_path, registry=copy)
+    assert "| stale: NUMERICS " in (tmp_path / "docs" / "page.md").read_text()
+    assert runner.invoke(app, ["results", "check", *options]).exit_code == 0  # stale runs pass, marked
+    strict = runner.invoke(app, ["results", "check", "--strict", *options])
+    assert (
+        strict.exit_code == 1 and f"stale run: {CI_RUN.name} (NUMERICS {NUMERICS - 1} -> {NUMERICS})" in strict.output
+    )
+
+
+def test_adding_one_run_leaves_the_other_registry_runs_as_they_are(
+    registry, canonical, carracing_ci_run, tmp_path, monkeypatch
+):
+    import shutil
+
+    other = CanonicalRun("carracing-ci-other", "carracing", "ci", shows="a second test run")
+    monkeypatch.setattr(registry_module, "CANONICAL_RUNS", (*registry_module.CANONICAL_RUNS, other))
+    copy = tmp_path / "results"
+    shutil.copytree(registry, copy)
+    manifest = json.loads((copy / CI_RUN.name / "manifest.json").read_text())
+    manifest["machine"]["numerics"] = NUMERICS - 1  # a stale run stays as it is
+    (copy / CI_RUN.name / "manifest.json").write_text(json.dumps(manifest))
+    before = {p: p.read_bytes() for p in (copy / CI_RUN.name).rglob("*") if p.is_file()}
+    run = tmp_path / "runs" / other.name
+    shutil.copytree(carracing_ci_run, run)
+    add_run(run, other.name, beside="the test suite", registry=copy, progress=False)
+    assert {p: p.read_bytes() for p in (copy / CI_RUN.name).rglob("*") if p.is_file()} == before
+    assert set(load_registry(copy, [CI_RUN.name, other.name])) == {CI_RUN.name, other.name}
+    assert json.loads((copy / other.name / "manifest.json").read_text())["machine"]["numerics"] == NUMERICS
 
 
 def test_the_queries_figure_is_drawn_from_a_registry_summary_by_build_not_by_check(registry, canonical, tmp_path):

@@ -44,14 +44,46 @@ def results_build_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION
 
 @results_app.command("check")
 @user_errors
-def results_check_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION) -> None:
-    """Exit 1, naming each block, when README.md or docs/ differ from what `results build` writes."""
+def results_check_cmd(
+    root: Path = ROOT_OPTION,
+    registry: Path = REGISTRY_OPTION,
+    strict: bool = typer.Option(False, "--strict", help="Also exit 1 when any registry run is stale."),
+) -> None:
+    """Exit 1, naming each block, when README.md or docs/ differ from what `results build` writes
+    (stale runs pass: their blocks mark them); with --strict, also naming each stale run."""
     from metadagger.results.blocks import build
+    from metadagger.results.registry import load_registry
+    from metadagger.results.staleness import registry_staleness, stale_summary
 
     changed = build(root, registry=root / registry, check=True)
     for block in changed:
-        typer.echo(f"stale: {block}", err=True)
+        typer.echo(f"differs from what build writes: {block}", err=True)
     if changed:
         typer.echo("run `metadagger results build` and commit the result", err=True)
+    stale = {n: r for n, r in registry_staleness(load_registry(root / registry)).items() if r} if strict else {}
+    for name, reasons in stale.items():
+        typer.echo(f"stale run: {name} ({stale_summary(reasons)}); see `metadagger results status`", err=True)
+    if changed or stale:
         raise typer.Exit(1)
-    typer.echo("every generated block is current")
+    typer.echo("every generated block is what build writes" + ("; every registry run is current" if strict else ""))
+
+
+@results_app.command("status")
+@user_errors
+def results_status_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION) -> None:
+    """Every canonical run: current, stale (and why, as `setting: run's -> today's`) or missing,
+    the wall time it last took and the command that makes it again."""
+    from metadagger.evaluation.report_run import duration
+    from metadagger.results.registry import load_registry
+    from metadagger.results.staleness import registry_status
+
+    rows = registry_status(load_registry(root / registry))
+    for row in rows:
+        wall = duration(row["wall_seconds"]) if row["wall_seconds"] is not None else "never made"
+        typer.echo(f"{row['name']}: {row['state']}, last took {wall}")
+        for reason in row["reasons"]:
+            typer.echo(f"    {reason}")
+        if row["state"] != "current":
+            typer.echo(f"    make it: {row['command']}")
+    counts = {state: sum(r["state"] == state for r in rows) for state in ("current", "stale", "missing")}
+    typer.echo(", ".join(f"{n} {state}" for state, n in counts.items()))

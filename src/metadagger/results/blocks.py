@@ -20,6 +20,7 @@ from typing import Sequence
 
 from metadagger.errors import UserError
 from metadagger.results.registry import REGISTRY, load_registry
+from metadagger.results.staleness import registry_staleness
 from metadagger.results.tables import BLOCKS, BlockContext
 from metadagger.utils.io import write_text
 
@@ -77,9 +78,8 @@ def build(
     """Regenerate every block of README.md and docs/ under ``root`` from the registry (default
     ``root/results``); with ``check``, write nothing. Returns the blocks that differed."""
     root = Path(root)
-    context = BlockContext(
-        runs=load_registry(registry if registry is not None else root / REGISTRY), root=root, draw=not check
-    )
+    runs = load_registry(registry if registry is not None else root / REGISTRY)
+    context = BlockContext(runs=runs, root=root, draw=not check, stale=registry_staleness(runs))
     changed: list[str] = []
     for path in files if files is not None else doc_files(root):
         if not path.is_file():

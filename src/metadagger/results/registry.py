@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from metadagger.errors import UserError
+from metadagger.imitation.lanes import LANE_NUMERICS
 from metadagger.pipeline.run_config import RunConfig, load_run, resolve_config
 from metadagger.pipeline.stages import StageOptions, reproduce
 from metadagger.runfolder.layout import RunLayout
@@ -191,6 +192,7 @@ def _manifest(canonical: CanonicalRun, run: Path, files: dict[str, str], beside:
         "stages": stages,
         "wall_seconds": round(sum(float(s.get("total_seconds", s.get("seconds", 0.0))) for s in stages.values()), 1),
         "machine": machine_description(),
+        "lane_numerics": LANE_NUMERICS,
         "beside": beside.strip(),
         "files": files,
     }

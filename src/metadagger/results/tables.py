@@ -22,7 +22,7 @@ import dataclasses
 import os
 import re
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 from metadagger.evaluation.benchmark_figure import plot_queries
 from metadagger.evaluation.benchmark_summary import BUDGET_SHARES, budget_reading
@@ -31,7 +31,7 @@ from metadagger.evaluation.report_run import duration
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
-from metadagger.utils.kernels import NUMERICS
+from metadagger.results.staleness import stale_summary
 
 #: The controls, by benchmark method: zero-query heads every mapper must beat.
 CONTROLS = ("mdm-pistar-head", "mdm-mean-da")
@@ -54,6 +54,9 @@ class BlockContext:
     file: Path | None = None
     draw: bool = False
     """Whether blocks that draw a figure from the registry's data write it (``results build``, not ``check``)."""
+    stale: Mapping[str, list[str]] = dataclasses.field(default_factory=dict)
+    """Why each stale run of :attr:`runs` is stale (:func:`~metadagger.results.staleness.run_staleness`);
+    a run not named here is current."""
 
     def at(self, file: Path) -> "BlockContext":
         """This context for a block in ``file``."""
@@ -139,10 +142,9 @@ def glance(context: BlockContext) -> str:
         dagger = [e for e in entries if e["method"] == "dagger"]
         gates = [e for e in entries if e["method"] in gated_methods()]
         oracle = [e for e in entries if e["method"] in reference_methods()]
-        stale = "" if _made_with_current_numerics(found.manifest) else " (older numerics)"
         rows.append(
             (
-                f"`{run.name}`{stale}",
+                _run_cell(context, run.name),
                 PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "",
                 _labelled(_best(mappers)),
                 _cell(by_method.get(CONTROLS[0])),
@@ -161,11 +163,12 @@ def glance(context: BlockContext) -> str:
         "so an MDM row can stand below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as "
         "DAgger refits it, on the demonstration alone (`bc-refit`; '-' for a run that has no such row). Best "
         "MetaL DAgger: the best MDM mapper or DAgger-MDI. Ceiling: the oracle rule, which labels exactly the states "
-        "where the learner is wrong ('-' for a run made before it). A run marked 'older numerics' was made before this "
-        "code's `NUMERICS` (docs/results.md). It and the best gate are chosen on these same seeds, which favours "
+        "where the learner is wrong ('-' for a run made before it). A run marked 'stale' was made by a config or "
+        "numerics other than what its command makes now; the lines under the table name what departed "
+        "(docs/results.md). It and the best gate are chosen on these same seeds, which favours "
         "them; paired comparisons are in each run's report."
     )
-    return "\n".join([note, "", *markdown_table(header, rows)])
+    return "\n".join([note, "", *markdown_table(header, rows), *_stale_lines(context)])
 
 
 def runs_table(context: BlockContext) -> str:
@@ -175,28 +178,36 @@ def runs_table(context: BlockContext) -> str:
         found = context.runs.get(run.name)
         wall = duration(found.manifest["wall_seconds"]) if found else "not run yet"
         cpu = found.manifest["machine"]["cpu"] if found else "-"
-        rows.append(
-            (f"`{run.name}`", f"`{run.command}`", wall, cpu, _numerics(found.manifest) if found else "-", run.shows)
-        )
+        rows.append((f"`{run.name}`", f"`{run.command}`", wall, cpu, _status(context, run.name), run.shows))
     note = (
         "Wall time as measured, on the CPU named, with the other work the run's manifest names running beside it "
-        "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less. Numerics: "
-        "whether the run was made with this code's numerics (`NUMERICS`); a stale run's numbers are those of older "
-        "code, and `metadagger results add` on its folder brings it up to date."
+        "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less. Status: "
+        "current, or stale with what departed (`setting: run's -> today's`): a stale run's numbers are those of "
+        "the config and code that made it, kept and marked until its command is run again and `metadagger results "
+        "add` takes the new folder (`metadagger results status` lists them)."
     )
-    return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "numerics", "shows"), rows)])
+    return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "status", "shows"), rows)])
 
 
-def _made_with_current_numerics(manifest: dict[str, Any]) -> bool:
-    """Whether a registry run was made with this code's ``NUMERICS``."""
-    return manifest["machine"].get("numerics") == NUMERICS
+def _status(context: BlockContext, name: str) -> str:
+    """ "current", "stale: what departed", or "-" for a run the registry does not hold."""
+    if name not in context.runs:
+        return "-"
+    reasons = context.stale.get(name)
+    return f"stale: {stale_summary(reasons)}" if reasons else "current"
 
 
-def _numerics(manifest: dict[str, Any]) -> str:
-    """ "current", or which ``NUMERICS`` a stale registry run was made with."""
-    if _made_with_current_numerics(manifest):
-        return "current"
-    return f"stale ({manifest['machine'].get('numerics')}; now {NUMERICS})"
+def _run_cell(context: BlockContext, name: str) -> str:
+    """A run's name for a table's first column, marked where the run is stale."""
+    return f"`{name}` (stale)" if context.stale.get(name) else f"`{name}`"
+
+
+def _stale_lines(context: BlockContext, names: list[str] | None = None) -> list[str]:
+    """One line per stale run of ``names`` (default: every run of the registry) naming what departed,
+    after a blank line; nothing when all are current."""
+    stale = [n for n in (names if names is not None else context.runs) if context.stale.get(n)]
+    lines = [f"*Stale: `{n}`, made with {stale_summary(context.stale[n])} (run's -> today's).*" for n in stale]
+    return ["", *lines] if lines else []
 
 
 def report_section(context: BlockContext, name: str, heading: str) -> str:
@@ -227,7 +238,7 @@ def report_section(context: BlockContext, name: str, heading: str) -> str:
         re.sub(r"\]\((figures/[^)]+)\)", lambda m: f"]({context.link(figures / m.group(1))})", line)
         for line in lines[start + 1 : end]
     ]
-    return "\n".join(body).strip("\n")
+    return "\n".join([*body, *_stale_lines(context, [name])]).strip("\n")
 
 
 def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
@@ -236,7 +247,9 @@ def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
     for name in names.split(","):
         found = context.runs.get(name)
         if found is not None and found.path(path).is_file():
-            return f"![{alt}]({context.link(found.path(path))})\n\n*Run `{name}`.*"
+            return "\n".join(
+                [f"![{alt}]({context.link(found.path(path))})\n\n*Run `{name}`.*", *_stale_lines(context, [name])]
+            )
     return _missing(names.split(",")[0])
 
 
@@ -256,7 +269,7 @@ def budgets_table(context: BlockContext) -> str:
             continue
         shares = [b["share"] for b in reading["budgets"]]
         rows.append(
-            (f"`{run.name}`", *(_at_budget(b) for b in reading["budgets"]), _by_area(reading)),
+            (_run_cell(context, run.name), *(_at_budget(b) for b in reading["budgets"]), _by_area(reading)),
         )
     header = ("run", *(f"demonstration + {s:.0%} of DAgger's queries" for s in shares or BUDGET_SHARES), "by area")
     note = (
@@ -266,7 +279,7 @@ def budgets_table(context: BlockContext) -> str:
         "chosen on these seeds) with its success, then its paired difference from the best gate at that budget (95% "
         "bootstrap interval; '=' where the best method is a gate), then the oracle's success where the run has it."
     )
-    return "\n".join([note, "", *markdown_table(header, rows)])
+    return "\n".join([note, "", *markdown_table(header, rows), *_stale_lines(context)])
 
 
 def _at_budget(budget: dict[str, Any]) -> str:
@@ -317,7 +330,8 @@ def queries_figure(context: BlockContext, names: str, alt: str) -> str:
             path = context.root / DRAWN_FIGURES / f"{name}-queries.png"
             if context.draw:
                 plot_queries(found.json("benchmark/summary.json"), path)
-            return f"![{alt}]({context.link(path)})\n\n*Run `{name}`, drawn from its `benchmark/summary.json`.*"
+            drawn = f"![{alt}]({context.link(path)})\n\n*Run `{name}`, drawn from its `benchmark/summary.json`.*"
+            return "\n".join([drawn, *_stale_lines(context, [name])])
     return _missing(names.split(",")[0])
 
 
@@ -340,7 +354,7 @@ def manifest_line(context: BlockContext, name: str) -> str:
         f"`{m['command']}`: {duration(m['wall_seconds'])} on {m['machine']['cpu']} "
         f"({', '.join(m['machine']['instruction_sets'])}; {pins}), {m['machine']['cores']} cores; beside it: "
         f"{m['beside']}. Stages made by {', '.join(_short(c) for c in commits) or 'unrecorded commits'}; "
-        f"checked current at {_short(m['commit'])}; numerics {_numerics(m)}."
+        f"checked current at {_short(m['commit'])}; now {_status(context, name)}."
     )
 
 
