@@ -361,3 +361,27 @@ def test_the_queries_figure_is_drawn_from_a_registry_summary_by_build_not_by_che
     assert drawn.read_bytes()[:4] == b"\x89PNG"
     assert "](docs/figures/carracing-ci-queries.png)" in page.read_text()
     assert build(tmp_path, registry=registry, check=True) == []
+
+
+def test_a_config_of_an_older_shape_departs_by_its_sections_and_a_setting_added_since_at_its_default_does_not(
+    tmp_path,
+):
+    import yaml
+
+    from metadagger.pipeline.run_config import RunConfig, resolve_config
+    from metadagger.results.staleness import run_staleness
+    from metadagger.utils.yaml_config import dump_yaml
+
+    data = yaml.safe_load(dump_yaml(resolve_config("carracing", "quick")))
+    section = next(key for key, value in data.items() if isinstance(value, dict) and key != "pairs")
+    data["old_" + section] = data.pop(section)  # a section renamed since the run was made
+    defaults = yaml.safe_load(dump_yaml(RunConfig()))["pairs"]
+    data["pairs"].pop(next(k for k, v in data["pairs"].items() if defaults[k] == v))  # added since, at its default
+    run = tmp_path / "carracing-quick"
+    run.mkdir()
+    (run / "config.yaml").write_text(yaml.safe_dump(data))
+    reasons = run_staleness(RegistryRun(run, CURRENT))
+    assert reasons == [
+        f"old_{section}: a section today's config does not have",
+        f"{section}: a section the run's config does not have",
+    ]

@@ -10,6 +10,7 @@ numbers marked, and ``metadagger results status`` lists it with the command that
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Mapping
 
 import yaml
@@ -32,7 +33,11 @@ def run_staleness(run: RegistryRun) -> list[str]:
     canonical = canonical_run(run.name)
     made = _settings(_made_with(run))
     today = _settings(_as_data(resolve_config(canonical.task, canonical.preset, overrides=canonical.overrides)))
-    reasons = describe_changes(made, today)
+    reasons = [f"{key}: a section today's config does not have" for key in made if key not in today]
+    reasons += [f"{key}: a section the run's config does not have" for key in today if key not in made]
+    reasons += describe_changes(
+        {k: v for k, v in made.items() if k in today}, {k: v for k, v in today.items() if k in made}
+    )
     numerics = run.manifest["machine"].get("numerics")
     if numerics != NUMERICS:
         reasons.append(f"NUMERICS {numerics} -> {NUMERICS}")
@@ -57,13 +62,17 @@ def stale_summary(reasons: list[str], most: int = 4) -> str:
 
 def _made_with(run: RegistryRun) -> dict[str, Any]:
     """The config a registry run was made with, every setting it leaves out at its default (a
-    setting added since with a default keeps its numbers); as written where today's code no longer
-    reads it (a section renamed since), so that each departure is named."""
+    setting added since with a default keeps its numbers). Where today's code no longer reads the
+    file whole (a section renamed since), the sections it still reads so, the others as written."""
     data = read_run_data(run.path("config.yaml"))
+    known = {f.name for f in dataclasses.fields(RunConfig)}
+    where = f"{run.name}'s config.yaml"
     try:
-        return _as_data(build(RunConfig, data, where=f"{run.name}'s config.yaml"))
+        built = _as_data(build(RunConfig, {k: v for k, v in data.items() if k in known}, where=where))
     except UserError:
-        return data
+        return dict(data)
+    kept = {k: v for k, v in built.items() if k in data or not isinstance(v, Mapping)}
+    return {**kept, **{k: v for k, v in data.items() if k not in known}}
 
 
 def _as_data(config: RunConfig) -> dict[str, Any]:
