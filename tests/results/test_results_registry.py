@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from metadagger.cli.main import app
 from metadagger.errors import UserError
+from metadagger.imitation.lanes import LANE_NUMERICS
 from metadagger.results import registry as registry_module
 from metadagger.results import staleness as staleness_module
 from metadagger.results.blocks import build
@@ -25,7 +26,7 @@ REPO = Path(__file__).resolve().parents[2]
 CI_RUN = CanonicalRun("carracing-ci", "carracing", "ci", shows="a test run")
 runner = CliRunner()
 #: The manifest of a registry run made with this code's numerics, as far as the tables read it.
-CURRENT = {"machine": {"cpu": "CPU", "numerics": NUMERICS}}
+CURRENT = {"machine": {"cpu": "CPU", "numerics": NUMERICS}, "lane_numerics": LANE_NUMERICS}
 
 
 @pytest.fixture(scope="module")
@@ -219,7 +220,9 @@ def test_a_stale_run_is_marked_with_what_departed_where_its_numbers_show(tmp_pat
     runs = {"carracing-quick": RegistryRun(run, CURRENT | {"wall_seconds": 60.0})}
     why = ["benchmark.lanes: 1 -> 8", f"NUMERICS {NUMERICS - 1} -> {NUMERICS}"]
     context = BlockContext(runs, tmp_path, stale={"carracing-quick": why})
-    marked = f"*Stale: `carracing-quick`, made with benchmark.lanes: 1 -> 8; NUMERICS {NUMERICS - 1} -> {NUMERICS}"
+    marked = (
+        f"*Stale `carracing-quick` (run's -> today's): benchmark.lanes: 1 -> 8; NUMERICS {NUMERICS - 1} -> {NUMERICS}.*"
+    )
     assert any(line.startswith("| `carracing-quick` (stale) |") for line in glance(context).splitlines())
     assert marked in glance(context)
     row = next(line for line in runs_table(context).splitlines() if line.startswith("| `carracing-quick`"))
@@ -291,7 +294,7 @@ def test_a_changed_preset_marks_exactly_the_runs_whose_canonical_command_it_chan
     )
     build(tmp_path, files=pages[1:])
     row = next(line for line in pages[1].read_text().splitlines() if line.startswith("| `carracing-family-paper` |"))
-    assert "| stale: benchmark.lanes: " in row and " -> 7 |" in row
+    assert "| stale: " in row and row not in (REPO / "docs" / "results.md").read_text()
 
 
 def test_status_lists_every_canonical_run_and_strict_check_fails_on_a_stale_one(registry, canonical, tmp_path):
@@ -300,7 +303,7 @@ def test_status_lists_every_canonical_run_and_strict_check_fails_on_a_stale_one(
     copy = tmp_path / "results"
     shutil.copytree(registry, copy)
     (tmp_path / "docs").mkdir()
-    (tmp_path / "docs" / "page.md").write_text("<!-- results: runs -->\n<!-- /results -->\n")
+    (tmp_path / "docs" / "page.md").write_text(f"<!-- results: manifest {CI_RUN.name} -->\n<!-- /results -->\n")
     build(tmp_path, registry=copy)
     options = ["--root", str(tmp_path), "--results", "results"]
     assert runner.invoke(app, ["results", "check", "--strict", *options]).exit_code == 0
@@ -318,9 +321,9 @@ def test_status_lists_every_canonical_run_and_strict_check_fails_on_a_stale_one(
     assert lines[-1] == f"0 current, 1 stale, {len(registry_module.CANONICAL_RUNS) - 1} missing"
 
     check = runner.invoke(app, ["results", "check", *options])
-    assert check.exit_code == 1 and "differs from what build writes" in check.output  # the runs block marks it now
+    assert check.exit_code == 1 and "differs from what build writes" in check.output  # its manifest line marks it now
     build(tmp_path, registry=copy)
-    assert "| stale: NUMERICS " in (tmp_path / "docs" / "page.md").read_text()
+    assert f"now stale: NUMERICS {NUMERICS - 1} -> {NUMERICS}." in (tmp_path / "docs" / "page.md").read_text()
     assert runner.invoke(app, ["results", "check", *options]).exit_code == 0  # stale runs pass, marked
     strict = runner.invoke(app, ["results", "check", "--strict", *options])
     assert (

@@ -206,7 +206,7 @@ def _stale_lines(context: BlockContext, names: list[str] | None = None) -> list[
     """One line per stale run of ``names`` (default: every run of the registry) naming what departed,
     after a blank line; nothing when all are current."""
     stale = [n for n in (names if names is not None else context.runs) if context.stale.get(n)]
-    lines = [f"*Stale: `{n}`, made with {stale_summary(context.stale[n])} (run's -> today's).*" for n in stale]
+    lines = [f"*Stale `{n}` (run's -> today's): {stale_summary(context.stale[n])}.*" for n in stale]
     return ["", *lines] if lines else []
 
 
