@@ -1,7 +1,7 @@
 """Measure a saved Fetch policy (pi* or one of its round checkpoints) on seed ranges.
 
 usage: python scripts/fetch_pistar_eval.py CHECKPOINT OWN_SEEDS OTHER_SEEDS   ("-" skips a range)
-e.g.   python scripts/fetch_pistar_eval.py runs/gt/a/groundtruth/rounds/round_2.safetensors 0-39 20000-20049
+e.g.   python scripts/fetch_pistar_eval.py runs/gt/a/pistar/rounds/round_2.safetensors 0-39 20000-20049
 """
 
 from __future__ import annotations

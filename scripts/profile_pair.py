@@ -22,7 +22,7 @@ import torch
 
 from metadagger.imitation.bc import FeatureCache
 from metadagger.imitation.head_adam import LinearHeadAdam
-from metadagger.metal.pairs import run_pair
+from metadagger.metal_dagger.pairs import run_pair
 from metadagger.pipeline.stages import load_run, run_task
 from metadagger.policies import Policy
 from metadagger.runfolder.layout import RunLayout
@@ -58,17 +58,17 @@ def main(run: str, seeds: str) -> dict[str, Any]:
     if not timed_seeds:
         raise SystemExit("give at least two seeds: the first one warms up")
     config = load_run(run)
-    task, groundtruth = run_task(config), str(RunLayout(run).groundtruth)
+    task, pistar = run_task(config), str(RunLayout(run).pistar)
     seconds: Counter = Counter()
     calls: Counter = Counter()
     for owner, method, name in PARTS:
         setattr(owner, method, _timed(getattr(owner, method), name, seconds, calls))
-    run_pair(task, groundtruth, warm_up, config.pairs)
+    run_pair(task, pistar, warm_up, config.pairs)
     seconds.clear()
     calls.clear()
     wall, cpu = time.perf_counter(), time.process_time()
     for seed in timed_seeds:
-        run_pair(task, groundtruth, seed, config.pairs)
+        run_pair(task, pistar, seed, config.pairs)
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     n = len(timed_seeds)
     parts = {name: {"seconds_per_pair": seconds[name] / n, "calls_per_pair": calls[name] / n} for _, _, name in PARTS}

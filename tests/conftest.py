@@ -42,16 +42,16 @@ def toy_run(tmp_path_factory):
 
     from metadagger.imitation.bc import BCConfig
     from metadagger.mapping.mappers import Mapper
-    from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
+    from metadagger.metal_dagger.pistar import PiStarConfig, train_pistar
     from metadagger.policies import load_policy
     from metadagger.runfolder.layout import RunLayout
 
-    pistar = GroundTruthConfig(
+    pistar = PiStarConfig(
         seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
     )
     layout = RunLayout(tmp_path_factory.mktemp("toy"))
-    train_groundtruth(CorridorTask(), pistar, layout, progress=False)
-    Mapper.pistar_head(load_policy(layout.groundtruth).head_vector()).save(layout.mapper("pistar-head"))
+    train_pistar(CorridorTask(), pistar, layout, progress=False)
+    Mapper.pistar_head(load_policy(layout.pistar).head_vector()).save(layout.mapper("pistar-head"))
     return layout
 
 

@@ -188,7 +188,7 @@ def test_tensors_that_do_not_fit_the_recorded_architecture_are_named_in_one_line
     )
     assert message.endswith(
         "restore the file, or delete it and re-run the command that wrote it "
-        "(for a run's pi*: metadagger groundtruth --out RUN)"
+        "(for a run's pi*: metadagger pistar --out RUN)"
     )
 
 

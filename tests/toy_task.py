@@ -148,7 +148,7 @@ TINY_PRESETS = """\
 presets:
   tiny:
     max_episode_steps: 12
-    groundtruth:
+    pistar:
       seeds: 0-1
       eval_seeds: 100-100
       min_success: 0.0

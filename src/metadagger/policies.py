@@ -334,7 +334,7 @@ def load_policy(path: str | Path) -> Policy:
         raise CheckpointError(
             f"policy checkpoint {path} does not fit the architecture its metadata records ({mismatch}); restore the "
             "file, or "
-            "delete it and re-run the command that wrote it (for a run's pi*: metadagger groundtruth --out RUN)"
+            "delete it and re-run the command that wrote it (for a run's pi*: metadagger pistar --out RUN)"
         )
     net.load_state_dict(tensors, strict=True)
     return Policy(net=net, task=metadata.get("task", ""))

@@ -11,7 +11,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from metadagger.cli.bench import bench_env, smooth_actions, write_bench
+from metadagger.cli.bench import write_bench
+from metadagger.cli.bench_env import bench_env, smooth_actions
 from metadagger.errors import UserError
 from metadagger.runfolder.driver import StageOptions
 
@@ -105,7 +106,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
 
     from metadagger.cli.bench import bench_pairs
     from metadagger.pipeline.run_config import init_run
-    from metadagger.pipeline.stages import stage_groundtruth
+    from metadagger.pipeline.stages import stage_pistar
     from metadagger.runfolder.layout import RunLayout
     from metadagger.tasks import _FACTORIES, register_task
 
@@ -114,9 +115,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         presets = tmp_path / "presets.yaml"
         presets.write_text(TINY_PRESETS)
         run = tmp_path / "run"
-        stage_groundtruth(
-            RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False)
-        )
+        stage_pistar(RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False))
 
         result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10, nodes=(4,), lanes=(2,))
         assert not (run / "pairs").exists()  # collected into temporary stores only
@@ -187,6 +186,6 @@ def test_bench_reproduce_times_the_preset_and_its_overrides_side_by_side():
     result = bench_reproduce("carracing", preset="ci", overrides=("benchmark.lanes=4",), workers=2, progress=False)
     preset, laned = (result["arms"][arm] for arm in ARMS)
     assert result["speedup"] == pytest.approx(preset["seconds"] / laned["seconds"])
-    assert set(preset["stages"]) >= {"groundtruth", "pairs", "benchmark"} and preset["peak_memory_mb"] > 100
+    assert set(preset["stages"]) >= {"pistar", "pairs", "benchmark"} and preset["peak_memory_mb"] > 100
     # the lanes move the benchmark's last bits, nothing before it
     assert preset["sha256"][TABLES[0]] == laned["sha256"][TABLES[0]]

@@ -106,7 +106,7 @@ def test_bad_seed_list_names_the_value():
 
 def test_unknown_preset_names_the_allowed_ones(tmp_path):
     _fails_cleanly(
-        ["groundtruth", "--preset", "huge", "--out", str(tmp_path / "r")],
+        ["pistar", "--preset", "huge", "--out", str(tmp_path / "r")],
         "unknown preset 'huge'",
         "quick",
         "--presets FILE",
@@ -123,7 +123,7 @@ def test_unknown_config_field(tmp_path):
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "unknown field(s) epochz")
 
 
-def test_missing_run_and_missing_groundtruth(tmp_path):
+def test_missing_run_and_missing_pistar(tmp_path):
     _fails_cleanly(["pairs", "--out", str(tmp_path / "none")], "no run at")
     (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
     _fails_cleanly(["pairs", "--out", str(tmp_path)], "pi* not found")
@@ -152,7 +152,7 @@ def test_video_checks_its_methods_and_the_run_before_any_rollout(tmp_path):
 def test_corrupt_checkpoint_is_a_clear_error(tmp_path, command):
     # a run folder whose pi* is garbage: the stage reports it before looking for work
     (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
-    gt = RunLayout(tmp_path).groundtruth
+    gt = RunLayout(tmp_path).pistar
     gt.parent.mkdir()
     gt.write_bytes(b"not a safetensors file")
     _fails_cleanly([*command, "--out", str(tmp_path)], f"policy checkpoint is corrupt or not a safetensors file: {gt}")
@@ -175,7 +175,7 @@ def test_unknown_mapper_kind(tmp_path):
 
 def test_unknown_executor(tmp_path: Path):
     (tmp_path / "config.yaml").write_text(VERSION + "task: carracing\n")
-    gt = tmp_path / "groundtruth" / "policy.safetensors"
+    gt = tmp_path / "pistar" / "policy.safetensors"
     make_policy(CorridorTask(), seed=0).save(gt)
     _fails_cleanly(["pairs", "--out", str(tmp_path), "--executor", "slurm"], "unknown executor 'slurm'")
 
@@ -225,7 +225,7 @@ def test_demo_overrides_are_checked(tmp_path):
 def test_out_that_is_a_file_is_an_error(tmp_path):
     existing = tmp_path / "notes.txt"
     existing.write_text("keep me")
-    _fails_cleanly(["groundtruth", "--out", str(existing)], f"{existing} is a file, not a")
+    _fails_cleanly(["pistar", "--out", str(existing)], f"{existing} is a file, not a")
     assert existing.read_text() == "keep me"
 
 
@@ -245,7 +245,7 @@ def test_an_output_file_that_is_a_folder_is_refused_before_any_work(tmp_path, co
 
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs /proc, where no folder can be made")
 def test_a_run_folder_that_cannot_be_made_is_one_line(tmp_path):
-    _fails_cleanly(["groundtruth", "--out", "/proc/metadagger-run"], "cannot create folder /proc/metadagger-run")
+    _fails_cleanly(["pistar", "--out", "/proc/metadagger-run"], "cannot create folder /proc/metadagger-run")
 
 
 def test_a_corrupt_json_artifact_is_named(tmp_path):
@@ -271,7 +271,7 @@ def test_a_table_without_its_columns_is_named(tmp_path):
     [
         ["evaluate", "--seeds", ""],
         ["benchmark", "--seeds", ""],
-        ["export", "--what", "demos", "--format", "minari", "--name", "ns/x-v0", "--seeds", ""],
+        ["export", "--content", "demos", "--format", "minari", "--name", "ns/x-v0", "--seeds", ""],
     ],
     ids=["evaluate", "benchmark", "export"],
 )
@@ -350,7 +350,7 @@ def test_a_corrupt_mapper_is_named_before_any_work(tmp_path, corridor_plugin):
     presets.write_text(TINY_PRESETS)
     run = tmp_path / "run"
     init_run(run, corridor_plugin, "tiny", presets)
-    make_policy(RunCorridorTask(max_episode_steps=12), seed=0).save(RunLayout(run).groundtruth)
+    make_policy(RunCorridorTask(max_episode_steps=12), seed=0).save(RunLayout(run).pistar)
     mapper = RunLayout(run).mapper("dm")
     mapper.parent.mkdir(parents=True)
     mapper.write_bytes(b"not a safetensors file")
@@ -371,14 +371,14 @@ def test_a_task_from_an_installed_package_runs_with_a_presets_file(tmp_path, cor
     run = tmp_path / "run"
     result = runner.invoke(
         app,
-        ["groundtruth", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "tiny", "--out", str(run)],
+        ["pistar", "--task", "corridor-plugin", "--presets", str(presets), "--preset", "tiny", "--out", str(run)],
     )
     assert result.exit_code == 0, result.output
-    assert (run / "groundtruth" / "policy.safetensors").is_file()
+    assert (run / "pistar" / "policy.safetensors").is_file()
     assert "max_episode_steps: 12" in (run / "config.yaml").read_text()
     _fails_cleanly(
         [
-            "groundtruth",
+            "pistar",
             "--task",
             "corridor-plugin",
             "--presets",
@@ -392,7 +392,7 @@ def test_a_task_from_an_installed_package_runs_with_a_presets_file(tmp_path, cor
         "tiny",
     )
     _fails_cleanly(
-        ["groundtruth", "--task", "corridor-plugin", "--out", str(tmp_path / "r3")], "no packaged presets", "--presets"
+        ["pistar", "--task", "corridor-plugin", "--out", str(tmp_path / "r3")], "no packaged presets", "--presets"
     )
 
 
@@ -407,7 +407,7 @@ def test_a_task_whose_factory_rejects_the_run_arguments_is_a_user_error(tmp_path
         presets.write_text(TINY_PRESETS)
         _fails_cleanly(
             [
-                "groundtruth",
+                "pistar",
                 "--task",
                 "corridor-no-kwargs",
                 "--presets",

@@ -20,7 +20,7 @@ from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.collect import collect
-from metadagger.metal.method import SeedLearner, bc_head, demonstration, seeded
+from metadagger.metal_dagger.method import SeedLearner, bc_head, demonstration, seeded
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 
@@ -139,7 +139,7 @@ def test_each_dagger_row_carries_the_coverage_gap_of_the_states_visited_so_far(t
 
     table = {(r["method"], str(r["setting"]), r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
     seed = SEEDS[0]
-    with SeedLearner(CorridorTask(), str(toy_run.groundtruth), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
+    with SeedLearner(CorridorTask(), str(toy_run.pistar), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
         demo = demonstration(learner)
         first = learner.roll(bc_head(learner, demo.to_dataset(), seeded(BC, seed)))
         features = learner.cache.features_of(demo.to_dataset())
@@ -153,9 +153,7 @@ def test_each_dagger_row_carries_the_coverage_gap_of_the_states_visited_so_far(t
 def test_bc_refit_is_w_bc_refitted_as_dagger_refits_it_on_the_demonstration_alone(toy_run, rows):
     table = {(r["method"], r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
     for seed in SEEDS:
-        with SeedLearner(
-            CorridorTask(), str(toy_run.groundtruth), seed, head_init_seed=BC.head_init_seed(seed)
-        ) as learner:
+        with SeedLearner(CorridorTask(), str(toy_run.pistar), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
             data = demonstration(learner).to_dataset()
             head = bc_head(learner, data, seeded(BC, seed))
             assert learner.roll(head).reward == table["bc", seed]["reward"]
@@ -179,7 +177,7 @@ def _one_key_job(toy_run, key, seed: int, config: BenchmarkConfig) -> bench.Benc
     """The benchmark job of one method key on one seed of the toy run."""
     return bench.BenchmarkJob(
         task=CorridorTask(),
-        groundtruth=str(toy_run.groundtruth),
+        pistar=str(toy_run.pistar),
         seed=seed,
         methods=(key.id,),
         keys=(key,),
@@ -239,7 +237,7 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
 
 def test_resume_and_widening_add_only_the_missing_rows(toy_run, rows, tmp_path):
     layout = RunLayout(tmp_path)
-    shutil.copytree(toy_run.groundtruth_dir, layout.groundtruth_dir)
+    shutil.copytree(toy_run.pistar_dir, layout.pistar_dir)
     shutil.copytree(toy_run.root / "mappers", layout.root / "mappers")
     _run(layout, dataclasses.replace(CONFIG, seeds=SEEDS[:1], methods=("bc", "dagger")))
     before = layout.benchmark_log.read_text()
@@ -251,7 +249,7 @@ def test_resume_and_widening_add_only_the_missing_rows(toy_run, rows, tmp_path):
 
 def _copy_run(toy_run, root) -> RunLayout:
     layout = RunLayout(root)
-    shutil.copytree(toy_run.groundtruth_dir, layout.groundtruth_dir)
+    shutil.copytree(toy_run.pistar_dir, layout.pistar_dir)
     shutil.copytree(toy_run.root / "mappers", layout.root / "mappers")
     return layout
 
@@ -312,8 +310,8 @@ def test_a_laned_seed_reads_the_acting_features_and_fits_its_heads_together(toy_
     """With lanes no image is hashed or passed through the trunk a second time, and every
     head-only fit of the seed runs batched with the others."""
     from metadagger.imitation import lanes as lanes_module
-    from metadagger.imitation.bc import FeatureCache
-    from metadagger.metal import method
+    from metadagger.imitation.features import FeatureCache
+    from metadagger.metal_dagger import method
 
     def no_images(self, images):
         raise AssertionError("an image was hashed for its features")
@@ -363,7 +361,7 @@ def test_bc_with_a_prior_spends_the_demonstrations_queries_toward_each_mean(toy_
     from metadagger.mapping.priors import HeadPrior
     from metadagger.policies import load_policy
 
-    size = load_policy(toy_run.groundtruth).head_vector().numel()
+    size = load_policy(toy_run.pistar).head_vector().numel()
     priors = {
         "pistar-head": HeadPrior("pistar-head", torch.ones(size), strength=10.0),
         "zero": HeadPrior("zero", torch.ones(size), strength=0.0),
@@ -397,7 +395,7 @@ def test_dagger_with_a_prior_refits_every_round_with_it(toy_run, tmp_path):
     from metadagger.mapping.priors import HeadPrior
     from metadagger.policies import load_policy
 
-    size = load_policy(toy_run.groundtruth).head_vector().numel()
+    size = load_policy(toy_run.pistar).head_vector().numel()
     priors = {mean: HeadPrior(mean, torch.ones(size), strength=0.0) for mean in ("pistar-head", "zero")}
     layout = _copy_run(toy_run, tmp_path / "run")
     config = dataclasses.replace(
@@ -438,7 +436,7 @@ def test_the_disagreement_gate_compares_the_current_head_with_the_kinds_head(toy
     from metadagger.imitation.reading_gates import DisagreementGate
     from metadagger.policies import load_policy
 
-    pistar = load_policy(toy_run.groundtruth).head_vector()
+    pistar = load_policy(toy_run.pistar).head_vector()
     seen = []
     choose = DisagreementGate.choose
 
@@ -471,9 +469,9 @@ def test_every_round_of_dagger_refits_with_the_prior_it_is_given(toy_run):
     head is refused."""
     from metadagger.imitation.head_fits import Prior
     from metadagger.imitation.reading_gates import DisagreementGate
-    from metadagger.metal.method import dagger_rounds
+    from metadagger.metal_dagger.method import dagger_rounds
 
-    with SeedLearner(CorridorTask(), str(toy_run.groundtruth), SEEDS[0], head_init_seed=SEEDS[0]) as learner:
+    with SeedLearner(CorridorTask(), str(toy_run.pistar), SEEDS[0], head_init_seed=SEEDS[0]) as learner:
         demo = demonstration(learner)
         w_bc = bc_head(learner, demo.to_dataset(), seeded(BC, SEEDS[0]))
         first = learner.roll(w_bc)
@@ -497,9 +495,9 @@ def test_every_round_of_dagger_refits_with_the_prior_it_is_given(toy_run):
 def test_a_round_that_labels_nothing_rolls_nothing_out_again(toy_run, monkeypatch):
     """A gate that chooses no state leaves the head as it was, so the round's rollout is the last one."""
     from metadagger.imitation.gate_registry import make_gate
-    from metadagger.metal.method import dagger_rounds
+    from metadagger.metal_dagger.method import dagger_rounds
 
-    with SeedLearner(CorridorTask(), str(toy_run.groundtruth), SEEDS[0], head_init_seed=SEEDS[0]) as learner:
+    with SeedLearner(CorridorTask(), str(toy_run.pistar), SEEDS[0], head_init_seed=SEEDS[0]) as learner:
         demo = demonstration(learner)
         w_bc = bc_head(learner, demo.to_dataset(), seeded(BC, SEEDS[0]))
         first = learner.roll(w_bc)
@@ -734,7 +732,7 @@ def test_demo_fractions_are_checked():
 
 
 def test_a_demonstration_share_is_its_first_steps():
-    from metadagger.metal.method import demonstration_share
+    from metadagger.metal_dagger.method import demonstration_share
 
     [demo] = collect(CorridorTask(), SEEDS[:1], policy=None)
     assert demonstration_share(demo, 1.0) is demo

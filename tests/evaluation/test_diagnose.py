@@ -9,14 +9,14 @@ from toy_task import CorridorTask
 
 from metadagger.evaluation.diagnose import DiagnoseConfig, DiagnoseJob, diagnose_seed
 from metadagger.imitation.bc import BCConfig
-from metadagger.metal.groundtruth import GroundTruthConfig, train_groundtruth
-from metadagger.metal.lane_blocks import in_blocks
-from metadagger.metal.pairs import PairConfig, collect_pairs
-from metadagger.metal.store import PairStore
+from metadagger.metal_dagger.lane_blocks import in_blocks
+from metadagger.metal_dagger.pairs import PairConfig, collect_pairs
+from metadagger.metal_dagger.pistar import PiStarConfig, train_pistar
+from metadagger.metal_dagger.store import PairStore
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 
-GT = GroundTruthConfig(
+GT = PiStarConfig(
     seeds=(0, 1, 2, 3), eval_seeds=(100, 101), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
 )
 PAIRS = PairConfig(
@@ -31,12 +31,12 @@ PAIRS = PairConfig(
 
 def test_pairs_made_in_lanes_are_made_again_in_lanes_of_the_same_width(tmp_path):
     layout = RunLayout(tmp_path)
-    train_groundtruth(CorridorTask(), GT, layout, progress=False)
+    train_pistar(CorridorTask(), GT, layout, progress=False)
     collect_pairs(CorridorTask(), layout, PAIRS, StageOptions(workers=1, progress=False))
     jobs = [
         DiagnoseJob(
             task=CorridorTask(),
-            groundtruth=str(layout.groundtruth),
+            pistar=str(layout.pistar),
             seed=seed,
             pairs=PAIRS,
             config=DiagnoseConfig(states=4),

@@ -12,25 +12,25 @@ from toy_mappers import random_conditioned_mapper
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
-from metadagger.evaluation.mdi import MDI_FIELDS, METHODS, MDIConfig, evaluate_mdi, head_folder
+from metadagger.evaluation.mdi import MDI_FIELDS, MDIConfig, evaluate_mdi, head_folder
+from metadagger.evaluation.methods import MDI_METHODS
 from metadagger.evaluation.report_mdi import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.collect import collect
 from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.rollouts import rollout
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
-from metadagger.metal.method import seed_context
+from metadagger.metal_dagger.method import seed_context
+from metadagger.metal_dagger.pistar import PiStarConfig, head_from_pistar, train_pistar
 from metadagger.pipeline.run_config import init_run, load_run
 from metadagger.policies import load_policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import load_tensors
 
-GT = GroundTruthConfig(
-    seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
-)
+GT = PiStarConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 # 1-D displacements: the cosine distance per step is 0 (same sign), 1 (one is zero) or 2 (opposite)
 CONFIG = MDIConfig(
     seeds=(300, 301, 302),
@@ -41,8 +41,8 @@ CONFIG = MDIConfig(
 )
 
 
-def groundtruth_path(run: Path) -> Path:
-    return RunLayout(run).groundtruth
+def pistar_path(run: Path) -> Path:
+    return RunLayout(run).pistar
 
 
 def head_dir(run: Path, method: str, shot: str) -> Path:
@@ -51,7 +51,7 @@ def head_dir(run: Path, method: str, shot: str) -> Path:
 
 def copy_run(run: Path, to: Path) -> None:
     """pi* and the mappers of ``run`` in a fresh folder (no evaluation yet)."""
-    shutil.copytree(run / "groundtruth", to / "groundtruth")
+    shutil.copytree(run / "pistar", to / "pistar")
     shutil.copytree(run / "mappers", to / "mappers")
 
 
@@ -59,9 +59,9 @@ def copy_run(run: Path, to: Path) -> None:
 def toy_run(tmp_path_factory) -> tuple[Path, Path]:
     """A run folder with a tiny pi* (Box corridor) and a pi*-head control mapper as the MDI mapper."""
     run = tmp_path_factory.mktemp("mdi")
-    train_groundtruth(CorridorTask(discrete=False), GT, RunLayout(run), progress=False)
+    train_pistar(CorridorTask(discrete=False), GT, RunLayout(run), progress=False)
     mapper = RunLayout(run).mapper("pistar-head")
-    Mapper.pistar_head(load_policy(groundtruth_path(run)).head_vector()).save(mapper)
+    Mapper.pistar_head(load_policy(pistar_path(run)).head_vector()).save(mapper)
     return run, mapper
 
 
@@ -74,7 +74,7 @@ def evaluated(toy_run) -> tuple[Path, list[dict]]:
 
 def test_rows_cover_every_method_and_seed_with_all_fields(evaluated):
     run, rows = evaluated
-    assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in METHODS]
+    assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in MDI_METHODS]
     assert all(set(r) == set(MDI_FIELDS) for r in rows)
     csv_rows = read_csv(run / "eval" / "mdi.csv")
     assert [(r["method"], r["seed"], r["one_shot_success"]) for r in csv_rows] == [
@@ -120,40 +120,40 @@ def test_cosine_distances_and_early_stop(evaluated):
 def test_dagger_one_shot_head_is_a_fresh_bc_fit_on_the_demo(evaluated):
     run, _ = evaluated
     seed = CONFIG.seeds[0]
-    policy = head_from_groundtruth(load_policy(groundtruth_path(run)), seed)
+    policy = head_from_pistar(load_policy(pistar_path(run)), seed)
     demo = collect(CorridorTask(discrete=False), [seed], policy=None)[0].to_dataset()
     fit_bc(policy, demo, dataclasses.replace(CONFIG.bc, seed=seed))
-    head = {m: load_tensors(head_dir(run, m, "oneshot") / f"{seed}.safetensors")["head"] for m in METHODS}
-    assert torch.equal(head["dagger"], policy.head_vector())
+    head = {m: load_tensors(head_dir(run, m, "oneshot") / f"{seed}.safetensors")["head"] for m in MDI_METHODS}
+    assert torch.equal(head["dagger-xavier"], policy.head_vector())
     # DAgger-BC refits w_BC once more on the demonstration; DAgger-MDI starts from the mapper's output
-    assert not torch.equal(head["dagger-bc"], head["dagger"])
-    assert not torch.equal(head["dagger-mdi"], head["dagger-bc"])
+    assert not torch.equal(head["dagger-bc-init"], head["dagger-xavier"])
+    assert not torch.equal(head["dagger-mdi"], head["dagger-bc-init"])
 
 
 @pytest.mark.parametrize("dagger_init", ["saved", "one-shot"])
 def test_dagger_round_refits_from_the_configured_start(evaluated, dagger_init, tmp_path):
     run, rows = evaluated
     failed = [r for r in rows if r["two_shot_run"]]
-    assert {r["method"] for r in failed} >= {"dagger"}, "the toy run should fail DAgger's one-shot somewhere"
+    assert {r["method"] for r in failed} >= {"dagger-xavier"}, "the toy run should fail DAgger's one-shot somewhere"
     config = dataclasses.replace(CONFIG, dagger_init=dagger_init)
     if dagger_init == "one-shot":  # evaluate a copy with the other setting
         copy_run(run, tmp_path)
         run = tmp_path
         evaluate_mdi(CorridorTask(discrete=False), RunLayout(run), config, StageOptions(workers=1, progress=False))
-    r = next(r for r in failed if r["method"] == "dagger")
+    r = next(r for r in failed if r["method"] == "dagger-xavier")
     seed = r["seed"]
     task = CorridorTask(discrete=False)
-    policy = head_from_groundtruth(load_policy(groundtruth_path(run)), seed)  # the seed's Xavier head
+    policy = head_from_pistar(load_policy(pistar_path(run)), seed)  # the seed's Xavier head
     demo = collect(task, [seed], policy=None)[0].to_dataset()
-    oneshot = load_tensors(head_dir(run, "dagger", "oneshot") / f"{seed}.safetensors")["head"]
+    oneshot = load_tensors(head_dir(run, "dagger-xavier", "oneshot") / f"{seed}.safetensors")["head"]
     policy.load_head_vector(oneshot)
     first = collect(
         task, [seed], policy=policy, early_stop_factory=lambda: CosineEarlyStop(threshold=CONFIG.early_stop)
     )[0]
     if dagger_init == "saved":  # Table 6 step 8 for DAgger: a Xavier head again
-        policy = head_from_groundtruth(load_policy(groundtruth_path(run)), seed)
+        policy = head_from_pistar(load_policy(pistar_path(run)), seed)
     fit_bc(policy, demo.concat(first.to_dataset()), dataclasses.replace(CONFIG.dagger_bc, seed=seed))
-    twoshot = load_tensors(head_dir(run, "dagger", "twoshot") / f"{seed}.safetensors")["head"]
+    twoshot = load_tensors(head_dir(run, "dagger-xavier", "twoshot") / f"{seed}.safetensors")["head"]
     assert torch.equal(twoshot, policy.head_vector())
 
 
@@ -163,7 +163,7 @@ def test_resume_skips_finished_seeds_and_matches_a_full_run(toy_run, evaluated, 
     copy_run(run, tmp_path)
     first = MDIConfig(**{**CONFIG.__dict__, "seeds": CONFIG.seeds[:1]})
     evaluate_mdi(task, RunLayout(tmp_path), first, StageOptions(workers=1, progress=False))
-    head = head_dir(tmp_path, "dagger", "oneshot") / f"{CONFIG.seeds[0]}.safetensors"
+    head = head_dir(tmp_path, "dagger-xavier", "oneshot") / f"{CONFIG.seeds[0]}.safetensors"
     stamp = head.stat().st_mtime_ns
     evaluate_mdi(task, RunLayout(tmp_path), CONFIG, StageOptions(workers=1, progress=False))
     assert head.stat().st_mtime_ns == stamp
@@ -175,24 +175,25 @@ def test_report_section_renders_from_the_csv_alone(evaluated, tmp_path):
     shutil.copy(evaluated[0] / "eval" / "mdi.csv", tmp_path / "eval" / "mdi.csv")
     lines = mdi_section(RunLayout(tmp_path))
     text = "\n".join(lines)
-    assert "Table 7" in text and all(name in text for name in ("DAgger-MDI", "DAgger-BC", "| DAgger |"))
+    assert "Table 7" in text and all(name in text for name in ("DAgger-MDI", "DAgger-BC", "| DAgger from Xavier |"))
     assert f"figures/{FIGURE}" in text and (tmp_path / "report" / "figures" / FIGURE).is_file()
     assert mdi_section(RunLayout(tmp_path / "missing")) == []
 
 
 def test_discrete_task_has_no_cosine_distances_and_no_figure(tmp_path):
     task = CorridorTask(discrete=True)
-    train_groundtruth(
+    train_pistar(
         task,
-        GroundTruthConfig(**{**GT.__dict__, "seeds": (0, 1), "dagger_rounds": 0}),
+        PiStarConfig(**{**GT.__dict__, "seeds": (0, 1), "dagger_rounds": 0}),
         RunLayout(tmp_path),
         progress=False,
     )
     mapper = RunLayout(tmp_path).mapper("pistar-head")
-    Mapper.pistar_head(load_policy(groundtruth_path(tmp_path)).head_vector()).save(mapper)
+    Mapper.pistar_head(load_policy(pistar_path(tmp_path)).head_vector()).save(mapper)
     config = MDIConfig(**{**CONFIG.__dict__, "seeds": (300,), "early_stop": None})
     rows = evaluate_mdi(task, RunLayout(tmp_path), config, StageOptions(workers=1, progress=False))
-    assert len(rows) == len(METHODS) and all(r["cosine_total"] is None and r["cosine_per_action"] is None for r in rows)
+    assert len(rows) == len(MDI_METHODS)
+    assert all(r["cosine_total"] is None and r["cosine_per_action"] is None for r in rows)
     assert not any(r["one_shot_early_stopped"] for r in rows)
     lines = mdi_section(RunLayout(tmp_path))
     assert any("Table 7" in line for line in lines) and not (tmp_path / "report" / "figures" / FIGURE).exists()
@@ -201,7 +202,7 @@ def test_discrete_task_has_no_cosine_distances_and_no_figure(tmp_path):
 def test_table7_counts_and_wilson_intervals(tmp_path):
     rows = []
     for seed, (one, two) in enumerate([(True, True), (False, True), (False, False), (False, False)]):
-        for method in METHODS:
+        for method in MDI_METHODS:
             rows.append(
                 {
                     "method": method,
@@ -223,7 +224,7 @@ def test_table7_counts_and_wilson_intervals(tmp_path):
 
 
 def test_fig5_counts_the_seeds_where_dagger_mdi_is_closer(tmp_path):
-    totals = {"dagger-mdi": [1.0, 5.0, 2.0], "dagger-bc": [3.0, 4.0, 6.0], "dagger": [0.5, 9.0, 2.0]}
+    totals = {"dagger-mdi": [1.0, 5.0, 2.0], "dagger-bc-init": [3.0, 4.0, 6.0], "dagger-xavier": [0.5, 9.0, 2.0]}
     rows = [
         {
             "method": m,
@@ -235,12 +236,12 @@ def test_fig5_counts_the_seeds_where_dagger_mdi_is_closer(tmp_path):
             "cosine_per_action": totals[m][seed] / 10,
         }
         for seed in range(3)
-        for m in METHODS
+        for m in MDI_METHODS
     ]
     write_csv(tmp_path / "eval" / "mdi.csv", rows, fields=MDI_FIELDS)
     lines = mdi_section(RunLayout(tmp_path))
     assert "| DAgger-BC | 3 | 2/3 | 2/3 |" in lines
-    assert "| DAgger | 3 | 1/3 | 1/3 |" in lines  # a tie is not "lower"
+    assert "| DAgger from Xavier | 3 | 1/3 | 1/3 |" in lines  # a tie is not "lower"
     assert (RunLayout(tmp_path).figures / FIGURE).is_file()
 
 
@@ -249,11 +250,11 @@ def test_controls_add_rows_and_rerun_seeds_logged_without_them(toy_run, evaluate
     task = CorridorTask(discrete=False)
     copy_run(run, tmp_path)
     evaluate_mdi(task, RunLayout(tmp_path), CONFIG, StageOptions(workers=1, progress=False))
-    head = load_policy(groundtruth_path(run)).head_vector()
+    head = load_policy(pistar_path(run)).head_vector()
     control = RunLayout(tmp_path).mapper("mean-da")
     Mapper.mean_da(torch.stack([head, head])).save(control)  # the mean is pi*'s head, the MDI mapper's output
     config = dataclasses.replace(CONFIG, controls=("mean-da",))
-    assert config.methods == METHODS + ("dagger-mdi-mean-da",)
+    assert config.methods == MDI_METHODS + ("dagger-mdi-mean-da",)
     rows = evaluate_mdi(task, RunLayout(tmp_path), config, StageOptions(workers=1, progress=False))
     assert [(r["method"], r["seed"]) for r in rows] == [(m, s) for s in CONFIG.seeds for m in config.methods]
     # the three methods' rows do not change; a mean-DA head equal to pi*'s head gives DAgger-MDI's rows
@@ -269,7 +270,7 @@ def test_controls_add_rows_and_rerun_seeds_logged_without_them(toy_run, evaluate
 def test_missing_inputs_are_user_errors(toy_run, tmp_path):
     run, mapper = toy_run
     task = CorridorTask(discrete=False)
-    shutil.copytree(run / "groundtruth", tmp_path / "groundtruth")
+    shutil.copytree(run / "pistar", tmp_path / "pistar")
     with pytest.raises(UserError, match="train-mapper"):  # no mapper in this run
         evaluate_mdi(task, RunLayout(tmp_path), CONFIG, StageOptions(progress=False))
     with pytest.raises(UserError, match="early_stop"):
@@ -285,9 +286,7 @@ def test_rows_of_a_changed_mapper_are_refused_then_rebuilt(toy_run, evaluated, t
     layout = RunLayout(tmp_path)
     task = CorridorTask(discrete=False)
     evaluate_mdi(task, layout, CONFIG, StageOptions(workers=1, progress=False))
-    Mapper.pistar_head(torch.zeros_like(load_policy(layout.groundtruth).head_vector())).save(
-        layout.mapper("pistar-head")
-    )
+    Mapper.pistar_head(torch.zeros_like(load_policy(layout.pistar).head_vector())).save(layout.mapper("pistar-head"))
     with pytest.raises(UserError, match="'dagger-mdi'.*mapper: changed.*--rebuild"):
         evaluate_mdi(task, layout, CONFIG, StageOptions(workers=1, progress=False))
     before = {(r["method"], r["seed"]): r for r in read_csv(layout.eval_table("mdi"))}
@@ -341,14 +340,14 @@ def test_a_conditioned_initialiser_reads_the_seed_context(toy_run, tmp_path):
     run, _ = toy_run
     copy_run(run, tmp_path)
     layout = RunLayout(tmp_path)
-    pistar = load_policy(layout.groundtruth)
+    pistar = load_policy(layout.pistar)
     mapper = random_conditioned_mapper(pistar, layout.mapper_dir("conditioned"))
     config = dataclasses.replace(CONFIG, controls=("conditioned",))
     evaluate_mdi(
         CorridorTask(discrete=False), layout, config, StageOptions(workers=1, progress=False), context_early_stop=3.0
     )
     seed = CONFIG.seeds[0]
-    policy = head_from_groundtruth(pistar, CONFIG.bc.head_init_seed(seed))
+    policy = head_from_pistar(pistar, CONFIG.bc.head_init_seed(seed))
     demo = collect(CorridorTask(discrete=False), [seed], policy=None)[0].to_dataset()
     cache, bc = FeatureCache(policy), dataclasses.replace(CONFIG.bc, seed=seed)
     fit_bc(policy, demo, bc, cache=cache)

@@ -14,20 +14,19 @@ from toy_task import CorridorTask
 from metadagger.errors import UserError
 from metadagger.evaluation.mdm import EvalConfig, evaluate_run
 from metadagger.evaluation.rows import read_csv
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.collect import collect
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.rollouts import rollout
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.groundtruth import GroundTruthConfig, head_from_groundtruth, train_groundtruth
-from metadagger.metal.method import seed_context
+from metadagger.metal_dagger.method import seed_context
+from metadagger.metal_dagger.pistar import PiStarConfig, head_from_pistar, train_pistar
 from metadagger.policies import load_policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import load_tensors
 
-GT = GroundTruthConfig(
-    seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
-)
+GT = PiStarConfig(seeds=(0, 1, 2, 3), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3))
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
 SEEDS = (300, 301, 302)
 
@@ -36,15 +35,15 @@ SEEDS = (300, 301, 302)
 def toy_run(tmp_path_factory) -> RunLayout:
     """pi* of the corridor and two control mappers (pi*'s head, and a zero head that always fails)."""
     layout = RunLayout(tmp_path_factory.mktemp("mdm"))
-    train_groundtruth(CorridorTask(), GT, layout, progress=False)
-    head = load_policy(layout.groundtruth).head_vector()
+    train_pistar(CorridorTask(), GT, layout, progress=False)
+    head = load_policy(layout.pistar).head_vector()
     Mapper.pistar_head(head).save(layout.mapper("pistar-head"))
     Mapper.mean_da(torch.zeros(2, head.shape[0])).save(layout.mapper("mean-da"))
     return layout
 
 
 def _copy(layout: RunLayout, to: Path) -> RunLayout:
-    shutil.copytree(layout.groundtruth_dir, to / "groundtruth")
+    shutil.copytree(layout.pistar_dir, to / "pistar")
     shutil.copytree(layout.root / "mappers", to / "mappers")
     return RunLayout(to)
 
@@ -73,7 +72,7 @@ def test_rows_heads_and_one_shot(toy_run, tmp_path):
         for method in ("bc", "pistar-head", "mean-da", "oneshot-mean-da"):
             assert (layout.heads(method) / f"{seed}.safetensors").is_file()
     # the BC row's head is the seed's Xavier head fitted on its demonstration
-    policy = head_from_groundtruth(load_policy(layout.groundtruth), SEEDS[0])
+    policy = head_from_pistar(load_policy(layout.pistar), SEEDS[0])
     fit_bc(
         policy, collect(CorridorTask(), SEEDS[:1], policy=None)[0].to_dataset(), dataclasses.replace(BC, seed=SEEDS[0])
     )
@@ -102,7 +101,7 @@ def test_widening_methods_and_seeds_adds_exactly_the_missing_rows(toy_run, tmp_p
 def test_rows_of_a_changed_mapper_are_refused_then_rebuilt(toy_run, tmp_path):
     layout = _copy(toy_run, tmp_path)
     _evaluate(layout, SEEDS[:1], ("pistar-head", "mean-da"))
-    head = load_policy(layout.groundtruth).head_vector()
+    head = load_policy(layout.pistar).head_vector()
     Mapper.mean_da(torch.stack([head, head])).save(layout.mapper("mean-da"))
     with pytest.raises(UserError, match="MDM evaluation of 'mean-da' on 1 seed.*mapper: changed.*--rebuild"):
         _evaluate(layout, SEEDS[:1], ("pistar-head", "mean-da"))
@@ -120,12 +119,12 @@ def test_a_conditioned_mapper_reads_the_seed_context_from_the_bc_rollout(toy_run
     """Its head is the mapper's output on w_BC and the context of the demonstration and the BC
     head's rollout; its rows give that rollout's env steps and no further expert query."""
     layout = _copy(toy_run, tmp_path)
-    pistar = load_policy(layout.groundtruth)
+    pistar = load_policy(layout.pistar)
     mapper = random_conditioned_mapper(pistar, layout.mapper_dir("conditioned"))
     rows = _evaluate(layout, SEEDS, ("conditioned",))
     table = {(r["method"], r["seed"]): r for r in rows}
     for seed in SEEDS:
-        policy = head_from_groundtruth(load_policy(layout.groundtruth), seed)
+        policy = head_from_pistar(load_policy(layout.pistar), seed)
         demo = collect(CorridorTask(), [seed], policy=None)[0].to_dataset()
         cache = FeatureCache(policy)
         fit_bc(policy, demo, dataclasses.replace(BC, seed=seed), cache=cache)

@@ -74,7 +74,7 @@ def test_an_empty_folder_is_no_run(tmp_path):
         build_report(RunLayout(tmp_path))
 
 
-def test_groundtruth_and_pairs_sections(tmp_path):
+def test_pistar_and_pairs_sections(tmp_path):
     layout = RunLayout(tmp_path)
     write_text(layout.config, "task: fetch\npreset: ci\n")
     stats = {
@@ -86,7 +86,7 @@ def test_groundtruth_and_pairs_sections(tmp_path):
         "mean_reward": 1.0,
         "mean_steps": 30.0,
     }
-    write_json(layout.groundtruth_metrics, {"own_seeds": stats, "unseen_seeds": stats, "expert_queries": 1234})
+    write_json(layout.pistar_metrics, {"own_seeds": stats, "unseen_seeds": stats, "expert_queries": 1234})
     names = ("bc_ok/da_ok", "bc_ok/da_fail", "bc_fail/da_ok", "bc_fail/da_fail")
     write_json(
         layout.pairs_summary,
@@ -190,7 +190,7 @@ def test_stage_wall_times_are_a_table_in_the_run_section(run):
         run.stage_times,
         {
             "benchmark": {"seconds": 4000.0, "finished": "2025-01-01T11:08:00+00:00"},
-            "groundtruth": {"seconds": 12.34, "finished": "2025-01-01T10:00:00+00:00"},
+            "pistar": {"seconds": 12.34, "finished": "2025-01-01T10:00:00+00:00"},
             "pairs": {"seconds": 75.2, "finished": "2025-01-01T10:01:15+00:00"},
         },
     )
@@ -201,7 +201,7 @@ def test_stage_wall_times_are_a_table_in_the_run_section(run):
             [
                 "| stage | wall time | finished |",
                 "|---|---|---|",
-                "| groundtruth | 12.3 s | 2025-01-01T10:00:00+00:00 |",
+                "| pistar | 12.3 s | 2025-01-01T10:00:00+00:00 |",
                 "| pairs | 1 min 15 s | 2025-01-01T10:01:15+00:00 |",
                 "| benchmark | 1 h 07 min | 2025-01-01T11:08:00+00:00 |",
                 "| all stages | 1 h 08 min |  |",

@@ -17,13 +17,13 @@ from typer.testing import CliRunner
 from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
-from metadagger.evaluation.tensorboard import INSTALL, benchmark_scalars, groundtruth_scalars, require_tensorboard
-from metadagger.metal.store import PairStore
+from metadagger.evaluation.tensorboard import INSTALL, benchmark_scalars, pistar_scalars, require_tensorboard
+from metadagger.metal_dagger.store import PairStore
 from metadagger.runfolder.layout import RunLayout
 
 runner = CliRunner()
 TASK = "corridor-tb"
-NAMESPACES = ("benchmark", "eval/mdi", "eval/mdm", "groundtruth", "mapper/dm", "mapper/sam", "pairs")
+NAMESPACES = ("benchmark", "eval/mdi", "eval/mdm", "pistar", "mapper/dm", "mapper/sam", "pairs")
 # the tiny preset with a SAM (an autoencoder, then h), an mdi and a benchmark section, all cut short
 OVERRIDES = (
     "evaluate.methods=[dm, sam]",
@@ -100,18 +100,18 @@ def test_every_namespace_is_written_and_every_tag_is_namespaced(run):
         assert all(tag.startswith(namespace + "/") for tag in _read(run, namespace))
 
 
-def test_groundtruth_scalars_equal_its_metrics(run):
-    metrics = json.loads(run.groundtruth_metrics.read_text())
-    scalars = _read(run, "groundtruth")
+def test_pistar_scalars_equal_its_metrics(run):
+    metrics = json.loads(run.pistar_metrics.read_text())
+    scalars = _read(run, "pistar")
     fits = [metrics["bc_epoch_losses"]] + [r["dagger/epoch_losses"] for r in metrics["rounds"]]
     epochs = len(fits[0])
     assert epochs == 1 and len(fits) == 2  # the tiny preset: one epoch per fit, one DAgger round
-    assert scalars["groundtruth/loss"] == list(zip(range(1, 1 + epochs * len(fits)), _f32(sum(fits, []))))
+    assert scalars["pistar/loss"] == list(zip(range(1, 1 + epochs * len(fits)), _f32(sum(fits, []))))
     assert metrics["rounds"][0]["dagger/final_loss"] == fits[1][-1]
-    assert scalars["groundtruth/dagger/expert_queries"] == [(1, metrics["rounds"][0]["dagger/expert_queries"])]
-    assert scalars["groundtruth/dagger/mean_reward"] == [(1, *_f32([metrics["rounds"][0]["dagger/mean_reward"]]))]
+    assert scalars["pistar/dagger/expert_queries"] == [(1, metrics["rounds"][0]["dagger/expert_queries"])]
+    assert scalars["pistar/dagger/mean_reward"] == [(1, *_f32([metrics["rounds"][0]["dagger/mean_reward"]]))]
     for key in ("success_rate", "success_ci_high", "mean_reward"):
-        assert scalars[f"groundtruth/unseen_seeds/{key}"] == [(1, *_f32([metrics["unseen_seeds"][key]]))]
+        assert scalars[f"pistar/unseen_seeds/{key}"] == [(1, *_f32([metrics["unseen_seeds"][key]]))]
 
 
 def test_pair_scalars_equal_the_records_and_summary(run):
@@ -238,9 +238,9 @@ def test_an_unknown_log_is_one_line_naming_the_choices():
     assert "log must be one of none, tensorboard, got 'wandb'" in line
 
 
-def test_groundtruth_scalars_carry_the_epoch_selection(tmp_path):
+def test_pistar_scalars_carry_the_epoch_selection(tmp_path):
     layout = RunLayout(tmp_path)
-    layout.groundtruth_dir.mkdir(parents=True)
+    layout.pistar_dir.mkdir(parents=True)
     summary = {"episodes": 2, "successes": 1, "success_rate": 0.5}
     choice = {
         "epoch": 4,
@@ -248,7 +248,7 @@ def test_groundtruth_scalars_carry_the_epoch_selection(tmp_path):
         "episodes": 5,
         "history": [{"epoch": 4, "successes": 3, "episodes": 5}, {"epoch": 8, "successes": 2, "episodes": 5}],
     }
-    layout.groundtruth_metrics.write_text(
+    layout.pistar_metrics.write_text(
         json.dumps(
             {
                 "own_seeds": summary,
@@ -260,7 +260,7 @@ def test_groundtruth_scalars_carry_the_epoch_selection(tmp_path):
             }
         )
     )
-    scalars = groundtruth_scalars(layout)
+    scalars = pistar_scalars(layout)
     assert [s for s in scalars if s[0].startswith("select/")] == [
         ("select/successes", 3, 4),
         ("select/successes", 2, 8),

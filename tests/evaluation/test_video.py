@@ -45,7 +45,7 @@ def test_each_clip_is_the_rollout_its_benchmark_row_is_made_of(toy_run, clips):
     mapper = MapperFile(str(toy_run.mapper("pistar-head")), file_fingerprint(toy_run.mapper("pistar-head")))
     job = bench.BenchmarkJob(
         task=CorridorTask(),
-        groundtruth=str(toy_run.groundtruth),
+        pistar=str(toy_run.pistar),
         seed=SEED,
         methods=tuple(k.id for k in keys),
         keys=keys,

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import torch
 
+from metadagger.mapping.config import MapperConfig
 from metadagger.mapping.mappers import Mapper
-from metadagger.mapping.train import MapperConfig, train_mapper
-from metadagger.metal.store import PairSplit
+from metadagger.mapping.train import train_mapper
+from metadagger.metal_dagger.store import PairSplit
 from metadagger.policies import Policy
 
 

@@ -99,7 +99,7 @@ def test_ci_preset_runs_every_stage(task_class, tmp_path):
     ]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    assert (run / "groundtruth" / "policy.safetensors").is_file()
+    assert (run / "pistar" / "policy.safetensors").is_file()
     assert json.loads((run / "pairs" / "summary.json").read_text())["seeds"] == 4
     assert {r["method"] for r in read_csv(run / "eval" / "mdm.csv")} >= {"bc", "dm", "ridge", "mean-da", "pistar-head"}
     assert (run / "benchmark" / "summary.json").is_file()

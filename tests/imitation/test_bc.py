@@ -15,8 +15,9 @@ from torch.nn.utils import parameters_to_vector
 from toy_task import TOY_ARCH
 
 from metadagger.errors import DivergedError, UserError
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, random_shift
+from metadagger.imitation.bc import BCConfig, fit_bc, random_shift
 from metadagger.imitation.data import Aggregate, Dataset
+from metadagger.imitation.features import FeatureCache
 from metadagger.policies import make_policy
 from metadagger.runfolder.stamps import stamp_of
 from metadagger.utils.optim import adam

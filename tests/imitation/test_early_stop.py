@@ -72,7 +72,7 @@ def test_defaults_and_validation():
 def test_config_thresholds_name_the_field(value):
     from metadagger.errors import UserError
     from metadagger.imitation.early_stop import check_threshold
-    from metadagger.metal.pairs import PairConfig
+    from metadagger.metal_dagger.pairs import PairConfig
 
     check_threshold("pairs.early_stop", None)
     check_threshold("pairs.early_stop", 40.0)

@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from metadagger.errors import DivergedError
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
+from metadagger.imitation.bc import BCConfig, fit_bc, head_fit
 from metadagger.imitation.data import Dataset
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.head_fits import HeadFit, Prior, fit_heads
 from metadagger.imitation.lanes import Lanes, run_chains
 from metadagger.policies import Policy, PolicyNet

@@ -8,9 +8,9 @@ import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
-from metadagger.imitation.bc import FeatureCache
 from metadagger.imitation.data import images_kept, take_rows
 from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.lanes import EpisodeRequest, Lanes, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.policies import make_policy

@@ -7,8 +7,9 @@ import pytest
 import torch
 from toy_task import TOY_ARCH
 
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.collect import collect
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.whole_policy_dagger import DAggerConfig, run_whole_policy_dagger
 from metadagger.policies import make_policy
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from mapping_data import synthetic_split
 
-from metadagger.metal.store import PairSplit
+from metadagger.metal_dagger.store import PairSplit
 
 
 @pytest.fixture(scope="session")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from metadagger.mapping.train import MapperConfig, paper_config
-from metadagger.metal.store import PairSplit
+from metadagger.mapping.config import MapperConfig, paper_config
+from metadagger.metal_dagger.store import PairSplit
 
 DIM = 12
 

@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from metadagger.mapping.config import MapperConfig
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.modes import GroupMeans, fit_modes
-from metadagger.mapping.train import MapperConfig, evaluate_mapping, train_mapper
-from metadagger.metal.store import PairSplit
+from metadagger.mapping.train import evaluate_mapping, train_mapper
+from metadagger.metal_dagger.store import PairSplit
 
 
 def _grouped_split(n_train: int = 60, n_val: int = 20, dim: int = 12) -> tuple[PairSplit, np.ndarray]:

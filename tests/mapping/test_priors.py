@@ -21,8 +21,8 @@ from metadagger.mapping.priors import (
     mean_head,
     residual_precision,
 )
-from metadagger.metal.method import SeedLearner, bc_head, demonstration, seeded
-from metadagger.metal.store import PairSplit
+from metadagger.metal_dagger.method import SeedLearner, bc_head, demonstration, seeded
+from metadagger.metal_dagger.store import PairSplit
 from metadagger.policies import load_policy
 
 FIT = BCConfig(lr=1e-2, batch_size=10, epochs=3, head_only=True)
@@ -89,31 +89,31 @@ def _split(val_targets: torch.Tensor, size: int) -> PairSplit:
 def test_the_strength_is_chosen_on_the_validation_pairs_alone(toy_run, monkeypatch):
     """Validation pairs whose w_DA is the prior's mean choose the strongest prior; pairs whose w_DA
     is the seed's own fit without a prior choose a weak one; no other seed is read."""
-    task, groundtruth = CorridorTask(), str(toy_run.groundtruth)
-    size = load_policy(groundtruth).head_vector().numel()
+    task, pistar = CorridorTask(), str(toy_run.pistar)
+    size = load_policy(pistar).head_vector().numel()
     at_mean = _split(torch.zeros(len(VAL_SEEDS), size), size)
     prior = build_prior(at_mean, None)
-    [(strong, choice)] = choose_strengths({ZERO: (prior, None)}, task, groundtruth, at_mean, FIT).values()
+    [(strong, choice)] = choose_strengths({ZERO: (prior, None)}, task, pistar, at_mean, FIT).values()
     assert strong.strength == max(STRENGTHS) == choice.strength and strong.precision is prior.precision
     assert list(choice.distances) == list(STRENGTHS)
     assert choice.distances[max(STRENGTHS)] < choice.distances[0.0]
     own = []
     for seed in VAL_SEEDS:
-        with SeedLearner(task, groundtruth, seed, head_init_seed=FIT.head_init_seed(seed)) as learner:
+        with SeedLearner(task, pistar, seed, head_init_seed=FIT.head_init_seed(seed)) as learner:
             own.append(torch.from_numpy(bc_head(learner, demonstration(learner).to_dataset(), seeded(FIT, seed))))
     at_own = dataclasses.replace(at_mean, w_da_val=torch.stack(own))
-    [(weak, choice)] = choose_strengths({ZERO: (prior, None)}, task, groundtruth, at_own, FIT).values()
+    [(weak, choice)] = choose_strengths({ZERO: (prior, None)}, task, pistar, at_own, FIT).values()
     assert weak.strength <= 1e-4 and choice.distances[weak.strength] < choice.distances[max(STRENGTHS)]
     seen = []
     original = SeedLearner.__init__
 
-    def recording(self, task, groundtruth, seed, **kwargs):
+    def recording(self, task, pistar, seed, **kwargs):
         seen.append(seed)
-        original(self, task, groundtruth, seed, **kwargs)
+        original(self, task, pistar, seed, **kwargs)
 
     monkeypatch.setattr(SeedLearner, "__init__", recording)
     two = {ZERO: (prior, None), "pistar-head": (prior, Mapper.pistar_head(torch.zeros(size)))}
-    both = choose_strengths(two, task, groundtruth, at_mean, FIT, strengths=(0.0, 1.0))
+    both = choose_strengths(two, task, pistar, at_mean, FIT, strengths=(0.0, 1.0))
     assert seen == list(VAL_SEEDS)  # one demonstration a seed, whatever the number of priors
     assert both[ZERO][1] == both["pistar-head"][1]  # the same mean (zero): the same distances
 
@@ -123,8 +123,8 @@ def test_a_choice_is_read_back_while_its_inputs_hold_and_made_again_when_one_cha
     and another input, split or a new mean chooses again."""
     from metadagger.mapping import priors as priors_module
 
-    task, groundtruth = CorridorTask(), str(toy_run.groundtruth)
-    size = load_policy(groundtruth).head_vector().numel()
+    task, pistar = CorridorTask(), str(toy_run.pistar)
+    size = load_policy(pistar).head_vector().numel()
     split = _split(torch.zeros(len(VAL_SEEDS), size), size)
     record = tmp_path / "priors.json"
     calls = []
@@ -138,14 +138,14 @@ def test_a_choice_is_read_back_while_its_inputs_hold_and_made_again_when_one_cha
 
     def chosen(split: PairSplit, inputs: dict, means: dict | None = None) -> dict:
         means = {ZERO: None} if means is None else means
-        return priors_module.chosen_priors(means, task, groundtruth, split, FIT, record=record, inputs=inputs)
+        return priors_module.chosen_priors(means, task, pistar, split, FIT, record=record, inputs=inputs)
 
-    first = chosen(split, {"groundtruth": "a"})
-    again = chosen(split, {"groundtruth": "a"})
+    first = chosen(split, {"pistar": "a"})
+    again = chosen(split, {"pistar": "a"})
     assert len(calls) == 1 and again[ZERO].strength == first[ZERO].strength == max(STRENGTHS)
     assert torch.equal(again[ZERO].precision, first[ZERO].precision)
-    chosen(split, {"groundtruth": "b"})
+    chosen(split, {"pistar": "b"})
     other = dataclasses.replace(split, w_da_val=split.w_da_val + 1.0)
-    chosen(other, {"groundtruth": "b"})
-    chosen(other, {"groundtruth": "b"}, {ZERO: None, "pistar-head": Mapper.pistar_head(torch.zeros(size))})
+    chosen(other, {"pistar": "b"})
+    chosen(other, {"pistar": "b"}, {ZERO: None, "pistar-head": Mapper.pistar_head(torch.zeros(size))})
     assert len(calls) == 4

@@ -11,9 +11,10 @@ from metadagger.errors import UserError
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.evaluation.tables import method_label
 from metadagger.mapping import registry
+from metadagger.mapping.config import MapperConfig
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.registry import MapperKind, Route, get_kind, kind_names, register_kind
-from metadagger.mapping.train import MapperConfig, train_mapper
+from metadagger.mapping.train import train_mapper
 from metadagger.pipeline.run_config import resolve_config
 
 

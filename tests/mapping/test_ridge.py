@@ -8,9 +8,10 @@ import numpy as np
 import torch
 from mapping_data import synthetic_split
 
+from metadagger.mapping.config import MapperConfig
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.ridge import fit_ridge
-from metadagger.mapping.train import MapperConfig, evaluate_mapping, train_mapper
+from metadagger.mapping.train import evaluate_mapping, train_mapper
 
 
 def test_ridge_recovers_a_linear_update_with_little_regularisation(tmp_path):

@@ -13,17 +13,10 @@ from mapping_data import synthetic_split, tiny_config
 from metadagger.errors import DivergedError, UserError
 from metadagger.evaluation.curves import plot_curves
 from metadagger.mapping import train as train_module
+from metadagger.mapping.config import MapperConfig, paper_config
 from metadagger.mapping.mappers import Mapper, load_mapper
 from metadagger.mapping.registry import kind_names
-from metadagger.mapping.train import (
-    CURVE_COLUMNS,
-    MapperConfig,
-    MapperJob,
-    evaluate_mapping,
-    paper_config,
-    train_mapper,
-    train_mappers,
-)
+from metadagger.mapping.train import CURVE_COLUMNS, MapperJob, evaluate_mapping, train_mapper, train_mappers
 from metadagger.runfolder.driver import StageOptions
 
 KINDS = kind_names()

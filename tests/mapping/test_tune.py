@@ -12,11 +12,13 @@ from typer.testing import CliRunner
 from metadagger.cli.main import app
 from metadagger.errors import UserError
 from metadagger.mapping import tune as tune_module
+from metadagger.mapping.config import MapperConfig, paper_config
 from metadagger.mapping.mappers import load_mapper
-from metadagger.mapping.train import MapperConfig, evaluate_mapping, fit_mapper, paper_config
-from metadagger.mapping.tune import check_tunable, search_space, trial_config, tune_mapper
-from metadagger.metal.pairs import pair_stamp
-from metadagger.metal.store import PairStore
+from metadagger.mapping.search_space import baseline_params, check_tunable, search_space, trial_config
+from metadagger.mapping.train import evaluate_mapping, fit_mapper
+from metadagger.mapping.tune import tune_mapper
+from metadagger.metal_dagger.pairs import pair_stamp
+from metadagger.metal_dagger.store import PairStore
 from metadagger.pipeline.run_config import init_run, load_run
 from metadagger.pipeline.stages import run_task
 from metadagger.policies import make_policy
@@ -181,7 +183,7 @@ def _run_folder(tmp_path: Path) -> Path:
     config = init_run(run, "carracing", "ci", overrides=["pairs.seeds=1000-1011"])
     task, layout = run_task(config), RunLayout(run)
     pistar = make_policy(task, seed=0)
-    pistar.save(layout.groundtruth)
+    pistar.save(layout.pistar)
     stamp = pair_stamp(task, layout, config.pairs)
     data = synthetic_split(n_train=12, n_val=0, dim=len(pistar.head_vector()))
     outcome = {"success": False, "reward": 0.0, "steps": 1, "expert_queries": 1}
@@ -230,6 +232,6 @@ def test_the_command_tunes_prints_the_set_item_and_applies_it_for_train_mapper(t
 def test_the_space_holds_the_papers_settings_and_bounds_epochs_by_the_runs(kind):
     paper = paper_config(kind)
     space = search_space(kind, paper)
-    assert tune_module._baseline_params(paper, space) is not None  # trial 0 can be the paper's config
+    assert baseline_params(paper, space) is not None  # trial 0 can be the paper's config
     assert ("latent" in space) == (kind != "dm")
     assert (space["epochs"].low, space["epochs"].high) == (paper.epochs // 4, 2 * paper.epochs)

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from metadagger.cli.main import app
 from metadagger.errors import UserError
-from metadagger.evaluation.mdi import METHODS as MDI_METHODS
+from metadagger.evaluation.methods import MDI_METHODS
 from metadagger.evaluation.report_mdi import FIGURE as MDI_FIGURE
 from metadagger.evaluation.rows import read_csv
 from metadagger.mapping.registry import kind_names
@@ -29,7 +29,7 @@ def test_a_ci_run_has_every_artifact_and_the_command_line_resumes_it(carracing_c
     run = tmp_path / "run"
     shutil.copytree(carracing_ci_run, run)
     assert (run / "config.yaml").is_file()
-    assert (run / "groundtruth" / "policy.safetensors").is_file()
+    assert (run / "pistar" / "policy.safetensors").is_file()
     summary = json.loads((run / "pairs" / "summary.json").read_text())
     assert summary["seeds"] == 4
     for kind in ("dm", "sam", "tam", "ridge", "mean-da", "pistar-head"):
@@ -49,7 +49,7 @@ def test_a_ci_run_has_every_artifact_and_the_command_line_resumes_it(carracing_c
     assert again.exit_code == 0, again.output
     assert {p: p.stat().st_mtime_ns for p in run.rglob("*.safetensors")} == before
     times = json.loads((run / "stage_times.json").read_text())
-    assert set(times) == {"groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark"}
+    assert set(times) == {"pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark"}
     assert all(t["total_seconds"] >= t["seconds"] >= 0 for t in times.values())
 
     # the report is rebuilt from the CSV/JSON alone
@@ -63,17 +63,17 @@ def test_a_stopped_stage_call_still_counts_in_the_stage_times(tmp_path, monkeypa
     run = tmp_path / "run"
     init_run(run, "carracing", "ci")
 
-    def stage_groundtruth(layout, config, options):  # stopped by SIGTERM or Ctrl-C mid-way
+    def stage_pistar(layout, config, options):  # stopped by SIGTERM or Ctrl-C mid-way
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(stages, "stage_groundtruth", stages.records_config(stage_groundtruth))
+    monkeypatch.setattr(stages, "stage_pistar", stages.records_config(stage_pistar))
     with pytest.raises(KeyboardInterrupt):
         reproduce("carracing", "ci", run, options=StageOptions(progress=False))
-    entry = json.loads((run / "stage_times.json").read_text())["groundtruth"]
+    entry = json.loads((run / "stage_times.json").read_text())["pistar"]
     assert entry["stopped"] is True and entry["total_seconds"] == entry["seconds"] >= 0
     monkeypatch.undo()
-    stages.stage_groundtruth(RunLayout(run), load_run(run), StageOptions(progress=False))
-    again = json.loads((run / "stage_times.json").read_text())["groundtruth"]
+    stages.stage_pistar(RunLayout(run), load_run(run), StageOptions(progress=False))
+    again = json.loads((run / "stage_times.json").read_text())["pistar"]
     assert "stopped" not in again and again["total_seconds"] == pytest.approx(
         entry["total_seconds"] + again["seconds"], abs=2e-3
     )

@@ -73,7 +73,7 @@ def test_a_bad_presets_file_is_one_line(tmp_path, text, needles):
         ("evaluate.seeds=[-1]", "evaluate.seeds: seed -1 is negative"),
         ("benchmark.seeds=[-1]", "benchmark.seeds: seed -1 is negative"),
         ("pairs.seeds=[2000, 2000]", "pairs.seeds: seed 2000 appears twice; list each seed once"),
-        ("groundtruth.select_seeds=[7, 7]", "groundtruth.select_seeds: seed 7 appears twice"),
+        ("pistar.select_seeds=[7, 7]", "pistar.select_seeds: seed 7 appears twice"),
         ("pairs.seeds=2000-2001,2001", "pairs.seeds: bad seed list '2000-2001,2001': seed 2001 appears twice"),
         ("pairs.bc.lr=.inf", "pairs.bc.lr: expected a finite number, got inf"),
         ("mappers.dm.lr=.inf", "mappers.dm.lr: expected a finite number, got inf"),
@@ -101,14 +101,14 @@ def test_seed_fields_still_take_seed_lists_and_counts_are_not_seeds():
 
 def test_a_partial_nested_section_keeps_the_stage_defaults_it_does_not_name(tmp_path):
     from metadagger.imitation.bc import BCConfig
-    from metadagger.metal.groundtruth import GroundTruthConfig
-    from metadagger.metal.pairs import PairConfig
+    from metadagger.metal_dagger.pairs import PairConfig
+    from metadagger.metal_dagger.pistar import PiStarConfig
 
     presets = tmp_path / "p.yaml"
-    presets.write_text("presets: {mine: {groundtruth: {bc: {epochs: 5}}, pairs: {bc: {head_init: shared}}}}\n")
+    presets.write_text("presets: {mine: {pistar: {bc: {epochs: 5}}, pairs: {bc: {head_init: shared}}}}\n")
     config = resolve_config("carracing", "mine", presets)
-    stage_bc = GroundTruthConfig().bc
-    assert config.groundtruth.bc == BCConfig(**{**vars(stage_bc), "epochs": 5}) and stage_bc != BCConfig()
+    stage_bc = PiStarConfig().bc
+    assert config.pistar.bc == BCConfig(**{**vars(stage_bc), "epochs": 5}) and stage_bc != BCConfig()
     assert config.pairs.bc == BCConfig(**{**vars(PairConfig().bc), "head_init": "shared"})
     assert config.pairs.dagger_bc == PairConfig().dagger_bc
 
@@ -121,8 +121,8 @@ def test_a_run_config_naming_its_task_and_preset_still_loads(run):
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["groundtruth", "--task", "carracing", "--preset", "ci", "--set", "task=fetch"], "bad --set 'task=fetch'"),
-        (["groundtruth", "--task", "fetch", "--preset", "ci"], "holds task 'carracing' preset 'ci', not 'fetch' 'ci'"),
+        (["pistar", "--task", "carracing", "--preset", "ci", "--set", "task=fetch"], "bad --set 'task=fetch'"),
+        (["pistar", "--task", "fetch", "--preset", "ci"], "holds task 'carracing' preset 'ci', not 'fetch' 'ci'"),
         (["pairs", "--set", "pairs.dagger_rounds=4"], "pi* not found"),
         (["evaluate", "--protocol", "mdi", "--set", "evaluate.oneshot=false"], "has no mdi section"),
     ],

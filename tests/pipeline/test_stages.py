@@ -113,11 +113,11 @@ def test_changed_settings_are_named_by_a_stage_and_rebuilt_by_reproduce(finished
     assert len(read_csv(layout.eval_table("mdm"))) == 2 * 7 and log.count("\n") > 2  # bc + 6 kinds on 2 seeds
 
 
-def test_groundtruth_with_another_config_is_refused(finished, tmp_path):
+def test_pistar_with_another_config_is_refused(finished, tmp_path):
     layout = _copy(finished, tmp_path / "run")
     _refused(
         [
-            "groundtruth",
+            "pistar",
             "--task",
             "carracing",
             "--preset",
@@ -125,7 +125,7 @@ def test_groundtruth_with_another_config_is_refused(finished, tmp_path):
             "--out",
             layout.root,
             "--set",
-            "groundtruth.bc.epochs=2",
+            "pistar.bc.epochs=2",
         ],
         "pi* in",
         "bc.epochs: 1 -> 2",
@@ -260,21 +260,21 @@ def test_a_damaged_pair_file_is_named_by_train_mapper_and_collected_again_by_pai
 
 
 def test_a_weak_pistar_stops_before_any_pair_and_names_its_rates(finished, tmp_path):
-    """pi* below groundtruth.min_success on its unseen seeds: one line with its rates and what to
+    """pi* below pistar.min_success on its unseen seeds: one line with its rates and what to
     try; pi* is kept (the threshold is not part of its stamp) and no pair is collected."""
     layout = _copy(finished, tmp_path / "run")
     shutil.rmtree(layout.pairs_dir)
-    pistar = layout.groundtruth.read_bytes()
+    pistar = layout.pistar.read_bytes()
     line = _refused(
-        ["pairs", "--out", layout.root, "--set", "groundtruth.min_success=0.5"],
+        ["pairs", "--out", layout.root, "--set", "pistar.min_success=0.5"],
         "too weak to learn from",
         "own seeds 0/2",
         "unseen seeds 0/1 (0%, 95% interval 0%-79%)",
-        "groundtruth.min_success=0.5",
+        "pistar.min_success=0.5",
         "Making pi* work on a new task",
     )
     assert "augment_shift" in line
-    assert layout.groundtruth.read_bytes() == pistar and not layout.pairs_dir.exists()
+    assert layout.pistar.read_bytes() == pistar and not layout.pairs_dir.exists()
 
 
 def test_too_few_kept_pairs_names_the_outcomes_and_pistar(finished, tmp_path):
@@ -290,7 +290,7 @@ def test_too_few_kept_pairs_names_the_outcomes_and_pistar(finished, tmp_path):
 
 
 def test_pairs_summary_records_how_far_dagger_moved_the_heads(finished):
-    from metadagger.metal.pairs import NEGLIGIBLE_HEAD_CHANGE, negligible_change_warning
+    from metadagger.metal_dagger.pairs import NEGLIGIBLE_HEAD_CHANGE, negligible_change_warning
 
     summary = json.loads(RunLayout(finished).pairs_summary.read_text())
     change = summary["head_change"]

@@ -4,6 +4,7 @@ block that differs; the repository's own README and docs are current."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import platform
@@ -17,7 +18,7 @@ from metadagger.errors import UserError
 from metadagger.imitation.lanes import LANE_NUMERICS
 from metadagger.results import registry as registry_module
 from metadagger.results import staleness as staleness_module
-from metadagger.results.blocks import build
+from metadagger.results.blocks import build, wrap_prose
 from metadagger.results.registry import CanonicalRun, RegistryRun, add_run, load_registry
 from metadagger.results.tables import BlockContext, glance, manifest_line, report_section, runs_table
 from metadagger.utils.kernels import KERNEL_ENV, NUMERICS
@@ -55,7 +56,7 @@ def test_an_added_run_keeps_small_artifacts_and_a_manifest_of_what_made_it(regis
     manifest = json.loads((root / "manifest.json").read_text())
     assert manifest["command"] == "metadagger reproduce --task carracing --preset ci --out runs/carracing-ci"
     assert manifest["beside"] == "the test suite"
-    assert set(manifest["stages"]) == {"groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark"}
+    assert set(manifest["stages"]) == {"pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark"}
     assert all(stage["commits"] and stage["cpus"] for stage in manifest["stages"].values())
     assert manifest["machine"]["kernels"] == (
         KERNEL_ENV if platform.machine().lower() in ("x86_64", "amd64") else "native"
@@ -83,6 +84,23 @@ def test_a_run_the_docs_read_diagnostics_of_is_added_with_them(carracing_ci_run,
     assert "diagnose" in manifest["stages"] and "diagnostics/mapping.json" in manifest["files"]
     context = BlockContext(load_registry(tmp_path / "results", [diagnosed.name]), tmp_path)
     assert "minus mean-DA's (95%)" in report_section(context, diagnosed.name, "Does a mapper learn anything?")
+
+
+def test_a_report_block_with_rows_keeps_the_tables_header_and_those_rows_only(registry, canonical, tmp_path):
+    context = BlockContext(load_registry(registry, [CI_RUN.name]), tmp_path)
+    heading = "Success against expert queries"
+    whole = report_section(context, CI_RUN.name, heading)
+    lines = whole.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    table = list(itertools.takewhile(lambda line: line.startswith("|"), lines[first:]))  # the section's first table
+    picked = report_section(context, CI_RUN.name, heading, "DAgger | 1", "BC").splitlines()
+    assert picked[0] == table[0]
+    assert picked[2:] == [line for line in table if line.startswith("| BC |") or line.startswith("| DAgger | 1 |")]
+    assert report_section(context, CI_RUN.name, heading, "BC", "columns=0,2").splitlines()[0] == (
+        "| method | success (95% Wilson interval) |"
+    )
+    with pytest.raises(ValueError, match="has no row 'DAgger | 99'"):
+        report_section(context, CI_RUN.name, heading, "DAgger | 99")
 
 
 def test_a_changed_registry_file_is_refused(registry, canonical, tmp_path):
@@ -132,7 +150,7 @@ def test_blocks_are_written_from_the_registry_and_check_names_a_stale_one(regist
     figures = Path(os.path.relpath(registry / CI_RUN.name / "report" / "figures", page.parent)).as_posix()
     assert f"]({figures}/queries.png)" in text and f"]({figures}/mdm_vs_bc.png)" in text
     assert "beside it: the test suite" in text and "old text" not in text
-    assert "| `carracing-paper` | SAM 86.7% raw" in text and "not run yet" in text
+    assert "The paper reports carracing: SAM 86.7% raw" in text and "not run yet" in text
     assert "an example of the syntax, left alone" in text
     assert build(tmp_path, registry=registry, check=True) == []
 
@@ -172,15 +190,16 @@ def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the
         _entry("dagger-bc-init", "two-shot", 9, 70),
     ]
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
-    row = next(
-        line
-        for line in glance(BlockContext({"fetch-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
-        if line.startswith("| `fetch-quick`")
-    )
-    cells = [c.strip() for c in row.strip("|").split("|")]
-    assert cells[2] == "DAgger-MDI two-shot: 80.0% (8/10; 0.0%-100.0%) at 60"
-    assert cells[5] == "-"  # no bc-refit row
-    assert cells[7] == "DAgger, ThriftyDAgger gate 0.025: 60.0% (6/10; 0.0%-100.0%) at 55"
+    metal, queries = _glance_rows(glance(BlockContext({"fetch-quick": RegistryRun(run, CURRENT)}, tmp_path)))
+    assert metal[2] == "DAgger-MDI two-shot: 8/10 (0-100%) at 60"
+    assert metal[5] == "-"  # no bc-refit row
+    assert queries[2] == "DAgger, ThriftyDAgger gate 0.025: 6/10 (0-100%) at 55"
+
+
+def _glance_rows(text: str) -> list[list[str]]:
+    """The cells of a run's rows in the glance's two tables (the run's, as the only run given)."""
+    rows = [line for line in text.splitlines() if line.startswith("| `") and "not run yet" not in line]
+    return [[c.strip() for c in row.strip("|").split("|")] for row in rows]
 
 
 def test_glance_shows_bc_refitted_beside_the_controls(tmp_path):
@@ -188,13 +207,8 @@ def test_glance_shows_bc_refitted_beside_the_controls(tmp_path):
     (run / "benchmark").mkdir(parents=True)
     entries = [_entry("mdm-dm", "", 0, 745), _entry("bc-refit", "3", 9, 745), _entry("dagger", "3", 9, 3340)]
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries}))
-    row = next(
-        line
-        for line in glance(BlockContext({"carracing-quick": RegistryRun(run, CURRENT)}, tmp_path)).splitlines()
-        if line.startswith("| `carracing-quick`")
-    )
-    cells = [c.strip() for c in row.strip("|").split("|")]
-    assert cells[5] == "90.0% (9/10; 0.0%-100.0%) at 745" and cells[6].startswith("90.0% (9/10") and cells[7] == "-"
+    metal, queries = _glance_rows(glance(BlockContext({"carracing-quick": RegistryRun(run, CURRENT)}, tmp_path)))
+    assert metal[5] == "9/10 (0-100%) at 745" and queries[1].startswith("9/10 (") and queries[2] == "-"
 
 
 def test_the_manifest_line_shows_a_call_from_an_uncommitted_tree(tmp_path):
@@ -246,6 +260,17 @@ def test_an_unknown_block_kind_is_one_line(registry, tmp_path):
 
 def test_the_repositorys_readme_and_docs_are_what_build_writes():
     assert build(REPO, check=True) == [], "run `metadagger results build` and commit the result"
+
+
+def test_generated_prose_is_wrapped_and_tables_headings_and_code_are_not():
+    item = "- " + "word " * 30
+    table = "| " + "cell | " * 40
+    text = "\n".join(["prose " * 30, item, table, "# " + "heading " * 20, "```", "code " * 30, "```"])
+    lines = wrap_prose(text, width=60).splitlines()
+    assert all(len(line) <= 60 for line in lines if not line.startswith(("|", "#", "code")))
+    assert table in lines and "# " + "heading " * 20 in lines and "code " * 30 in lines
+    continued = lines[lines.index(next(line for line in lines if line.startswith("- "))) + 1]
+    assert continued.startswith("  word")
 
 
 def _with_lanes(task: str, preset: str, width: int):

@@ -170,8 +170,8 @@ def test_a_bad_task_is_refused_before_any_work(tmp_path, monkeypatch):
     )
     assert result.exit_code == 2, result.output
     assert "OneHotRun.to_label returned" in result.output and "Traceback" not in result.output
-    assert not (tmp_path / "run" / "groundtruth" / "pistar.safetensors").exists()
-    assert not list((tmp_path / "run").glob("groundtruth/rounds/*"))
+    assert not (tmp_path / "run" / "pistar" / "pistar.safetensors").exists()
+    assert not list((tmp_path / "run").glob("pistar/rounds/*"))
 
 
 class OneHotRun(RunCorridorTask):
@@ -237,7 +237,7 @@ def test_a_changed_task_code_makes_its_artifacts_stale(tmp_path, monkeypatch):
     presets = tmp_path / "presets.yaml"
     presets.write_text(TINY_PRESETS)
     args = [
-        "groundtruth",
+        "pistar",
         "--task",
         "edited",
         "--presets",

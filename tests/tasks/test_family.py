@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from metadagger.cli.main import app
 from metadagger.errors import UserError
-from metadagger.metal.store import PairStore
+from metadagger.metal_dagger.store import PairStore
 from metadagger.policies import load_policy
 from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks import make_task
@@ -113,7 +113,7 @@ def corridor_family(tmp_path):
 
 
 def test_a_custom_family_runs_the_pipeline_and_reports_each_seeds_variation(corridor_family, tmp_path):
-    from metadagger.metal.groundtruth import train_groundtruth
+    from metadagger.metal_dagger.pistar import train_pistar
     from metadagger.pipeline.run_config import load_run
 
     run = RunLayout(tmp_path / "family")
@@ -142,9 +142,9 @@ def test_a_custom_family_runs_the_pipeline_and_reports_each_seeds_variation(corr
     assert result.exit_code == 0, result.output
     # pi* learns the nominal member: the same weights as a pi* trained on the plain corridor
     plain = RunLayout(tmp_path / "plain")
-    train_groundtruth(RunCorridorTask(max_episode_steps=12), load_run(run.root).groundtruth, plain, progress=False)
+    train_pistar(RunCorridorTask(max_episode_steps=12), load_run(run.root).pistar, plain, progress=False)
     for a, b in zip(
-        load_policy(run.groundtruth).net.state_dict().values(), load_policy(plain.groundtruth).net.state_dict().values()
+        load_policy(run.pistar).net.state_dict().values(), load_policy(plain.pistar).net.state_dict().values()
     ):
         assert np.array_equal(a.numpy(), b.numpy())
     family = CorridorFamily(max_episode_steps=12)

@@ -72,7 +72,7 @@ def test_a_gpu_device_on_a_machine_without_one_is_one_error_line_before_any_work
     if torch.cuda.is_available():
         pytest.skip("this machine has a GPU")
     new = tmp_path / "new"
-    line = _refused("groundtruth", "--task", "carracing", "--preset", "ci", "--out", new, "--device", "cuda")
+    line = _refused("pistar", "--task", "carracing", "--preset", "ci", "--out", new, "--device", "cuda")
     assert "torch sees no CUDA GPU" in line and not new.exists()
     # a folder made on a GPU, resumed on a machine without one
     made = tmp_path / "made"

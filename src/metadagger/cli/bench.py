@@ -1,6 +1,6 @@
-"""Benchmarks that write JSON: ``bench_env`` times our base env against upstream's, ``bench_bc`` a
-full BC fit against a head refit, ``bench_pairs`` the pair stage, ``bench_kernels`` the kernel pins
-(``bench lanes`` is :mod:`metadagger.cli.bench_lanes`)."""
+"""Benchmarks that write JSON: ``bench_bc`` times a full BC fit against a head refit, ``bench_fit`` and
+``bench_prior`` the head fits, ``bench_pairs`` the pair stage, ``bench_kernels`` the kernel pins (``bench
+env`` is :mod:`metadagger.cli.bench_env`, ``bench lanes`` :mod:`metadagger.cli.bench_lanes`)."""
 
 from __future__ import annotations
 
@@ -22,187 +22,13 @@ import numpy as np
 
 from metadagger.errors import UserError
 from metadagger.runfolder.layout import RunLayout
-from metadagger.tasks.gym_ids import register_envs
 from metadagger.utils.io import read_json, write_json
 from metadagger.utils.kernels import KERNEL_ENV, NATIVE_SWITCH, machine_description
-
-#: task -> (our base env id, the upstream id it reproduces)
-ENV_PAIRS = {"carracing": ("metadagger/CarRacing-v0", "CarRacing-v3")}
-
-
-def smooth_actions(seed: int, steps: int) -> np.ndarray:
-    """A seeded, random but smooth CarRacing action sequence, shape (steps, 3), float32.
-
-    Steering follows an AR(1) process (so the car weaves, and sometimes leaves the road), gas
-    is mostly on and the brake is tapped now and then.
-    """
-    rng = np.random.default_rng(seed)
-    actions = np.zeros((steps, 3), dtype=np.float32)
-    steer = 0.0
-    for i in range(steps):
-        steer = float(np.clip(0.9 * steer + 0.25 * rng.normal(), -1.0, 1.0))
-        gas = 0.5 if rng.random() < 0.7 else 0.0
-        brake = 0.3 if rng.random() < 0.05 else 0.0
-        actions[i] = (steer, gas, brake)
-    return actions
-
-
-def bench_env(
-    task: str = "carracing", *, seeds: Sequence[int] = (0, 1, 2), steps: int = 1000, warmup_steps: int = 100
-) -> dict:
-    """Step our base env and upstream's on the same seeds and actions; return both rates.
-
-    Both envs are built with ``gym.make`` (same wrappers) and take turns, 50 steps at a time,
-    on the same seeds and actions, so load from other processes falls on both alike.
-    Only ``step`` is timed (not ``reset``); an episode that ends early is reset with the same
-    seed and continues. First, ``warmup_steps`` untimed steps run on a seed outside ``seeds``
-    (imports, fonts, and our renderer's small caches of reward-text and indicator patches,
-    which any longer run keeps warm).
-
-    Args:
-        task: the task whose base env to time: ``"carracing"`` (ours against upstream's), or
-            ``"fetch"`` (frames per second of our pixel env alone, random actions).
-        seeds: reset seeds, one episode each.
-        steps: timed steps per seed.
-        warmup_steps: untimed steps before timing.
-
-    Returns:
-        A JSON-ready dict: per env its id, steps/s, mean and median time per step and the
-        per-step time split (state rendering vs the rest: physics, rewards, wrappers); the
-        ratio of rates and the ratio of median step times (robust to the other processes'
-        preemptions on a busy machine); whether both envs gave identical rewards; the mean
-        absolute image difference per seed (0-255 scale, averaged over the frames); the seeds,
-        steps and machine info.
-    """
-    if steps <= 0 or not seeds:
-        raise UserError(f"bench env needs steps > 0 and at least one seed, got steps={steps}, seeds={list(seeds)}")
-    if task == "fetch":
-        return _bench_fetch(seeds, steps)
-    if task not in ENV_PAIRS:
-        raise UserError(
-            f"bench env: unknown task {task!r}: expected one of {', '.join([*ENV_PAIRS, 'fetch'])}; pass --task "
-            "carracing"
-        )
-    ids = ENV_PAIRS[task]
-    register_envs()  # our id, for gym.make
-    envs = [_TimedEnv(env_id) for env_id in ids]
-    try:
-        if warmup_steps > 0:
-            _lockstep(envs, max(seeds) + 1, smooth_actions(max(seeds) + 1, warmup_steps))
-            for env in envs:
-                env.step_s = env.render_s = 0.0
-                env.step_times.clear()
-        same_rewards = True
-        image_mae = {}
-        for seed in seeds:
-            (ours, upstream), (ours_obs, upstream_obs) = _lockstep(envs, seed, smooth_actions(seed, steps))
-            same_rewards &= bool(np.array_equal(ours, upstream))
-            image_mae[str(seed)] = float(np.abs(ours_obs.astype(np.int16) - upstream_obs).mean())
-    finally:
-        for env in envs:
-            env.close()
-    n = steps * len(seeds)
-    ours, upstream = (env.summary(n) for env in envs)
-    return {
-        "task": task,
-        "ours": ours,
-        "upstream": upstream,
-        "ratio": ours["steps_per_s"] / upstream["steps_per_s"],
-        "ratio_of_medians": upstream["median_us_per_step"] / ours["median_us_per_step"],
-        "identical_rewards": same_rewards,
-        "image_mae": image_mae,
-        "seeds": [int(s) for s in seeds],
-        "steps": int(steps),
-        "warmup_steps": int(warmup_steps),
-        "machine": machine_block(),
-    }
-
-
-def _bench_fetch(seeds: Sequence[int], steps: int) -> dict:
-    """Frames per second of the Fetch pixel env (every step renders; there is no fast/slow pair
-    to compare: upstream renders the same scene with anti-aliasing, see docs/fetch.md)."""
-    try:
-        from metadagger.tasks.fetch.env import bench_fetch_env
-    except ImportError as exc:
-        raise UserError(
-            f"bench env --task fetch needs the fetch extra ({exc}); pip install -c constraints.txt -e '.[fetch]'"
-        ) from None
-    return {"task": "fetch", **bench_fetch_env(seeds=list(seeds), steps=steps), "machine": machine_block()}
 
 
 def write_bench(result: dict, path: str | Path) -> Path:
     """Write a benchmark result as JSON, atomically; returns the path."""
     return write_json(path, result)
-
-
-class _TimedEnv:
-    """A ``gym.make`` env that adds up the seconds spent in ``step`` and in state rendering."""
-
-    def __init__(self, env_id: str):
-        self.env_id = env_id
-        self.env = gym.make(env_id)
-        self.step_s = 0.0
-        self.render_s = 0.0
-        self.step_times: list[float] = []
-        base = self.env.unwrapped
-        render = base._render
-
-        def timed_render(mode: str):
-            start = time.perf_counter()
-            out = render(mode)
-            self.render_s += time.perf_counter() - start
-            return out
-
-        # Instrument the instance (not the class): step() calls self._render("state_pixels").
-        base._render = timed_render
-
-    def reset(self, seed: int) -> None:
-        render_s = self.render_s
-        self.env.reset(seed=seed)
-        self.render_s = render_s  # reset's own render is not a step's
-
-    def step(self, action: np.ndarray) -> tuple[float, bool, np.ndarray]:
-        start = time.perf_counter()
-        obs, reward, terminated, truncated, _ = self.env.step(action)
-        elapsed = time.perf_counter() - start
-        self.step_s += elapsed
-        self.step_times.append(elapsed)
-        return float(reward), bool(terminated or truncated), obs
-
-    def summary(self, n: int) -> dict[str, Any]:
-        return {
-            "id": self.env_id,
-            "steps_per_s": n / self.step_s,
-            "us_per_step": 1e6 * self.step_s / n,
-            "median_us_per_step": 1e6 * float(np.median(self.step_times[-n:])),
-            "render_us_per_step": 1e6 * self.render_s / n,
-            "other_us_per_step": 1e6 * (self.step_s - self.render_s) / n,
-        }
-
-    def close(self) -> None:
-        self.env.close()
-
-
-def _lockstep(envs: list[_TimedEnv], seed: int, actions: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Run one seeded episode per env, alternating chunks of steps; returns each env's rewards
-    and observations."""
-    rewards = [np.zeros(len(actions)) for _ in envs]
-    frames = [np.zeros((len(actions), *env.env.observation_space.shape), np.uint8) for env in envs]
-    for env in envs:
-        env.reset(seed)
-    for start in range(0, len(actions), _CHUNK):
-        for env, out, obs in zip(envs, rewards, frames):
-            for i in range(start, min(start + _CHUNK, len(actions))):
-                out[i], done, obs[i] = env.step(actions[i])
-                if done:
-                    env.reset(seed)
-    return rewards, frames
-
-
-#: Steps each env runs before the other takes over. Alternating every step would let upstream's
-#: 1000x800 surfaces evict our data from the CPU caches each time (measured: ours ran 2.5x
-#: slower); chunks of this size keep that cost small while both still share the machine's load.
-_CHUNK = 50
 
 
 def machine_block() -> dict[str, Any]:
@@ -247,8 +73,8 @@ def bench_pairs(
     import tempfile
 
     from metadagger.imitation.lanes import check_lanes
-    from metadagger.metal.groundtruth import load_groundtruth
-    from metadagger.metal.pairs import collect_pairs
+    from metadagger.metal_dagger.pairs import collect_pairs
+    from metadagger.metal_dagger.pistar import load_pistar
     from metadagger.pipeline.stages import load_run, run_task
     from metadagger.runfolder.driver import StageOptions
 
@@ -263,7 +89,7 @@ def bench_pairs(
         raise UserError(
             f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}"
         )
-    load_groundtruth(layout)  # a missing or corrupt pi* is named under its own path, not the scratch copies'
+    load_pistar(layout)  # a missing or corrupt pi* is named under its own path, not the scratch copies'
     run_summary = layout.pairs_summary
     run_kept = read_json(run_summary, "the run's pairs summary") if run_summary.is_file() else None
     pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]))
@@ -273,8 +99,8 @@ def bench_pairs(
         # into a scratch run that shares the run's pi*; process-pool start-up included
         with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
             scratch = RunLayout(tmp)
-            scratch.groundtruth_dir.mkdir()
-            scratch.groundtruth.symlink_to(layout.groundtruth.resolve())
+            scratch.pistar_dir.mkdir()
+            scratch.pistar.symlink_to(layout.pistar.resolve())
             start = time.perf_counter()
             made = collect_pairs(task, scratch, config, StageOptions(workers=n, progress=False))
             return time.perf_counter() - start, made
@@ -318,8 +144,9 @@ def bench_pairs(
 def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:
     """Full BC fit vs head-only refit (trunk frozen, features cached) on the same random
     96x96x3 images and 20-class labels: seconds and speed-ups, plus batch-1 inference latency."""
-    from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+    from metadagger.imitation.bc import BCConfig, fit_bc
     from metadagger.imitation.data import Dataset
+    from metadagger.imitation.features import FeatureCache
     from metadagger.policies import Policy, PolicyNet
 
     def fresh() -> Policy:
@@ -361,7 +188,7 @@ def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:
 
 
 def bench_fit(task_name: str = "fetch", *, preset: str = "paper", steps: int = 200, seed: int = 0) -> dict:
-    """pi*'s whole-network fit (the preset's ``groundtruth.bc``: network, batch, augmentation,
+    """pi*'s whole-network fit (the preset's ``pistar.bc``: network, batch, augmentation,
     Adam) for ``steps`` Adam steps on random frames of the task's shape: seconds per step on the
     CPU (one thread, as a stage computes) and, where torch sees a GPU, on it, side by side."""
     import dataclasses
@@ -376,7 +203,7 @@ def bench_fit(task_name: str = "fetch", *, preset: str = "paper", steps: int = 2
     from metadagger.utils.device import current_device, use_device
 
     task = make_task(task_name)
-    bc = dataclasses.replace(resolve_config(task_name, preset).groundtruth.bc, epochs=1, seed=seed)
+    bc = dataclasses.replace(resolve_config(task_name, preset).pistar.bc, epochs=1, seed=seed)
     shape = tuple(make_policy(task, seed=seed).arch["obs_shape"])
     rng = np.random.default_rng(seed)
     n = steps * bc.batch_size

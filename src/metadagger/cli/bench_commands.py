@@ -42,7 +42,7 @@ def bench_env_cmd(
     out: Path = typer.Option(Path("runs/bench/env.json"), "--out", help="JSON file to write."),
 ) -> None:
     """Steps per second of our env against upstream's, on the same seeds and actions."""
-    from metadagger.cli.bench import bench_env
+    from metadagger.cli.bench_env import bench_env
     from metadagger.utils.yaml_config import parse_seeds
 
     _measure_and_write(
@@ -70,7 +70,7 @@ def bench_bc_cmd(
 @user_errors
 def bench_fit_cmd(
     task: str = typer.Option("fetch", "--task", help="Task whose pi* network and preset fit are timed."),
-    preset: str = typer.Option("paper", "--preset", help="Preset whose groundtruth.bc settings are used."),
+    preset: str = typer.Option("paper", "--preset", help="Preset whose pistar.bc settings are used."),
     steps: int = typer.Option(200, "--steps", min=1, help="Adam steps timed on each device."),
     out: Path = typer.Option(Path("runs/bench/fit.json"), "--out", help="JSON file to write."),
 ) -> None:
@@ -191,3 +191,20 @@ def bench_ops_cmd(
         return {**mine, "compared": compare_fingerprints(mine, other)} if other is not None else mine
 
     _measure_and_write(out, "--out", measure, shown=lambda key, value: key in ("compared", "machine"))
+
+
+@bench_app.command("numerics")
+@user_errors
+def bench_numerics_cmd(
+    out: Path = OUT,
+    lanes: int = typer.Option(32, "--lanes", help="The lane width whose batched forwards are compared with batch 1."),
+    states: int = typer.Option(100_000, "--states", help="How many of pi*'s states to compare (whole episodes)."),
+    first_seed: int = typer.Option(30000, "--first-seed", help="The first of the episode seeds (then one up)."),
+    json_out: Path = typer.Option(Path("runs/bench/numerics.json"), "--json", help="JSON file to write."),
+) -> None:
+    """pi*'s actions at batch 1 and in lanes: the share of states whose action the lanes change."""
+    from metadagger.cli.bench_numerics import bench_numerics
+
+    _measure_and_write(
+        json_out, "--json", lambda: bench_numerics(out, width=lanes, states=states, first_seed=first_seed)
+    )

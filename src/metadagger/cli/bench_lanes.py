@@ -41,7 +41,7 @@ def bench_lanes(
     seed = config.benchmark.seeds[0] if seed is None else seed
     dataclasses.replace(config.benchmark, seeds=(seed,))  # a bad seed or override is named before any work
     layout = RunLayout(run)
-    for path, what in ((layout.groundtruth, "pi*"), (layout.root / "mappers", "the mappers")):
+    for path, what in ((layout.pistar, "pi*"), (layout.root / "mappers", "the mappers")):
         if not path.exists():
             raise UserError(
                 f"bench lanes needs {what} of run {run} ({path} is missing); run metadagger reproduce first"
@@ -92,7 +92,7 @@ def lanes_child(argv: list[str]) -> None:
     source = RunLayout(run)
     with tempfile.TemporaryDirectory(prefix="metadagger-bench-") as tmp:
         scratch = RunLayout(tmp)
-        for name in ("groundtruth", "pairs", "mappers"):  # read only: the mappers are checked against the pairs
+        for name in ("pistar", "pairs", "mappers"):  # read only: the mappers are checked against the pairs
             if (source.root / name).exists():
                 (scratch.root / name).symlink_to((source.root / name).resolve())
         wall, cpu = time.perf_counter(), time.process_time()

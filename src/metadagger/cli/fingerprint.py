@@ -157,7 +157,7 @@ def _lanes(ops: dict[str, Callable[[], Any]]) -> None:
 
 
 def _carracing_episode(ops: dict[str, Callable[[], Any]]) -> None:
-    from metadagger.cli.bench import smooth_actions
+    from metadagger.cli.bench_env import smooth_actions
     from metadagger.tasks import make_task
 
     def frames() -> list[np.ndarray]:

@@ -4,7 +4,8 @@ A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stder
 (:func:`~metadagger.cli.options.user_errors`, beside the options every command shares); the
 process around the commands (usage errors, signals, exit codes) is :mod:`metadagger.cli.entry`;
 the ``bench`` commands are :mod:`metadagger.cli.bench_commands`, the ``results`` ones
-:mod:`metadagger.cli.results_commands`.
+:mod:`metadagger.cli.results_commands`, the ``config`` ones :mod:`metadagger.cli.config_commands`, and
+``demo``, ``expert`` and ``check-task`` :mod:`metadagger.cli.task_commands`.
 
 The command line runs on pinned CPU kernels (:func:`~metadagger.utils.kernels.pin_cpu_kernels`):
 :func:`metadagger.cli.entry.main` pins them first thing, and this module pins them before its one import of
@@ -26,9 +27,9 @@ from metadagger.utils.kernels import pin_cpu_kernels
 pin_cpu_kernels()  # before the registry below loads torch, and before any command's tensor operation
 
 from metadagger.cli.bench_commands import bench_app
+from metadagger.cli.config_commands import config_app
 from metadagger.cli.options import (
     ADDRESS,
-    BUILTIN_PRESET,
     DEVICE,
     EXECUTOR,
     OUT,
@@ -43,6 +44,7 @@ from metadagger.cli.options import (
     user_errors,
 )
 from metadagger.cli.results_commands import results_app
+from metadagger.cli.task_commands import task_app
 from metadagger.evaluation.methods import benchmark_methods
 from metadagger.mapping.registry import kind_names, trained_names
 
@@ -54,7 +56,7 @@ app = typer.Typer(
 )
 app.add_typer(bench_app, name="bench")
 app.add_typer(results_app, name="results")
-config_app = typer.Typer(no_args_is_help=True, help="Inspect run configs.")
+app.add_typer(task_app)
 app.add_typer(config_app, name="config")
 
 
@@ -70,94 +72,7 @@ def _setup() -> None:
 
 @app.command()
 @user_errors
-def demo(
-    task: str = TASK,
-    preset: str = BUILTIN_PRESET,
-    out: Path = typer.Option(Path("runs/demo"), "--out", help="Run folder to write to."),
-    rounds: Optional[int] = typer.Option(None, "--rounds", help="Override the preset's DAgger rounds."),
-    epochs: Optional[int] = typer.Option(None, "--epochs", help="Override the preset's BC epochs per fit."),
-    demos: Optional[str] = typer.Option(
-        None,
-        "--demos",
-        help="Clone from this Minari dataset (its spaces must match the "
-        "task's learner) instead of the expert's demonstrations of the train seeds.",
-    ),
-) -> None:
-    """BC from expert demos, then DAgger rounds; both evaluated on unseen seeds."""
-    from metadagger.cli.demo import demo_config, run_demo
-
-    config = demo_config(task, preset, rounds=rounds, epochs=epochs, demos=demos)
-    result = run_demo(config, out)
-    typer.echo(result.table)
-    typer.echo(f"wrote {result.folder}")
-
-
-@app.command()
-@user_errors
-def expert(
-    task: str = TASK,
-    seeds: str = typer.Option("0-9", "--seeds", help="Seeds: a range '0-99', a list '1,5,9' or one seed."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Also write the per-seed rows as JSON here."),
-) -> None:
-    """Measure the task's expert (acting through the learner's action space) on seeds."""
-    from metadagger.evaluation.expert import evaluate_expert, expert_table
-    from metadagger.tasks import make_task
-    from metadagger.utils.io import check_output_file, write_json
-    from metadagger.utils.yaml_config import parse_seeds
-
-    if out is not None:
-        check_output_file(out, "--out")
-    rows = evaluate_expert(make_task(task), parse_seeds(seeds))
-    typer.echo(expert_table(rows))
-    if out is not None:
-        write_json(out, rows)
-        typer.echo(f"wrote {out}")
-
-
-@app.command("check-task")
-@user_errors
-def check_task_cmd(
-    task: str = TASK,
-    seeds: str = typer.Option(
-        "0-9", "--seeds", help="Seeds the expert is measured on: a range '0-9', a list '1,5,9' or one seed."
-    ),
-) -> None:
-    """Check a task's code (observation and action spaces, the expert's labels, combine and
-    to_label, seeded episodes), then measure its expert on seeds: success, episode lengths and
-    steps per second. Each problem is one line naming the Task method; exit 2."""
-    import time
-
-    from metadagger.evaluation.expert import evaluate_expert, expert_table
-    from metadagger.tasks import make_task
-    from metadagger.tasks.checks import check_task_code
-    from metadagger.utils.yaml_config import parse_seeds
-
-    seed_list = parse_seeds(seeds)
-    built = make_task(task)
-    check_task_code(built)
-    env = built.make_base_env()
-    try:
-        typer.echo(
-            f"{task}: the task's code passes the checks (observations {env.observation_space.dtype} "
-            f"{tuple(env.observation_space.shape)}, learner actions {built.learner_action_space}, "
-            f"{built.max_episode_steps} steps an episode at most)"
-        )
-    finally:
-        env.close()
-    start = time.perf_counter()
-    rows = evaluate_expert(built, seed_list)
-    typer.echo(expert_table(rows, seconds=time.perf_counter() - start))
-    if not any(r["success"] for r in rows):
-        typer.echo(
-            f"warning: the expert succeeds on none of {len(rows)} seeds: is_success or the expert is wrong, "
-            "and nothing can be imitated",
-            err=True,
-        )
-
-
-@app.command()
-@user_errors
-def groundtruth(
+def pistar(
     task: str = TASK,
     preset: str = PRESET,
     out: Path = OUT,
@@ -167,18 +82,18 @@ def groundtruth(
     device: Optional[str] = DEVICE,
 ) -> None:
     """Train pi*: BC on expert demos of K seeds, then DAgger rounds over all of them."""
-    from metadagger.metal.groundtruth import pistar_rates
-    from metadagger.pipeline.stages import init_run, stage_groundtruth
+    from metadagger.metal_dagger.pistar import pistar_rates
+    from metadagger.pipeline.stages import init_run, stage_pistar
     from metadagger.runfolder.driver import StageOptions
     from metadagger.runfolder.layout import RunLayout
 
     layout = RunLayout(out)
     config = init_run(out, task, preset, presets, overrides, device)
-    metrics = stage_groundtruth(layout, config, StageOptions(rebuild=rebuild))
+    metrics = stage_pistar(layout, config, StageOptions(rebuild=rebuild))
     typer.echo(f"pi*: {pistar_rates(metrics)}")
-    if metrics["unseen_seeds"]["success_rate"] < config.groundtruth.min_success:
+    if metrics["unseen_seeds"]["success_rate"] < config.pistar.min_success:
         typer.echo(
-            f"warning: pi* is below groundtruth.min_success={config.groundtruth.min_success:g} on its unseen seeds: "
+            f"warning: pi* is below pistar.min_success={config.pistar.min_success:g} on its unseen seeds: "
             'the pairs stage will refuse it (docs/custom_task.md, "Making pi* work on a new task")',
             err=True,
         )
@@ -187,7 +102,7 @@ def groundtruth(
         typer.echo(
             f"pi* is epoch {choice['epoch']} of its BC fit: {choice['successes']}/{choice['episodes']} held-out seeds"
         )
-    typer.echo(f"wrote {layout.groundtruth}")
+    typer.echo(f"wrote {layout.pistar}")
 
 
 @app.command()
@@ -206,7 +121,7 @@ def pairs(
 
     options = stage_options(rebuild, executor, workers, address)  # before any work
     layout = RunLayout(out)
-    from metadagger.metal.pairs import negligible_change_warning
+    from metadagger.metal_dagger.pairs import negligible_change_warning
 
     summary = stage_pairs(layout, load_run(out, overrides), options)
     typer.echo(json.dumps(summary, indent=2))
@@ -409,9 +324,9 @@ def diagnose(
 @user_errors
 def export(
     out: Path = OUT,
-    what: str = typer.Option(
+    content: str = typer.Option(
         ...,
-        "--what",
+        "--content",
         help="demos (the expert's), dagger (the pairs' per-seed DAgger rollouts) or "
         "pairs-data (both: everything each pair was fit on).",
     ),
@@ -427,18 +342,19 @@ def export(
 ) -> None:
     """Write a run's episodes as a Minari dataset: observations, the learner's action, the expert's
     label, whether it was queried, the DAgger round and the seed (docs/minari.md)."""
-    from metadagger.metal.export import check_export
-    from metadagger.pipeline.stages import load_run, stage_export
+    from metadagger.metal_dagger.export import check_export
+    from metadagger.pipeline.outputs import stage_export
+    from metadagger.pipeline.stages import load_run
     from metadagger.runfolder.layout import RunLayout
     from metadagger.utils.yaml_config import parse_seeds
 
     seed_list = parse_seeds(seeds) if seeds is not None else None  # a malformed value before the dataset store is read
-    check_export(what, fmt, name)
+    check_export(content, fmt, name)
     options = stage_options(False, executor, workers, address)
     summary = stage_export(
         RunLayout(out),
         load_run(out, overrides),
-        what=what,
+        content=content,
         name=name,
         seeds=seed_list,
         author=author,
@@ -447,7 +363,7 @@ def export(
     )
     checked = (
         ""
-        if what == "demos"
+        if content == "demos"
         else f", {summary['checked']} re-run pairs equal to the stored ones"
         if summary["checked"]
         else ", no stored pair of these seeds to compare the re-run with"
@@ -475,7 +391,8 @@ def video(
 ) -> None:
     """One seed's rollouts side by side, as the learner saw them, with method, step, reward and
     expert queries: RUN/videos/<seed>-<methods>.mp4 and .gif (needs the video extra)."""
-    from metadagger.pipeline.stages import load_run, stage_video
+    from metadagger.pipeline.outputs import stage_video
+    from metadagger.pipeline.stages import load_run
     from metadagger.runfolder.layout import RunLayout
 
     names = [m.strip() for m in methods.split(",") if m.strip()]
@@ -521,7 +438,7 @@ def reproduce(
         "after the benchmark (`metadagger diagnose`; a section of the report).",
     ),
 ) -> None:
-    """groundtruth -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> benchmark
+    """pistar -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> benchmark
     (runs with a benchmark section) -> diagnose (with --diagnose) -> report,
     resuming finished work and rebuilding what a changed config or input made stale."""
     from metadagger.pipeline.run_config import check_log
@@ -547,39 +464,3 @@ def reproduce(
     if load_run(out).log == "tensorboard":
         tb = RunLayout(out).tb_dir
         typer.echo(f"wrote TensorBoard scalars to {tb}; view them with `tensorboard --logdir {tb}`")
-
-
-@config_app.command("methods")
-@user_errors
-def config_methods() -> None:
-    """List every benchmark method, gate and mapper kind metadagger knows, installed plug-ins' included."""
-    from metadagger.imitation.gate_registry import gate_declarations
-    from metadagger.mapping.registry import get_kind
-
-    typer.echo("benchmark methods (benchmark.methods, --methods):")
-    for method in benchmark_methods().values():
-        typer.echo(f"  {method.name}: {method.summary}{' [reference, never ranked]' if method.reference else ''}")
-    typer.echo("gates (method dagger-<gate>; default grid; options shared with the benchmark):")
-    for gate in gate_declarations().values():
-        shared = ", ".join(f"{field}={option}" for field, option in gate.shared.items())
-        typer.echo(
-            f"  {gate.name}: {gate.label}; {gate.gate.setting} in {list(gate.grid)}"
-            + (f"; {shared}" if shared else "")
-            + f"; {gate.summary}"
-        )
-    typer.echo("mapper kinds (evaluate.methods, mdm-<kind>):")
-    for name in kind_names():
-        kind = get_kind(name)
-        typer.echo(f"  {name}: {kind.label}; {kind.summary}")
-
-
-@config_app.command("show")
-@user_errors
-def config_show(
-    task: str = TASK, preset: str = PRESET, presets: Optional[Path] = PRESETS_FILE, overrides: list[str] = SET
-) -> None:
-    """Print the resolved config of a preset with --set overrides, as YAML (what a new run would use)."""
-    from metadagger.pipeline.run_config import resolve_config
-    from metadagger.utils.yaml_config import dump_yaml
-
-    typer.echo(dump_yaml(resolve_config(task, preset, presets, overrides)), nl=False)

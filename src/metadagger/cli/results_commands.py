@@ -87,3 +87,21 @@ def results_status_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTIO
             typer.echo(f"    make it: {row['command']}")
     counts = {state: sum(r["state"] == state for r in rows) for state in ("current", "stale", "missing")}
     typer.echo(", ".join(f"{n} {state}" for state, n in counts.items()))
+
+
+@results_app.command("compare")
+@user_errors
+def results_compare_cmd(
+    old: Path = typer.Argument(..., help="The old run folder or registry run (e.g. one checked out from git)."),
+    new: Path = typer.Argument(..., help="The new run folder or registry run of the same preset."),
+    json_out: Path = typer.Option(None, "--json", help="Also write the comparison as JSON here."),
+) -> None:
+    """Every success rate of NEW's tables beside the 95% Wilson interval of OLD's (what a change of
+    numerics moved); the rates outside it are counted at the end."""
+    from metadagger.results.compare import compare_runs, comparison_lines
+    from metadagger.utils.io import write_json
+
+    comparison = compare_runs(old, new)
+    if json_out is not None:
+        write_json(json_out, comparison)
+    typer.echo("\n".join(comparison_lines(comparison)))

@@ -19,7 +19,7 @@ a query. Per seed, with rows ``(method, setting, demo_fraction, seed)``:
   one-shot and two-shot tests (settings ``one-shot``, ``two-shot``).
 
 With ``demo_fractions`` below 1, BC, the learned MDM kinds and the gated settings run again from
-the demonstration's first share of steps (:func:`~metadagger.metal.method.demonstration_share`),
+the demonstration's first share of steps (:func:`~metadagger.metal_dagger.method.demonstration_share`),
 so that the chart shows whether mapping can replace part of the demonstration.
 
 A row's outcome is one rollout of the policy after that many rounds (the rollout that also starts
@@ -104,7 +104,7 @@ class BenchmarkConfig:
     """A second set of unseen seeds, fixed before any result is read, on which the same methods run
     again into ``benchmark/confirm/``: a reading chosen on the first set is checked on these."""
     methods: tuple[str, ...] = ("bc", "mdm", "dagger", BC_REFIT, *(d for d in built_in_grids()))
-    """Benchmark methods (``metadagger config show`` lists every one, plug-ins' included): ``bc``,
+    """Benchmark methods (``metadagger config methods`` lists every one, plug-ins' included): ``bc``,
     ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, ``bc-refit`` (w_BC refitted as DAgger
     refits it, on the demonstration alone: a control), the gated methods ``dagger-<gate>``, and
     ``mdi`` (the MDI protocol's methods; runs with an ``mdi`` section)."""
@@ -216,7 +216,7 @@ def benchmark_stamps(
         **kernel_stamp(),
         **task_stamp(task),
         **job_settings,
-        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+        "pistar_fingerprint": file_fingerprint(layout.pistar),
     }
     stamps: dict[str, Stamp] = {}
     inputs = StampInputs(
@@ -317,7 +317,7 @@ def run_benchmark(
     jobs = [
         BenchmarkJob(
             task=task,
-            groundtruth=str(layout.groundtruth),
+            pistar=str(layout.pistar),
             seed=p.seed,
             methods=p.methods,
             keys=tuple(by_id[m] for m in p.methods),

@@ -45,7 +45,7 @@ from metadagger.imitation.reading_gates import DisagreementGate
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.priors import ZERO, HeadPrior, mean_head
-from metadagger.metal.method import (
+from metadagger.metal_dagger.method import (
     Round,
     SeedLearner,
     bc_head,
@@ -119,7 +119,7 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
     mdi = [partial(_mdi_rows, job, shots)] if job.mdi is not None and shots else []
     with ExitStack() as stack:
         learner = stack.enter_context(
-            SeedLearner(job.task, job.groundtruth, seed, head_init_seed=job.bc.head_init_seed(seed))
+            SeedLearner(job.task, job.pistar, seed, head_init_seed=job.bc.head_init_seed(seed))
         )
         lanes = None
         if job.config.lanes > 1:
@@ -181,7 +181,7 @@ def _start(
 
 
 Chain = Callable[[SeedLearner], Rows]
-"""A chain of rollouts that makes some rows: a step of :func:`~metadagger.metal.method.run_steps`."""
+"""A chain of rollouts that makes some rows: a step of :func:`~metadagger.metal_dagger.method.run_steps`."""
 
 
 def _chains(job: BenchmarkJob, start: _Start, keys: list[MethodKey]) -> list[Chain]:
@@ -351,7 +351,7 @@ def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey], learner: SeedLearner) -> R
     assert job.mdi is not None
     mdi_job = MDIJob(
         task=job.task,
-        groundtruth=job.groundtruth,
+        pistar=job.pistar,
         seed=job.seed,
         methods=tuple(MDI_METHODS),
         mappers={"dagger-mdi": job.mappers[MDI_MAPPER]},
@@ -361,7 +361,7 @@ def _mdi_rows(job: BenchmarkJob, keys: list[ShotKey], learner: SeedLearner) -> R
     outcomes = {method: rows[0] for method, rows in evaluate_mdi_seed(mdi_job)["entries"].items()}
     out: Rows = {}
     for key in keys:
-        r = outcomes[key.mdi_method]
+        r = outcomes[key.method]
         two = key.shot == "twoshot" and r["two_shot_run"]
         labels = [demonstration_record(r["demo_steps"])]
         if two:  # the two-shot test's DAgger round labels every state of the one-shot head's rollout

@@ -33,13 +33,14 @@ import torch
 
 from metadagger.errors import UserError
 from metadagger.imitation.metrics import mean_interval
+from metadagger.mapping.config import MapperConfig
 from metadagger.mapping.diagnostics import canonical_heads, function_error, memorisation, pairwise_spread, weight_error
 from metadagger.mapping.mappers import Mapper
 from metadagger.mapping.registry import get_kind
-from metadagger.mapping.train import MapperConfig, MapperJob, mapper_stamp, train_mappers
-from metadagger.metal.lane_blocks import in_blocks
-from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
-from metadagger.metal.store import PairSplit
+from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
+from metadagger.metal_dagger.lane_blocks import in_blocks
+from metadagger.metal_dagger.pairs import PairConfig, pair_stamp, run_pair
+from metadagger.metal_dagger.store import PairSplit
 from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, drive, plan
 from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks.base import Task
@@ -91,7 +92,7 @@ def diagnose_seed(job: DiagnoseJob) -> dict[str, Any]:
     """Re-run the seed's pair (and, for ``noise``, its refits); returns rows and tensors."""
     out: dict[str, Any] = {"seed": job.seed, "entries": {}, "tensors": {}}
     if "states" in job.methods:
-        pair = run_pair(job.task, job.groundtruth, job.seed, job.pairs, with_states=True)
+        pair = run_pair(job.task, job.pistar, job.seed, job.pairs, with_states=True)
         n = len(pair.dagger_features)
         keep = (
             np.unique(np.linspace(0, n - 1, min(job.config.states, n)).round().astype(int))
@@ -106,7 +107,7 @@ def diagnose_seed(job: DiagnoseJob) -> dict[str, Any]:
         out["entries"]["states"] = [{"seed": job.seed, "states": int(len(keep)), "dagger_states": int(n)}]
     if "noise" in job.methods:
         refits = [
-            run_pair(job.task, job.groundtruth, job.seed, job.pairs, fit_seed=job.seed + REFIT_STRIDE * m).w_da
+            run_pair(job.task, job.pistar, job.seed, job.pairs, fit_seed=job.seed + REFIT_STRIDE * m).w_da
             for m in range(1, job.config.noise_refits + 1)
         ]
         out["tensors"]["noise"] = {"w_da": torch.from_numpy(np.stack(refits))}
@@ -127,7 +128,7 @@ def collect_seed_data(
     jobs = [
         DiagnoseJob(
             task=task,
-            groundtruth=str(layout.groundtruth),
+            pistar=str(layout.pistar),
             seed=p.seed,
             pairs=pairs,
             config=config,

@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from metadagger.errors import UserError
+from metadagger.evaluation.methods import MDI_METHODS
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
@@ -46,9 +47,8 @@ from metadagger.imitation.lanes import check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper, load_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
-from metadagger.metal.groundtruth import cached_groundtruth
-from metadagger.metal.lane_blocks import in_blocks
-from metadagger.metal.method import (
+from metadagger.metal_dagger.lane_blocks import in_blocks
+from metadagger.metal_dagger.method import (
     SeedLearner,
     bc_head,
     dagger_rounds,
@@ -58,6 +58,7 @@ from metadagger.metal.method import (
     seed_context,
     seeded,
 )
+from metadagger.metal_dagger.pistar import cached_pistar
 from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, Stamp, drive, plan
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
@@ -68,7 +69,6 @@ from metadagger.utils.kernels import kernel_stamp
 from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 #: The three methods of Table 6, in table order.
-METHODS = ("dagger-mdi", "dagger-bc", "dagger")
 #: Prefix of the control methods: DAgger-MDI initialised by another mapper kind.
 CONTROL_PREFIX = "dagger-mdi-"
 #: Where the DAgger round's refit (step 8) starts; see :attr:`MDIConfig.dagger_init`.
@@ -159,8 +159,8 @@ class MDIConfig:
 
     @property
     def methods(self) -> tuple[str, ...]:
-        """Every method evaluated, in row order: :data:`METHODS`, then the controls."""
-        return METHODS + tuple(CONTROL_PREFIX + kind for kind in self.controls)
+        """Every method evaluated, in row order: :data:`.methods.MDI_METHODS`, then the controls."""
+        return MDI_METHODS + tuple(CONTROL_PREFIX + kind for kind in self.controls)
 
 
 @dataclass(frozen=True)
@@ -201,7 +201,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
     fit, refit = seeded(config.bc, seed), seeded(config.dagger_bc, seed)
     entries: dict[str, list[dict[str, Any]]] = {}
     heads: dict[tuple[str, str], np.ndarray] = {}
-    with SeedLearner(job.task, job.groundtruth, seed, head_init_seed=config.bc.head_init_seed(seed)) as learner:
+    with SeedLearner(job.task, job.pistar, seed, head_init_seed=config.bc.head_init_seed(seed)) as learner:
         # steps 1-2: the demonstration and w_BC; DAgger's own start is the seed's fresh Xavier head
         xavier = learner.head()
         demo = demonstration(learner)
@@ -214,14 +214,14 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
             rolled = learner.roll(w_bc, early_stop=job.context_early_stop)
             context = seed_context(learner.cache, data, rolled.to_dataset())
         inits = {method: map_head(mapper, w_bc, context) for method, mapper in mappers.items()}
-        if "dagger-bc" in job.methods:
-            inits["dagger-bc"] = w_bc
+        if "dagger-bc-init" in job.methods:
+            inits["dagger-bc-init"] = w_bc
         # step 5: each initialisation refitted on the demonstration; for DAgger that is step 2's fit
         # itself (the Xavier head, the same data and settings), so w_BC is not fitted twice
-        one_shot_heads = {"dagger": w_bc} | {
+        one_shot_heads = {"dagger-xavier": w_bc} | {
             method: one_shot(learner, init, data, fit) for method, init in inits.items()
         }
-        inits["dagger"] = xavier
+        inits["dagger-xavier"] = xavier
         for method in job.methods:
             heads[method, "oneshot"] = one_shot_heads[method]
             # steps 6-7: the one-shot test
@@ -270,7 +270,7 @@ def _check_inputs(task: Task, layout: RunLayout, config: MDIConfig) -> None:
             f"mdi.early_stop={config.early_stop} needs displacement (Box) actions, but task {task.name!r} has "
             f"{task.learner_action_space}; set mdi.early_stop to null"
         )
-    head_size = cached_groundtruth(str(layout.groundtruth)).head_size
+    head_size = cached_pistar(str(layout.pistar)).head_size
     for kind in config.kinds.values():
         path = layout.mapper(kind)
         if not path.is_file():
@@ -296,7 +296,7 @@ def mdi_stamps(
         **task_stamp(task),
         **stamp_of(config, drop=("seeds", "mapper", "controls")),
         **lanes_stamp(config.lanes),
-        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+        "pistar_fingerprint": file_fingerprint(layout.pistar),
     }
     kinds = config.kinds
 
@@ -329,7 +329,7 @@ def evaluate_mdi(
         options: rebuild (redo rows made from another pi*, mapper or settings; else they are an
             error), executor, workers, progress.
         context_early_stop: the pairs' early-stop threshold, which cuts the BC rollout of an
-            initialiser's context (:func:`metadagger.metal.method.seed_context`).
+            initialiser's context (:func:`metadagger.metal_dagger.method.seed_context`).
 
     Returns:
         The rows (:data:`MDI_FIELDS`) of every seed of ``config``, by seed then in
@@ -352,7 +352,7 @@ def evaluate_mdi(
     jobs = [
         MDIJob(
             task=task,
-            groundtruth=str(layout.groundtruth),
+            pistar=str(layout.pistar),
             seed=p.seed,
             methods=p.methods,
             config=config,

@@ -1,6 +1,6 @@
 """Direct mapping (MDM) and one-shot evaluation on unseen seeds (paper 4.1, Tables 1-5).
 
-Per seed, the steps of :mod:`metadagger.metal.method`: the seed's expert demonstration -> w_BC
+Per seed, the steps of :mod:`metadagger.metal_dagger.method`: the seed's expert demonstration -> w_BC
 (exactly as for the pairs) -> each method's head (the BC head itself, each mapper's output, the
 controls) -> one rollout each. One-shot: for each mapper whose head failed, its output initialises
 the head, which is refitted once on the same demonstration and rolled out again. A mapper that
@@ -24,8 +24,8 @@ from metadagger.imitation.lanes import check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.registry import context_inputs, kind_names
-from metadagger.metal.lane_blocks import in_blocks
-from metadagger.metal.method import SeedLearner, bc_head, demonstration, map_head, one_shot, seed_context, seeded
+from metadagger.metal_dagger.lane_blocks import in_blocks
+from metadagger.metal_dagger.method import SeedLearner, bc_head, demonstration, map_head, one_shot, seed_context, seeded
 from metadagger.runfolder.driver import RowLog, SeedJob, StageOptions, Stamp, drive, plan
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint, stamp_of
@@ -84,7 +84,7 @@ def evaluate_seed(job: EvalJob) -> dict[str, Any]:
     entries: dict[str, list[dict[str, Any]]] = {}
     heads: dict[str, np.ndarray] = {}
     fit = seeded(job.bc, job.seed)
-    with SeedLearner(job.task, job.groundtruth, job.seed, head_init_seed=job.bc.head_init_seed(job.seed)) as learner:
+    with SeedLearner(job.task, job.pistar, job.seed, head_init_seed=job.bc.head_init_seed(job.seed)) as learner:
 
         def test(owner: str, method: str, head: np.ndarray, extra: dict[str, int]) -> Trajectory:
             trajectory = learner.roll(head)
@@ -139,7 +139,7 @@ def mdm_stamps(
         "bc": stamp_of(bc),
         "oneshot": config.oneshot,
         **lanes_stamp(config.lanes),
-        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+        "pistar_fingerprint": file_fingerprint(layout.pistar),
     }
     return {
         "bc": common,
@@ -189,7 +189,7 @@ def evaluate_run(
     jobs = [
         EvalJob(
             task=task,
-            groundtruth=str(layout.groundtruth),
+            pistar=str(layout.pistar),
             mappers=mappers,
             seed=p.seed,
             methods=p.methods,

@@ -42,9 +42,10 @@ PRIOR_METHODS = ("prior", "prior-dagger", "prior-gated")
 DISAGREE_GRID = (0.5, 0.8, 0.95)
 #: The control that refits w_BC as DAgger does, with no new label.
 BC_REFIT = "bc-refit"
-#: The MDI protocol's methods (:mod:`metadagger.evaluation.mdi`) and their names in the benchmark,
-#: where ``dagger`` (DAgger from a Xavier head) must not be confused with the pairs' DAgger.
-MDI_METHODS = {"dagger-mdi": "dagger-mdi", "dagger-bc": "dagger-bc-init", "dagger": "dagger-xavier"}
+#: The MDI protocol's methods (paper Table 6, :mod:`metadagger.evaluation.mdi`): DAgger from the
+#: mapper's head, from w_BC and from a fresh Xavier head; one name each, in ``eval/mdi.csv`` and
+#: in the benchmark alike.
+MDI_METHODS = ("dagger-mdi", "dagger-bc-init", "dagger-xavier")
 #: The MDI protocol's two tests and their settings in the benchmark.
 MDI_SHOTS = {"oneshot": "one-shot", "twoshot": "two-shot"}
 #: The mapper kind of the MDI rows: whichever the run's ``mdi.mapper`` names.
@@ -263,7 +264,6 @@ class DisagreeKey(MethodKey):
 class ShotKey(MethodKey):
     """One MDI method (Table 6) at one of its tests; made by the MDI protocol, not by a chain."""
 
-    mdi_method: str
     shot: str
 
     @property
@@ -348,11 +348,7 @@ def _gated(gate: str) -> KeyMaker:
 def _mdi(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     if not mdi:
         return []
-    return [
-        ShotKey(name, setting, mdi_method=method, shot=shot)
-        for method, name in MDI_METHODS.items()
-        for shot, setting in MDI_SHOTS.items()
-    ]
+    return [ShotKey(method, setting, shot=shot) for method in MDI_METHODS for shot, setting in MDI_SHOTS.items()]
 
 
 _BUILT_IN = (
@@ -393,12 +389,8 @@ _BUILT_IN = (
 _MDI = BenchmarkMethod(
     "mdi", "MDI", "Table 6's one- and two-shot tests of DAgger-MDI, DAgger-BC, DAgger (needs an mdi section)", _mdi
 )
-#: Labels of the MDI protocol's rows, which ``mdi`` makes under these names.
-MDI_LABELS = {
-    "dagger-mdi": "DAgger-MDI",
-    "dagger-bc-init": "DAgger-BC (MDI protocol)",
-    "dagger-xavier": "DAgger from Xavier (MDI protocol)",
-}
+#: Labels of the MDI protocol's rows (its report's and the benchmark's).
+MDI_LABELS = {"dagger-mdi": "DAgger-MDI", "dagger-bc-init": "DAgger-BC", "dagger-xavier": "DAgger from Xavier"}
 
 
 def benchmark_methods() -> dict[str, BenchmarkMethod]:

@@ -21,14 +21,14 @@ from metadagger.evaluation.report_family import family_section
 from metadagger.evaluation.report_mdi import mdi_section
 from metadagger.evaluation.report_mdm import mdm_section
 from metadagger.evaluation.report_oneshot import oneshot_section
-from metadagger.evaluation.report_run import groundtruth_section, mappers_section, pairs_section, run_section
+from metadagger.evaluation.report_run import mappers_section, pairs_section, pistar_section, run_section
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import check_writable, write_text
 from metadagger.utils.yaml_config import read_run_data
 
 SECTIONS = (
     run_section,
-    groundtruth_section,
+    pistar_section,
     pairs_section,
     mappers_section,
     diagnostics_section,
@@ -49,7 +49,7 @@ def build_report(layout: RunLayout) -> Path:
     if not layout.config.is_file():
         raise UserError(
             f"nothing has been run in {layout.root} (no config.yaml there); "
-            "pass the --out of a run started with `metadagger groundtruth` or `metadagger reproduce`"
+            "pass the --out of a run started with `metadagger pistar` or `metadagger reproduce`"
         )
     check_writable(layout.report_dir)  # before any figure is drawn
     parts = [line for section in SECTIONS for line in section(layout)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from metadagger.evaluation.mdi import METHODS
+from metadagger.evaluation.methods import MDI_METHODS
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, rate
 from metadagger.runfolder.layout import RunLayout
@@ -17,7 +17,7 @@ COSINE_KEYS = (("cosine_total", "accumulated"), ("cosine_per_action", "per actio
 
 def _by_method(rows: list[dict[str, Any]]) -> dict[str, dict[int, dict[str, Any]]]:
     """Rows by method (Table 7's three first, then the controls as they appear) and seed."""
-    table: dict[str, dict[int, dict[str, Any]]] = {m: {} for m in METHODS}
+    table: dict[str, dict[int, dict[str, Any]]] = {m: {} for m in MDI_METHODS}
     for r in rows:
         table.setdefault(r["method"], {})[r["seed"]] = r
     return table
@@ -49,7 +49,7 @@ def mdi_section(layout: RunLayout) -> list[str]:
             (method_label(m), rate(rows, "one_shot_success"), rate(rows, "two_shot_success"), f"{queries:.1f}")
         )
     lines += markdown_table(("method", "one-shot", "two-shot", "mean expert queries per seed"), cells) + [""]
-    if any(m not in METHODS for m in methods):
+    if any(m not in MDI_METHODS for m in methods):
         lines += [
             "Controls (`mdi.controls`) run DAgger-MDI's steps with another initialiser: `mean-da` is the "
             "training pairs' mean w_DA, `pistar-head` pi*'s own head. Neither depends on the seed's w_BC; "
@@ -70,9 +70,9 @@ def _fig5(table: dict[str, dict[int, dict[str, Any]]], figures: Path) -> list[st
     mdi = table["dagger-mdi"]
     seeds = {
         m: [s for s in sorted(set(mdi) & set(table[m])) if _measured(mdi[s]) and _measured(table[m][s])]
-        for m in METHODS[1:]
+        for m in MDI_METHODS[1:]
     }
-    others = [m for m in METHODS[1:] if seeds[m]]
+    others = [m for m in MDI_METHODS[1:] if seeds[m]]
     if not others:
         return []
     lines = [

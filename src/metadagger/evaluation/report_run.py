@@ -13,13 +13,13 @@ from metadagger.evaluation.curves import plot_curves
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
 from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
 from metadagger.mapping.registry import get_kind, kind_names
-from metadagger.metal.store import validation_size
+from metadagger.metal_dagger.store import validation_size
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json
 from metadagger.utils.yaml_config import read_run_data
 
 #: The pipeline's stages in run order; the stage times of any other stage follow them as written.
-STAGE_ORDER = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark")
+STAGE_ORDER = ("pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark")
 
 
 def run_section(layout: RunLayout) -> list[str]:
@@ -78,11 +78,11 @@ def duration(seconds: float) -> str:
     return f"{hours} h {minutes:02d} min"
 
 
-def groundtruth_section(layout: RunLayout) -> list[str]:
+def pistar_section(layout: RunLayout) -> list[str]:
     """pi*'s success on its own and on unseen seeds, and the expert queries it cost."""
-    if not layout.groundtruth_metrics.is_file():
+    if not layout.pistar_metrics.is_file():
         return []
-    m = read_json(layout.groundtruth_metrics, "pi*'s metrics")
+    m = read_json(layout.pistar_metrics, "pi*'s metrics")
     cells = []
     for key, name in (("own_seeds", "its own (training) seeds"), ("unseen_seeds", "unseen seeds")):
         s = m[key]
@@ -97,7 +97,7 @@ def groundtruth_section(layout: RunLayout) -> list[str]:
             )
         )
     return (
-        ["## Ground-truth policy pi*", ""]
+        ['## pi*, the "ground truth" policy', ""]
         + markdown_table(("seeds", "successes", "success", "95% CI", "mean reward", "mean steps"), cells)
         + ["", f"Expert queries spent on pi*: {m.get('expert_queries', 0)}.", ""]
         + _selection_lines(m)
@@ -112,7 +112,7 @@ def _selection_lines(metrics: dict) -> list[str]:
     checks = ", ".join(f"epoch {c['epoch']}: {c['successes']}" for c in choice["history"])
     return [
         f"pi* is epoch {choice['epoch']} of its BC fit, chosen on {choice['episodes']} held-out seeds of its own "
-        f"(groundtruth.select_seeds), where it succeeded {choice['successes']} times; every check: {checks}.",
+        f"(pistar.select_seeds), where it succeeded {choice['successes']} times; every check: {checks}.",
         "",
     ]
 

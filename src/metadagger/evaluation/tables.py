@@ -20,9 +20,6 @@ from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import get_kind, kind_names
 from metadagger.utils.plotting import draw_figure
 
-#: Labels of the MDI protocol's own method names (its report's rows).
-MDI_PROTOCOL_LABELS = {"dagger-mdi": "DAgger-MDI", "dagger-bc": "DAgger-BC", "dagger": "DAgger"}
-
 
 def method_label(method: str) -> str:
     """How tables name a method: a benchmark method's declared label (gates' included), an MDI
@@ -33,8 +30,6 @@ def method_label(method: str) -> str:
         return declared[method].label
     if method in MDI_LABELS:
         return MDI_LABELS[method]
-    if method in MDI_PROTOCOL_LABELS:
-        return MDI_PROTOCOL_LABELS[method]
     if method.startswith("mdm-"):
         return f"MDM {get_kind(method.removeprefix('mdm-')).label}"
     if GATED_PRIOR in method:

@@ -3,7 +3,7 @@
 Each namespace is one TensorBoard run, a folder ``RUN/tb/<namespace>/`` built from one stage's
 files alone, like the report; every tag starts with its namespace:
 
-- ``groundtruth``: pi*'s fits, DAgger rounds and final success (``groundtruth/metrics.json``);
+- ``pistar``: pi*'s fits, DAgger rounds and final success (``pistar/metrics.json``);
 - ``pairs``: every seed's BC and DAgger outcomes and the outcome counts (``pairs/``);
 - ``mapper/<kind>``: the learning curves of every model of a mapper, autoencoders included
   (``mappers/<kind>/curves.csv``);
@@ -28,7 +28,7 @@ from typing import Any
 
 from metadagger.errors import UserError
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
-from metadagger.metal.store import OUTCOME_KEYS, PairStore
+from metadagger.metal_dagger.store import OUTCOME_KEYS, PairStore
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import atomic_folder, read_json
 
@@ -58,7 +58,7 @@ def require_tensorboard() -> type:
     return SummaryWriter
 
 
-def groundtruth_scalars(layout: RunLayout) -> list[Scalar]:
+def pistar_scalars(layout: RunLayout) -> list[Scalar]:
     """pi*'s training and outcome.
 
     ``loss`` per epoch of its fits, one after another (fit k, 0 being BC, covers steps
@@ -66,10 +66,10 @@ def groundtruth_scalars(layout: RunLayout) -> list[Scalar]:
     pi*'s metrics recorded epoch losses, has none);
     ``dagger/<key>`` of every DAgger round's record at step = round; ``own_seeds/<key>``,
     ``unseen_seeds/<key>`` and ``expert_queries`` of the final pi* at step = its rounds;
-    ``select/successes`` at step = epoch for each check of ``groundtruth.select_seeds``, and
+    ``select/successes`` at step = epoch for each check of ``pistar.select_seeds``, and
     ``select/chosen_epoch`` at step 0.
     """
-    metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics")
+    metrics = read_json(layout.pistar_metrics, "pi*'s metrics")
     rounds = metrics["rounds"]
     fits = [metrics.get("bc_epoch_losses"), *(r.get("dagger/epoch_losses") for r in rounds)]
     out = [

@@ -1,7 +1,7 @@
 """One seed's rollouts side by side, as the learner saw them (``metadagger video``).
 
 Each method's rollout is the one its benchmark row is made of: pi*'s trunk with the seed's
-head, the pairs' early stop, the steps of :mod:`metadagger.metal.method`. A panel shows the
+head, the pairs' early stop, the steps of :mod:`metadagger.metal_dagger.method`. A panel shows the
 learner's observation at each step with the method, the step, the reward so far and the expert
 queries the method spent on the seed; an episode that ends first holds its last frame under its
 outcome. Frames are encoded by imageio (the ``video`` extra): an MP4 (ffmpeg, H.264) and a GIF.
@@ -21,7 +21,15 @@ from metadagger.evaluation.tables import method_label
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
-from metadagger.metal.method import SeedLearner, bc_head, dagger_rounds, demonstration, map_head, seed_context, seeded
+from metadagger.metal_dagger.method import (
+    SeedLearner,
+    bc_head,
+    dagger_rounds,
+    demonstration,
+    map_head,
+    seed_context,
+    seeded,
+)
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import file_fingerprint
 from metadagger.tasks.base import Task
@@ -76,7 +84,7 @@ def seed_clips(
 ) -> list[Clip]:
     """Each of ``methods`` rolled out on ``seed``, in order: ``expert`` (the demonstration),
     ``bc`` (w_BC), ``dagger`` (after ``rounds`` rounds) or a mapper kind (MDM from w_BC)."""
-    with SeedLearner(task, str(layout.groundtruth), seed, head_init_seed=bc.head_init_seed(seed)) as learner:
+    with SeedLearner(task, str(layout.pistar), seed, head_init_seed=bc.head_init_seed(seed)) as learner:
         demo = demonstration(learner)
         data = demo.to_dataset()
         w_bc = bc_head(learner, data, seeded(bc, seed))

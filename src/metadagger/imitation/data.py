@@ -37,7 +37,7 @@ class Dataset:
         labels: (N,) int64 class indices (discrete learner) or (N, d) float32 vectors (continuous).
         features: (N, feature_dim) float32 trunk features of the images, where the pass that acted
             on them computed them (lockstep lanes); a head-only fit on the same trunk reads them
-            instead of the images (:meth:`~metadagger.imitation.bc.FeatureCache.features_of`).
+            instead of the images (:meth:`~metadagger.imitation.features.FeatureCache.features_of`).
     """
 
     obs: np.ndarray
@@ -108,7 +108,7 @@ class Aggregate:
     DAgger's aggregated data grows by a rollout a round; copying every image at every round
     cost more than the head-only fits on them. ``obs`` and ``labels`` are concatenated on first
     use (whole-policy fits need them); head-only fits read the trunk features part by part
-    (:meth:`~metadagger.imitation.bc.FeatureCache.features_of`).
+    (:meth:`~metadagger.imitation.features.FeatureCache.features_of`).
 
     Args:
         parts: the datasets, in order (at least one; same image shape and label layout); an

@@ -17,7 +17,7 @@ a head-only fit; the episodes asked for wait for a free lane in the order they w
 the fits asked for run together, as one batched problem
 (:func:`~metadagger.imitation.head_fits.fit_heads`), whenever the lanes have room that no
 episode is waiting for. A chain resumes when what it asked for is done. The method's code stays
-the sequential code it is (:mod:`metadagger.metal.method`).
+the sequential code it is (:mod:`metadagger.metal_dagger.method`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Early stopping of a whole-policy fit on held-out seeds: the fit's checkpoints are compared by
 their success on seeds the fit never trains on, and the best one is kept.
 
-Used for pi* (:class:`~metadagger.metal.groundtruth.GroundTruthConfig.select_seeds`), whose fit's
+Used for pi* (:class:`~metadagger.metal_dagger.pistar.PiStarConfig.select_seeds`), whose fit's
 last epoch is not always its best: measured on Fetch, one fit's success on 80 held-out layouts
 swung between 49% and 78% from one check to the next after its 12th epoch (docs/fetch.md).
 """

@@ -1,10 +1,10 @@
 """DAgger of a whole policy over many seeds, composed from behavioural cloning: roll out on every
 seed, let the expert label every visited state, aggregate, refit the whole network.
 
-This is the DAgger that trains pi* (:mod:`metadagger.metal.groundtruth`) and the plain DAgger of
+This is the DAgger that trains pi* (:mod:`metadagger.metal_dagger.pistar`) and the plain DAgger of
 ``metadagger demo``. MetaL DAgger's own DAgger, on one seed with pi*'s trunk frozen and a head
 refitted each round, with or without a gate, is
-:func:`metadagger.metal.method.dagger_rounds`.
+:func:`metadagger.metal_dagger.method.dagger_rounds`.
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from metadagger.errors import UserError
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_or_resume
+from metadagger.imitation.bc import BCConfig, fit_or_resume
 from metadagger.imitation.collect import collect
 from metadagger.imitation.data import Aggregate, Dataset
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.rollouts import EarlyStop, Trajectory
 from metadagger.policies import Policy
 from metadagger.tasks.base import Task

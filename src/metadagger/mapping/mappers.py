@@ -2,7 +2,7 @@
 
 The kinds (DM, SAM, TAM, ridge, modes, conditioned and the controls mean-DA and pi*-head) are
 declared in :mod:`metadagger.mapping.registry`. A kind with a context (``conditioned``) also takes
-the seed's context (:func:`metadagger.metal.method.seed_context`) beside w_BC.
+the seed's context (:func:`metadagger.metal_dagger.method.seed_context`) beside w_BC.
 
 Every learned kind works in standardised space: a :class:`Standardizer` per data set, fitted on
 the training split only and saved with the mapper. A mapper is one safetensors file whose
@@ -211,8 +211,8 @@ class Mapper:
             return self.map_tensor(w).numpy()
         if context is None:
             raise UserError(
-                f"the {self.kind} mapper needs the seed's context beside w_BC (metadagger.metal.method.seed_context), "
-                "got none"
+                f"the {self.kind} mapper needs the seed's context beside w_BC "
+                "(metadagger.metal_dagger.method.seed_context), got none"
             )
         c = _as_float32(context)
         if tuple(c.shape) != (w.shape[0], self.context_dim):

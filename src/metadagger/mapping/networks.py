@@ -1,6 +1,6 @@
 """The networks of the learned mapper kinds (paper 3.3): DM's MLP, SAM's and TAM's autoencoders
 and their latent map h. Each builder takes the head length, the architecture fields of
-:class:`~metadagger.mapping.train.MapperConfig` and a generator, and returns the untrained
+:class:`~metadagger.mapping.config.MapperConfig` and a generator, and returns the untrained
 networks named as in the kind's :class:`~metadagger.mapping.registry.Route`."""
 
 from __future__ import annotations

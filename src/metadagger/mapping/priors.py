@@ -35,8 +35,8 @@ from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, head_fit
 from metadagger.imitation.head_fits import Prior, fit_heads
 from metadagger.mapping.mappers import Mapper
-from metadagger.metal.method import SeedLearner, demonstration, seeded
-from metadagger.metal.store import PairSplit
+from metadagger.metal_dagger.method import SeedLearner, demonstration, seeded
+from metadagger.metal_dagger.store import PairSplit
 from metadagger.runfolder.stamps import data_fingerprint, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.utils.io import read_json, write_json
@@ -111,7 +111,7 @@ class StrengthChoice:
 def choose_strengths(
     priors: Mapping[str, tuple[HeadPrior, Mapper | None]],
     task: Task,
-    groundtruth: str,
+    pistar: str,
     split: PairSplit,
     fit: BCConfig,
     *,
@@ -129,7 +129,7 @@ def choose_strengths(
     totals = {mean: np.zeros(len(strengths)) for mean in priors}
     for row, seed in enumerate(split.val_seeds):
         context = None if split.context_val is None else split.context_val[row]
-        with SeedLearner(task, groundtruth, seed, head_init_seed=fit.head_init_seed(seed)) as learner:
+        with SeedLearner(task, pistar, seed, head_init_seed=fit.head_init_seed(seed)) as learner:
             data = demonstration(learner).to_dataset()
             base = head_fit(
                 learner.policy, data, seeded(fit, seed), learner.cache, called=f"the prior fit of pair seed {seed}"
@@ -171,7 +171,7 @@ def split_fingerprint(split: PairSplit) -> str:
 def chosen_priors(
     means: Mapping[str, Mapper | None],
     task: Task,
-    groundtruth: str,
+    pistar: str,
     split: PairSplit,
     fit: BCConfig,
     *,
@@ -201,9 +201,7 @@ def chosen_priors(
         }
     if progress:
         print(f"priors: choosing strengths on {len(split.val_seeds)} validation pairs", file=sys.stderr, flush=True)
-    chosen = choose_strengths(
-        {mean: (built[mean], mapper) for mean, mapper in means.items()}, task, groundtruth, split, fit
-    )
+    chosen = choose_strengths({mean: (built[mean], mapper) for mean, mapper in means.items()}, task, pistar, split, fit)
     write_json(record, {"stamp": stamp, "chosen": {mean: choice.as_dict() for mean, (_, choice) in chosen.items()}})
     return {mean: prior for mean, (prior, _) in chosen.items()}
 

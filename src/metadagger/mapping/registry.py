@@ -65,7 +65,7 @@ class MapperKind:
     closed_form: ClosedForm | None = None
     """Learned kinds fitted in closed form (no autoencoder): how the core is set."""
     context: bool = False
-    """Learned kinds that also read the seed's context (:func:`metadagger.metal.method.seed_context`): the core
+    """Learned kinds that also read the seed's context (:func:`metadagger.metal_dagger.method.seed_context`): the core
     receives the standardised w_BC followed by the standardised context (scaler ``context``)."""
 
     def __post_init__(self) -> None:

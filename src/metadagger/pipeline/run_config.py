@@ -1,6 +1,6 @@
 """A run folder's configuration: written first (``<run>/config.yaml``), read by every later stage.
 
-``metadagger groundtruth --task T --preset P --out RUN`` creates it from a preset; ``metadagger
+``metadagger pistar --task T --preset P --out RUN`` creates it from a preset; ``metadagger
 pairs --out RUN`` and the later stages read it back, so a run is described by its folder alone.
 The stage commands also take ``--set section.key=value`` overrides (the value read as YAML), validated
 by the same builder as the presets; the config a stage runs with is written back to the folder
@@ -17,7 +17,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, ClassVar, Sequence
 
 import yaml
 
@@ -27,10 +27,10 @@ from metadagger.evaluation.diagnose import DiagnoseConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig
 from metadagger.evaluation.tensorboard import require_tensorboard
+from metadagger.mapping.config import MapperConfig, paper_config
 from metadagger.mapping.registry import kind_names, learned_names
-from metadagger.mapping.train import MapperConfig, paper_config
-from metadagger.metal.groundtruth import GroundTruthConfig
-from metadagger.metal.pairs import PairConfig
+from metadagger.metal_dagger.pairs import PairConfig
+from metadagger.metal_dagger.pistar import PiStarConfig
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
 from metadagger.tasks import check_task
@@ -56,6 +56,9 @@ FIRST_RECORDED = "0.2"
 class RunConfig:
     """Every stage of one MetaL DAgger run."""
 
+    RENAMED: ClassVar[dict[str, str]] = {"groundtruth": "pistar"}
+    """Sections of an older version's presets, by their names now (an error names the new one)."""
+
     metadagger_version: str = __version__
     """The metadagger version that made the run folder (kept as the folder's stages rewrite its
     config; in no stamp, so it changes no other artifact)."""
@@ -65,7 +68,7 @@ class RunConfig:
     """The preset this config came from (informational)."""
     max_episode_steps: int = 1000
     """Step limit of every episode of every stage."""
-    groundtruth: GroundTruthConfig = field(default_factory=GroundTruthConfig)
+    pistar: PiStarConfig = field(default_factory=PiStarConfig)
     """pi*: multi-seed BC + DAgger."""
     pairs: PairConfig = field(default_factory=PairConfig)
     """Per-seed (w_BC, w_DA) pairs."""
@@ -98,7 +101,7 @@ class RunConfig:
             require_tensorboard()  # a missing extra fails now, not after the first stage
         if self.max_episode_steps < 1:
             raise UserError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
-        gt = self.groundtruth.used_seeds
+        gt = self.pistar.used_seeds
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
@@ -296,7 +299,7 @@ def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     path = RunLayout(run).config
     if not path.is_file():
         raise UserError(
-            f"no run at {run} (missing {path}); start one with `metadagger groundtruth --task T --preset P --out {run}`"
+            f"no run at {run} (missing {path}); start one with `metadagger pistar --task T --preset P --out {run}`"
         )
     data = read_run_data(path)
     check_version(path, data)

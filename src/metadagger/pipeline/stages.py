@@ -1,6 +1,6 @@
 """The MetaL DAgger pipeline as stages over one run folder:
-groundtruth -> pairs -> mappers -> evaluate (MDM) -> mdi -> benchmark -> report; diagnose, tune
-and export run on their own.
+pistar -> pairs -> mappers -> evaluate (MDM) -> mdi -> benchmark -> report; diagnose and tune
+run on their own, as do export and video (:mod:`metadagger.pipeline.outputs`).
 
 Each stage reads the run's config and the previous stages' artifacts, checks that those are
 complete and made from today's config (their stamps, :mod:`metadagger.runfolder.stamps`), and skips the work
@@ -34,28 +34,27 @@ from metadagger.evaluation.report import build_report
 from metadagger.evaluation.tensorboard import (
     Scalar,
     benchmark_scalars,
-    groundtruth_scalars,
     mapper_scalars,
     pairs_scalars,
+    pistar_scalars,
     table_scalars,
     write_tensorboard,
 )
-from metadagger.evaluation.video import FIXED_METHODS, check_methods, compose, require_imageio, seed_clips, write_video
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.priors import ZERO, HeadPrior, chosen_priors
 from metadagger.mapping.registry import get_kind
+from metadagger.mapping.search_space import check_tunable
 from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
-from metadagger.mapping.tune import TuneResult, check_tunable, tune_mapper
-from metadagger.metal.export import DEFAULT_AUTHOR, export_run
-from metadagger.metal.groundtruth import (
+from metadagger.mapping.tune import TuneResult, tune_mapper
+from metadagger.metal_dagger.pairs import OUTCOMES, collect_pairs, negligible_change_warning, pair_status
+from metadagger.metal_dagger.pistar import (
     check_pistar,
-    groundtruth_changes,
-    load_groundtruth,
+    load_pistar,
+    pistar_changes,
     pistar_rates,
-    train_groundtruth,
+    train_pistar,
 )
-from metadagger.metal.pairs import OUTCOMES, collect_pairs, negligible_change_warning, pair_status
-from metadagger.metal.store import PairSplit, PairStore, validation_size
+from metadagger.metal_dagger.store import PairSplit, PairStore, validation_size
 from metadagger.pipeline.run_config import RunConfig, init_run, load_run, save_run
 from metadagger.pipeline.stage_runs import records_config
 from metadagger.policies import Policy
@@ -72,7 +71,7 @@ from metadagger.utils.io import read_json
 from metadagger.utils.kernels import kernel_stamp, pin_cpu_kernels
 from metadagger.utils.plotting import draw_figure
 
-STAGES = ("groundtruth", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnose", "report")
+STAGES = ("pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnose", "report")
 
 
 def run_task(config: RunConfig, *, checked: bool = False) -> Task:
@@ -93,29 +92,29 @@ def _log(layout: RunLayout, config: RunConfig, runs: Callable[[], Mapping[str, l
 
 
 @records_config
-def stage_groundtruth(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
+def stage_pistar(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Train pi* (skipped when done and made from this config)."""
     # pi*'s rollouts use this machine's cores (a local pool) whatever executor the per-seed stages use
     workers = options.workers if options.executor == "local" and options.workers else default_workers()
-    metrics = train_groundtruth(
+    metrics = train_pistar(
         run_task(config, checked=True),
-        config.groundtruth,
+        config.pistar,
         layout,
         rebuild=options.rebuild,
         progress=options.progress,
         workers=workers,
     )
-    _log(layout, config, lambda: {"groundtruth": groundtruth_scalars(layout)})
+    _log(layout, config, lambda: {"pistar": pistar_scalars(layout)})
     return metrics
 
 
-def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Policy:
+def current_pistar(layout: RunLayout, config: RunConfig, task: Task) -> Policy:
     """pi*, checked to exist, to load and to be made from this run's config."""
-    pistar = load_groundtruth(layout)  # a corrupt file is named even when no work is left
-    changes = groundtruth_changes(task, config.groundtruth, layout)
+    pistar = load_pistar(layout)  # a corrupt file is named even when no work is left
+    changes = pistar_changes(task, config.pistar, layout)
     if changes:
         raise UserError(
-            f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
+            f"pi* in {layout.pistar_dir} was made from another config ({'; '.join(changes)}); "
             f"run `metadagger reproduce` to rebuild it and what depends on it"
         )
     return pistar
@@ -124,10 +123,10 @@ def _current_groundtruth(layout: RunLayout, config: RunConfig, task: Task) -> Po
 @records_config
 def stage_pairs(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Collect the pairs of every seed not stored yet (with ``options.rebuild``, also the stale ones);
-    refuses before any pair when pi* is below ``groundtruth.min_success`` on its unseen seeds."""
+    refuses before any pair when pi* is below ``pistar.min_success`` on its unseen seeds."""
     task = run_task(config, checked=True)
-    _current_groundtruth(layout, config, task)
-    check_pistar(read_json(layout.groundtruth_metrics, "pi*'s metrics"), config.groundtruth, layout)
+    current_pistar(layout, config, task)
+    check_pistar(read_json(layout.pistar_metrics, "pi*'s metrics"), config.pistar, layout)
     summary = collect_pairs(task, layout, config.pairs, options)
     _log(layout, config, lambda: {"pairs": pairs_scalars(layout, config.pairs.seeds)})
     return summary
@@ -170,8 +169,8 @@ def _pair_outcomes(layout: RunLayout) -> str:
         summary = read_json(layout.pairs_summary, "the pairs' summary")
         counts = ", ".join(f"{name} {summary['outcomes'].get(name, 0)}" for name in OUTCOMES)
         parts.append(f"of {summary['seeds']} pair seeds: {counts}")
-    if layout.groundtruth_metrics.is_file():
-        metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics")
+    if layout.pistar_metrics.is_file():
+        metrics = read_json(layout.pistar_metrics, "pi*'s metrics")
         parts.append(f"pi*: {pistar_rates(metrics)}")
     return "; ".join(parts) or "no pairs summary yet"
 
@@ -186,7 +185,7 @@ def stage_mappers(
     for kind in kinds:
         get_kind(kind)  # unknown kinds fail before any work
     task = run_task(config)
-    head = _current_groundtruth(layout, config, task).head_vector()
+    head = current_pistar(layout, config, task).head_vector()
     split = _current_split(layout, config, task)
     jobs = [
         MapperJob(split=split, config=config.mapper_config(kind), out_dir=layout.mapper_dir(kind), pistar_head=head)
@@ -218,7 +217,7 @@ def stage_tune(
     writes the best settings into the run's ``mappers`` section, for train-mapper and reproduce."""
     check_tunable(kind)  # before any work
     task = run_task(config)
-    _current_groundtruth(layout, config, task)
+    current_pistar(layout, config, task)
     split = _current_split(layout, config, task)
     result = tune_mapper(
         split,
@@ -235,7 +234,7 @@ def stage_tune(
     return result
 
 
-def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequence[str], pistar: Policy) -> None:
+def check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequence[str], pistar: Policy) -> None:
     """Every mapper of ``kinds`` exists, loads, and was made from the run's current pairs and
     settings (a mapper saved by hand, without a stamp, is taken as it is)."""
     split = None
@@ -260,7 +259,7 @@ def _check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequ
 
 def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
     """``seeds`` as a tuple, checked to be none of pi*'s or the pairs' seeds."""
-    used = config.groundtruth.used_seeds | set(config.pairs.seeds)
+    used = config.pistar.used_seeds | set(config.pairs.seeds)
     seen = sorted(set(seeds) & used)
     if seen:
         raise UserError(f"evaluation seeds must be unseen, but {seen[:5]} were used for pi* or pairs; pick other seeds")
@@ -277,8 +276,8 @@ def stage_evaluate(
         config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
     )
     task = run_task(config)
-    pistar = _current_groundtruth(layout, config, task)
-    _check_mappers(layout, config, task, eval_config.methods, pistar)
+    pistar = current_pistar(layout, config, task)
+    check_mappers(layout, config, task, eval_config.methods, pistar)
     rows = evaluate_run(
         task, layout, eval_config, bc=config.pairs.bc, early_stop=config.pairs.early_stop, options=options
     )
@@ -298,8 +297,8 @@ def stage_mdi(
         return []
     mdi = mdi if seeds is None else dataclasses.replace(mdi, seeds=_unseen(config, seeds))
     task = run_task(config)
-    pistar = _current_groundtruth(layout, config, task)
-    _check_mappers(layout, config, task, tuple(mdi.kinds.values()), pistar)
+    pistar = current_pistar(layout, config, task)
+    check_mappers(layout, config, task, tuple(mdi.kinds.values()), pistar)
     rows = evaluate_mdi(task, layout, mdi, options, context_early_stop=config.pairs.early_stop)
     _log(layout, config, lambda: {"eval/mdi": table_scalars(layout.eval_table("mdi"))})
     return rows
@@ -324,10 +323,10 @@ def stage_benchmark(
         changes["methods"] = tuple(methods)
     bench = dataclasses.replace(bench, **changes) if changes else bench
     task = run_task(config)
-    pistar = _current_groundtruth(layout, config, task)
+    pistar = current_pistar(layout, config, task)
     kinds = config.evaluate.methods if {"mdm", *PRIOR_METHODS, "disagree"} & set(bench.methods) else ()
     mdi = config.mdi_config if "mdi" in bench.methods else None
-    _check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
+    check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
     with_priors = bool(set(PRIOR_METHODS) & set(bench.methods))
     priors = _benchmark_priors(layout, config, task, tuple(kinds), options) if with_priors else None
     run = functools.partial(
@@ -361,13 +360,13 @@ def _benchmark_priors(
     inputs = {
         **kernel_stamp(),
         **task_stamp(task),
-        "groundtruth": file_fingerprint(layout.groundtruth),
+        "pistar": file_fingerprint(layout.pistar),
         "mappers": {kind: file_fingerprint(layout.mapper(kind)) for kind in kinds},
     }
     return chosen_priors(
         {kind: load_mapper(layout.mapper(kind)) for kind in kinds} | {ZERO: None},
         task,
-        str(layout.groundtruth),
+        str(layout.pistar),
         split,
         config.pairs.bc,
         record=layout.benchmark_priors,
@@ -381,9 +380,9 @@ def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOption
     """The mapping diagnostics of every kind and control of ``evaluate.methods`` on the run's
     validation pairs (:mod:`metadagger.evaluation.diagnose`)."""
     task = run_task(config)
-    pistar = _current_groundtruth(layout, config, task)
+    pistar = current_pistar(layout, config, task)
     kinds = tuple(config.evaluate.methods)
-    _check_mappers(layout, config, task, kinds, pistar)
+    check_mappers(layout, config, task, kinds, pistar)
     split = _current_split(layout, config, task)
     learned = {kind: config.mapper_config(kind) for kind in kinds if get_kind(kind).learned}
     return diagnose_mappers(
@@ -401,80 +400,10 @@ def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOption
     )
 
 
-@records_config
-def stage_export(
-    layout: RunLayout,
-    config: RunConfig,
-    *,
-    what: str,
-    name: str,
-    seeds: Sequence[int] | None = None,
-    author: str = DEFAULT_AUTHOR,
-    author_email: str | None = None,
-    options: StageOptions = StageOptions(),
-) -> dict:
-    """The run's ``what`` episodes (demos, dagger, pairs-data) of ``seeds`` (default: the pair
-    seeds) as the Minari dataset ``name``, by ``author`` (:mod:`metadagger.metal.export`)."""
-    task = run_task(config)
-    if what != "demos":
-        _current_groundtruth(layout, config, task)
-    return export_run(
-        task,
-        layout,
-        config.pairs,
-        what=what,
-        name=name,
-        seeds=sorted(set(config.pairs.seeds if seeds is None else seeds)),
-        author=author,
-        author_email=author_email,
-        options=options,
-    )
-
-
-def stage_video(
-    layout: RunLayout,
-    config: RunConfig,
-    *,
-    seed: int,
-    methods: Sequence[str],
-    fps: int = 30,
-    scale: int = 3,
-    gif_stride: int = 3,
-) -> tuple[Path, Path]:
-    """``methods`` rolled out on ``seed`` side by side (:mod:`metadagger.evaluation.video`), as
-    ``RUN/videos/<seed>-<methods>.mp4`` and ``.gif``; returns their paths."""
-    if fps < 1 or scale < 1 or gif_stride < 1:
-        raise UserError(f"--fps, --scale and --gif-stride must be >= 1, got {fps}, {scale} and {gif_stride}")
-    require_imageio()
-    check_methods(methods, layout)
-    task = run_task(config, checked=True)
-    pistar = _current_groundtruth(layout, config, task)
-    _check_mappers(layout, config, task, [m for m in methods if m not in FIXED_METHODS], pistar)
-    clips = seed_clips(
-        task,
-        layout,
-        seed,
-        methods,
-        bc=config.pairs.bc,
-        dagger_bc=config.pairs.dagger_bc,
-        rounds=config.pairs.dagger_rounds,
-        early_stop=config.pairs.early_stop,
-    )
-    stem = layout.root / "videos" / f"{seed}-{'-'.join(methods)}"
-    with run_lock(layout.root):
-        return write_video(
-            compose(clips, scale=scale),
-            stem.with_suffix(".mp4"),
-            stem.with_suffix(".gif"),
-            fps=fps,
-            gif_stride=gif_stride,
-        )
-
-
 def _meta_training_queries(layout: RunLayout, config: RunConfig) -> dict[str, int]:
     """Expert queries spent on pi* and on the pairs of ``pairs.seeds`` (each pair's demonstration
     and DAgger rounds)."""
-    metrics = read_json(layout.groundtruth_metrics, "pi*'s metrics") if layout.groundtruth_metrics.is_file() else {}
+    metrics = read_json(layout.pistar_metrics, "pi*'s metrics") if layout.pistar_metrics.is_file() else {}
     seeds = set(config.pairs.seeds)
     records = PairStore(layout.pairs_dir).records() if layout.pairs_dir.is_dir() else []
     return {
@@ -515,7 +444,7 @@ def reproduce(
 def _reproduce(layout: RunLayout, config: RunConfig, options: StageOptions, *, diagnose: bool) -> Path:
     options = dataclasses.replace(options, rebuild=True)
     stages = [
-        ("groundtruth: pi*", lambda: stage_groundtruth(layout, config, options)),
+        ("pistar: pi*", lambda: stage_pistar(layout, config, options)),
         ("pairs (w_BC, w_DA)", lambda: stage_pairs(layout, config, options)),
         (f"mappers: {', '.join(config.mapper_kinds)}", lambda: stage_mappers(layout, config, options=options)),
         ("evaluate: MDM and one-shot", lambda: stage_evaluate(layout, config, options=options)),
@@ -553,7 +482,7 @@ __all__ = [
     "stage_benchmark",
     "stage_diagnose",
     "stage_evaluate",
-    "stage_groundtruth",
+    "stage_pistar",
     "stage_mappers",
     "stage_mdi",
     "stage_pairs",

@@ -6,7 +6,7 @@ A block is marked in a Markdown file by two comments; everything between them is
     ...
     <!-- /results -->
 
-The words after ``results:`` name a block kind of :data:`metadagger.results.tables.BLOCKS` and its
+The words after ``results:`` name a block kind of :data:`BLOCKS` and its
 arguments. :func:`build` rewrites every block of the files from the registry; with ``check``, it
 writes nothing and returns the blocks that differ from what it would write.
 """
@@ -15,13 +15,16 @@ from __future__ import annotations
 
 import re
 import shlex
+import textwrap
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 from metadagger.errors import UserError
+from metadagger.results import tables
 from metadagger.results.registry import REGISTRY, load_registry
 from metadagger.results.staleness import registry_staleness
-from metadagger.results.tables import BLOCKS, BlockContext
+from metadagger.results.tables import BlockContext
+from metadagger.results.verdict import verdict
 from metadagger.utils.io import write_text
 
 #: A block: its opening comment (kind and arguments), its generated body, its closing comment.
@@ -31,6 +34,41 @@ BLOCK = re.compile(
 
 #: A fenced code block, whose text is never a block (a page may show the syntax).
 FENCE = re.compile(r"^```.*?^```", re.S | re.M)
+
+
+#: Block kinds by name (:mod:`metadagger.results.tables`, :mod:`metadagger.results.verdict`).
+BLOCKS: dict[str, Callable[..., str]] = {
+    "glance": tables.glance,
+    "runs": tables.runs_table,
+    "report": tables.report_section,
+    "figure": tables.figure,
+    "queries-figure": tables.queries_figure,
+    "budgets": tables.budgets_table,
+    "manifest": tables.manifest_line,
+    "verdict": verdict,
+}
+
+#: The column at which generated prose is wrapped (tables, headings and images are never wrapped).
+WRAP = 100
+
+#: A list item's marker: what its wrapped lines are indented under.
+LIST_ITEM = re.compile(r"^(\s*(?:[-*]|\d+\.) )")
+
+
+def wrap_prose(text: str, width: int = WRAP) -> str:
+    """``text`` with each line of prose longer than ``width`` wrapped (a list item's continuation
+    lines indented under its text); tables, headings, images, comments and fenced code as they are."""
+    out, fenced = [], False
+    for line in text.split("\n"):
+        if line.startswith("```"):
+            fenced = not fenced
+        if fenced or len(line) <= width or line.lstrip().startswith(("|", "#", "!", "<", "```")):
+            out.append(line)
+            continue
+        marker = LIST_ITEM.match(line)
+        indent = " " * len(marker.group(1)) if marker else ""
+        out += textwrap.wrap(line, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
+    return "\n".join(out)
 
 
 def doc_files(root: str | Path = ".") -> list[Path]:
@@ -58,7 +96,7 @@ def render_file(path: Path, context: BlockContext) -> tuple[str, list[str]]:
                 f"expected one of {', '.join(sorted(BLOCKS))}"
             )
         try:
-            body = BLOCKS[words[0]](context.at(path), *words[1:]).rstrip("\n") + "\n"
+            body = wrap_prose(BLOCKS[words[0]](context.at(path), *words[1:])).rstrip("\n") + "\n"
         except (TypeError, ValueError) as exc:
             raise UserError(f"{path}:{line}: block {spec!r} cannot be written ({exc}); fix its arguments") from None
         if body != match.group("body"):

@@ -33,7 +33,7 @@ REGISTRY = Path("results")
 KEPT_FILES = (
     "config.yaml",
     "stage_times.json",
-    "groundtruth/metrics.json",
+    "pistar/metrics.json",
     "pairs/summary.json",
     "mappers/*/curves.csv",
     "eval/*.csv",
@@ -83,7 +83,7 @@ CANONICAL_RUNS = (
         "carracing-family",
         "paper",
         diagnose=True,
-        shows="the CarRacing family at paper scale, every head from one shared initialisation",
+        shows="the CarRacing family, every head from one shared initialisation",
     ),
     CanonicalRun("fetch-family-paper", "fetch-family", "paper", shows="the Fetch family at paper scale"),
     CanonicalRun(
@@ -91,7 +91,7 @@ CANONICAL_RUNS = (
         "carracing-family",
         "paper",
         ("pairs.bc.head_init=seed",),
-        shows="the CarRacing family with the paper's per-seed head initialisation",
+        shows="the CarRacing family, each seed's own head initialisation",
         diagnose=True,
     ),
 )

@@ -1,17 +1,17 @@
 """The kinds of generated block (:mod:`metadagger.results.blocks`), each a function of the registry.
 
-=========================  ============================================================
-block                      writes
-=========================  ============================================================
-``glance``                 the paper's figures beside the paper-preset runs': the best
-                           MetaL DAgger method, the two MDM controls, BC refitted, DAgger
-                           and the best gate, each with its interval and queries per seed
-``runs``                   every canonical run: command, wall time, CPU, what it shows
-``report RUN HEADING``     the section of RUN's ``report.md`` under HEADING (its figures
-                           linked where they lie in the registry)
-``figure RUNS PATH ALT``   an image of the first of RUNS (comma-separated) that has it
-``manifest RUN``           what made RUN: commit, CPU and kernels, wall time, what ran beside
-=========================  ============================================================
+- ``glance``: every run's best MetaL DAgger method beside its controls (pi*'s head, mean-DA, BC
+  refitted), then DAgger, the best gate and the oracle, each with its interval and queries per
+  seed; the paper's figures.
+- ``runs``: every canonical run: its arguments, wall time, CPU, what it shows.
+- ``report RUN HEADING [ROW ...]``: the section of RUN's ``report.md`` under HEADING (its figures
+  linked where they lie in the registry), or only its first table's rows ROW.
+- ``figure RUNS PATH ALT``: an image of the first of RUNS (comma-separated) that has it.
+- ``queries-figure RUNS ALT``: the benchmark figure of the first of RUNS, drawn from its summary.
+- ``budgets [RUNS]``: the runs read at equal budgets and by the area under the curve.
+- ``verdict RUNS``: whether a MetaL DAgger method beats every one of its references
+  (:mod:`metadagger.results.verdict`).
+- ``manifest RUN``: what made RUN: commit, CPU and kernels, wall time, what ran beside.
 
 A block about a run the registry does not hold yet says so, with the command that makes it.
 """
@@ -19,14 +19,15 @@ A block about a run the registry does not hold yet says so, with the command tha
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import re
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping, Sequence
 
 from metadagger.evaluation.benchmark_figure import plot_queries
-from metadagger.evaluation.benchmark_summary import BUDGET_SHARES, budget_reading
-from metadagger.evaluation.methods import BC_REFIT, MDI_METHODS, MDM_PREFIX, gated_methods, reference_methods
+from metadagger.evaluation.benchmark_summary import budget_reading
+from metadagger.evaluation.methods import BC_REFIT, MDI_METHODS, gated_methods, metal_twins, reference_methods
 from metadagger.evaluation.report_run import duration
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import markdown_table, method_label, pct
@@ -68,7 +69,8 @@ class BlockContext:
         return Path(os.path.relpath(target.resolve(), base)).as_posix()
 
 
-def _missing(name: str) -> str:
+def missing_run(name: str) -> str:
+    """What a block says of a canonical run the registry does not hold yet: the commands that add it."""
     run = canonical_run(name)
     return (
         f"*Not in the registry yet: `{run.command}`, then `metadagger results add --out runs/{run.name} "
@@ -76,14 +78,16 @@ def _missing(name: str) -> str:
     )
 
 
-def _cell(entry: dict[str, Any] | None) -> str:
-    """success (interval) @ queries per seed."""
+def _cell(entry: dict[str, Any] | None, *, queries: bool = True) -> str:
+    """successes/seeds (95% interval) at mean queries per seed."""
     if entry is None:
         return "-"
-    return (
-        f"{pct(entry['success_rate'])} ({entry['successes']}/{entry['seeds']}; {pct(entry['success_ci_low'])}-"
-        f"{pct(entry['success_ci_high'])}) at {entry['mean_queries']:,.0f}"
-    )
+    cell = f"{entry['successes']}/{entry['seeds']} ({_ci(entry['success_ci_low'], entry['success_ci_high'])})"
+    return cell + (f" at {entry['mean_queries']:,.0f}" if queries else "")
+
+
+def _ci(low: float, high: float) -> str:
+    return f"{100 * low:.0f}-{100 * high:.0f}%"
 
 
 def _best(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -98,95 +102,96 @@ def _labelled(entry: dict[str, Any] | None) -> str:
     return f"{method_label(entry['method'])}{setting}: {_cell(entry)}"
 
 
+def _glance_entries(found: RegistryRun) -> dict[str, Any]:
+    """A run's benchmark entries on the whole demonstration, sorted into the glance's columns."""
+    entries = [e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0]
+    by_method = {e["method"]: e for e in entries}
+    dagger = [e for e in entries if e["method"] == "dagger"]
+    return {
+        "metal": _best([e for e in entries if metal_twins(e["method"]) or e["method"] == MDI_METHODS[0]]),
+        "pistar": by_method.get(CONTROLS[0]),
+        "mean-da": by_method.get(CONTROLS[1]),
+        "refit": by_method.get(BC_REFIT),
+        "dagger": max(dagger, key=lambda e: int(e["setting"])) if dagger else None,
+        "gate": _best([e for e in entries if e["method"] in gated_methods()]),
+        "oracle": _best([e for e in entries if e["method"] in reference_methods()]),
+        "seeds": max((e["seeds"] for e in entries), default=0),
+    }
+
+
 def glance(context: BlockContext) -> str:
-    """The at-a-glance table of the paper-preset runs, then of the quick ones."""
-    header = (
-        "run",
-        "the paper",
-        "best MetaL DAgger",
-        "control: pi*-head",
-        "control: mean-DA",
-        "control: BC refitted",
-        "DAgger (last round)",
-        "best gate",
-        "ceiling: oracle",
-    )
-    rows = []
+    """The at-a-glance tables of the paper-preset runs, then of the quick ones: the best MetaL
+    DAgger method beside its controls, then DAgger, the best gate and the oracle."""
+    metal, queries = [], []
     for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
         found = context.runs.get(run.name)
         if found is None or not found.path("benchmark/summary.json").is_file():
-            rows.append(
-                (
-                    f"`{run.name}`",
-                    PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "",
-                    "not run yet",
-                    "",
-                    "",
-                    "",
-                    "",
-                    "",
-                    "",
-                )
-            )
+            metal.append((f"`{run.name}`", "not run yet", "", "", "", ""))
+            queries.append((f"`{run.name}`", "not run yet", "", ""))
             continue
-        entries = [
-            e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0
-        ]
-        by_method = {e["method"]: e for e in entries}
-        mappers = [
-            e
-            for e in entries
-            if (e["method"].startswith(MDM_PREFIX) and e["method"] not in CONTROLS)
-            or e["method"] == MDI_METHODS["dagger-mdi"]
-        ]
-        dagger = [e for e in entries if e["method"] == "dagger"]
-        gates = [e for e in entries if e["method"] in gated_methods()]
-        oracle = [e for e in entries if e["method"] in reference_methods()]
-        rows.append(
-            (
-                _run_cell(context, run.name),
-                PAPER_FIGURES.get(run.task, "-") if run.preset == "paper" else "",
-                _labelled(_best(mappers)),
-                _cell(by_method.get(CONTROLS[0])),
-                _cell(by_method.get(CONTROLS[1])),
-                _cell(by_method.get(BC_REFIT)),
-                _cell(max(dagger, key=lambda e: int(e["setting"])) if dagger else None),
-                _labelled(_best(gates)),
-                _labelled(_best(oracle)),
-            )
-        )
+        e = _glance_entries(found)
+        name = _run_cell(context, run.name)
+        controls = (_cell(e["pistar"], queries=False), _cell(e["mean-da"], queries=False), _cell(e["refit"]))
+        metal.append((name, str(e["seeds"]), _labelled(e["metal"]), *controls))
+        oracle = f"{e['oracle']['setting']}: {_cell(e['oracle'])}" if e["oracle"] else "-"
+        queries.append((name, _cell(e["dagger"]), _labelled(e["gate"]), oracle))
     note = (
-        "Success on the run's unseen seeds (95% Wilson interval) at mean expert queries per seed (the "
-        "demonstration's included; the controls use none), every method on the whole demonstration (the shorter "
-        "ones of `benchmark.demo_fractions` are in each run's report), one benchmark rollout per seed under the "
-        "pairs' early stop (`pairs.early_stop`, set on the Fetch presets: a rollout it cuts counts as a failure, "
-        "so an MDM row can stand below the run's Table 1, rolled out without it). BC refitted: w_BC refitted as "
-        "DAgger refits it, on the demonstration alone (`bc-refit`; '-' for a run that has no such row). Best "
-        "MetaL DAgger: the best MDM mapper or DAgger-MDI. Ceiling: the oracle rule, which labels exactly the states "
-        "where the learner is wrong ('-' for a run made before it). A run marked 'stale' was made by a config or "
-        "numerics other than what its command makes now; the lines under the table name what departed "
-        "(docs/results.md). It and the best gate are chosen on these same seeds, which favours "
-        "them; paired comparisons are in each run's report."
+        "Seeds succeeded of the run's unseen seeds (95% Wilson interval) at mean expert queries per seed, the "
+        "demonstration's included, every method on the whole demonstration, one benchmark rollout per seed (on "
+        "the Fetch presets under the pairs' early stop, which counts a rollout it cuts as a failure). Best MetaL "
+        "DAgger: the best of the methods that read a learned mapper (MDM, the prior toward a mapper's head, its "
+        "DAgger, the disagreement gate) and DAgger-MDI. The controls: pi*'s head and mean-DA use no query; BC "
+        "refitted is w_BC refitted as DAgger refits it, on the demonstration alone ('-': the run has no such row). "
+        "Ceiling: the oracle rule, which labels exactly the states where the learner is wrong, at its best share. "
+        "A run marked 'stale' was made by a config or numerics other than what its command makes now; the lines "
+        "under the tables name what departed (docs/results.md). The best of each is chosen on these same seeds, "
+        "which favours it; paired comparisons are in each run's report."
     )
-    return "\n".join([note, "", *markdown_table(header, rows), *_stale_lines(context)])
+    paper = "; ".join(f"{task}: {figures}" for task, figures in PAPER_FIGURES.items())
+    return "\n".join(
+        [
+            note,
+            "",
+            *markdown_table(("run", "seeds", "best MetaL DAgger", "pi*-head", "mean-DA", "BC refitted"), metal),
+            "",
+            f"The paper reports {paper}.",
+            "",
+            *markdown_table(("run", "DAgger (last round)", "best gate", "ceiling: oracle"), queries),
+            *_stale_lines(context),
+        ]
+    )
 
 
 def runs_table(context: BlockContext) -> str:
-    """Every canonical run: its command, wall time, CPU and what it shows."""
+    """Every canonical run: its arguments, wall time, CPU and what it shows."""
     rows = []
     for run in CANONICAL_RUNS:
         found = context.runs.get(run.name)
         wall = duration(found.manifest["wall_seconds"]) if found else "not run yet"
+        extra = run.command.split(f"--out runs/{run.name}", 1)[1].strip()
         cpu = found.manifest["machine"]["cpu"] if found else "-"
-        rows.append((f"`{run.name}`", f"`{run.command}`", wall, cpu, _status(context, run.name), run.shows))
+        rows.append(
+            (
+                f"`{run.name}`",
+                run.task,
+                run.preset,
+                f"`{extra}`" if extra else "",
+                wall,
+                cpu,
+                _status(context, run.name),
+                run.shows,
+            )
+        )
     note = (
+        "Each run is `metadagger reproduce --task TASK --preset PRESET --out runs/RUN` with the arguments shown. "
         "Wall time as measured, on the CPU named, with the other work the run's manifest names running beside it "
         "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less. Status: "
         "current, or stale with what departed (`setting: run's -> today's`): a stale run's numbers are those of "
         "the config and code that made it, kept and marked until its command is run again and `metadagger results "
         "add` takes the new folder (`metadagger results status` lists them)."
     )
-    return "\n".join([note, "", *markdown_table(("run", "command", "wall time", "CPU", "status", "shows"), rows)])
+    header = ("run", "task", "preset", "arguments", "wall time", "CPU", "status", "shows")
+    return "\n".join([note, "", *markdown_table(header, rows)])
 
 
 def _status(context: BlockContext, name: str) -> str:
@@ -210,13 +215,17 @@ def _stale_lines(context: BlockContext, names: list[str] | None = None) -> list[
     return ["", *lines] if lines else []
 
 
-def report_section(context: BlockContext, name: str, heading: str) -> str:
+def report_section(context: BlockContext, name: str, heading: str, *rows: str) -> str:
     """The section of run ``name``'s report under the heading that starts with ``heading`` (its
     body, to the next heading of the same or a higher level), figure links made to point into
-    the registry."""
+    the registry.
+
+    With ``rows``, only the section's first table: its header and the rows whose leading cells,
+    joined by `` | ``, equal one of ``rows`` (``"MDM Ridge"``, or ``"DAgger | 3"`` for one setting),
+    in the report's order. A ``columns=0,1,4`` among them keeps those columns only."""
     found = context.runs.get(name)
     if found is None:
-        return _missing(name)
+        return missing_run(name)
     lines = found.path("report/report.md").read_text().splitlines()
     start = next(
         (i for i, line in enumerate(lines) if line.lstrip("#").strip().startswith(heading) and line.startswith("#")),
@@ -238,7 +247,29 @@ def report_section(context: BlockContext, name: str, heading: str) -> str:
         re.sub(r"\]\((figures/[^)]+)\)", lambda m: f"]({context.link(figures / m.group(1))})", line)
         for line in lines[start + 1 : end]
     ]
+    if rows:
+        return "\n".join(
+            [_table_rows(body, rows, f"registry run {name}'s section {heading!r}"), *_stale_lines(context, [name])]
+        )
     return "\n".join([*body, *_stale_lines(context, [name])]).strip("\n")
+
+
+def _table_rows(body: list[str], rows: Sequence[str], called: str) -> str:
+    """The header of the first table in ``body`` and its rows chosen by ``rows`` (see :func:`report_section`)."""
+    columns = [spec.removeprefix("columns=") for spec in rows if spec.startswith("columns=")]
+    wanted = [spec for spec in rows if not spec.startswith("columns=")]
+    start = next((i for i, line in enumerate(body) if line.startswith("|")), None)
+    if start is None:
+        raise ValueError(f"{called} has no table")
+    table = list(itertools.takewhile(lambda line: line.startswith("|"), body[start:]))
+    cells = [[cell.strip() for cell in line.strip().strip("|").split("|")] for line in table]
+    keep = [int(i) for i in columns[0].split(",")] if columns else list(range(len(cells[0])))
+    chosen = [row for row in cells[2:] if any(" | ".join(row[: spec.count(" | ") + 1]) == spec for spec in wanted)]
+    missing = [spec for spec in wanted if not any(" | ".join(row[: spec.count(" | ") + 1]) == spec for row in chosen)]
+    if missing:
+        raise ValueError(f"{called} has no row {missing[0]!r}")
+    lines = ["| " + " | ".join(row[i] for i in keep) + " |" for row in [cells[0], *chosen]]
+    return "\n".join([lines[0], "|" + "---|" * len(keep), *lines[1:]])
 
 
 def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
@@ -250,59 +281,76 @@ def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
             return "\n".join(
                 [f"![{alt}]({context.link(found.path(path))})\n\n*Run `{name}`.*", *_stale_lines(context, [name])]
             )
-    return _missing(names.split(",")[0])
+    return missing_run(names.split(",")[0])
 
 
-def budgets_table(context: BlockContext) -> str:
-    """Every canonical run read at equal budgets, from its ``benchmark/queries.csv``: the best method
-    (the oracle and the controls aside) at each budget and by the area under the curve, with its
-    paired difference from the best gate there, and the oracle's success beside it."""
+def budgets_table(context: BlockContext, names: str = "") -> str:
+    """The canonical runs ``names`` (comma-separated; default every one) read at equal budgets, from
+    each one's ``benchmark/queries.csv``: at each budget and by the area under the curve, the best
+    method (the oracle and the controls aside), its paired difference from the best gate there, and
+    the oracle's success beside it."""
+    runs = [canonical_run(name) for name in names.split(",")] if names else list(CANONICAL_RUNS)
     rows = []
-    shares: list[float] = []
-    for run in sorted(CANONICAL_RUNS, key=lambda r: r.preset != "paper"):
+    for run in sorted(runs, key=lambda r: r.preset != "paper"):
         found = context.runs.get(run.name)
         reading = None
         if found is not None and found.path("benchmark/queries.csv").is_file():
             reading = budget_reading(read_csv(found.path("benchmark/queries.csv")))
         if reading is None:
-            rows.append((f"`{run.name}`", "not run yet" if found is None else "no DAgger rows", "", "", ""))
+            rows.append((f"`{run.name}`", "not run yet" if found is None else "no DAgger rows", "", "", "", ""))
             continue
-        shares = [b["share"] for b in reading["budgets"]]
-        rows.append(
-            (_run_cell(context, run.name), *(_at_budget(b) for b in reading["budgets"]), _by_area(reading)),
-        )
-    header = ("run", *(f"demonstration + {s:.0%} of DAgger's queries" for s in shares or BUDGET_SHARES), "by area")
+        name = _run_cell(context, run.name)
+        rows += [(name, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
+        rows.append((name, "area", *_by_area(reading)))
     note = (
         "Every method read at the same spend on each unseen seed: the demonstration's queries plus a share of plain "
         "DAgger's final queries beyond them ([benchmark](benchmark.md), 'Equal budgets'); by area: the mean success "
-        "over 16 log-spaced budgets up to DAgger's. Each cell: the best method (the controls and the oracle aside, "
-        "chosen on these seeds) with its success, then its paired difference from the best gate at that budget (95% "
-        "bootstrap interval; '=' where the best method is a gate), then the oracle's success where the run has it."
+        "over 16 log-spaced budgets up to DAgger's. At each: the best method (the controls and the oracle aside, "
+        "chosen on these seeds), its success (or area), its paired difference from the best gate there (95% "
+        "bootstrap interval, points; '=' where the best method is a gate), and the oracle's success where the run "
+        "has it."
     )
-    return "\n".join([note, "", *markdown_table(header, rows), *_stale_lines(context)])
+    header = ("run", "budget", "best method", "success", "minus the best gate", "oracle")
+    return "\n".join([note, "", *markdown_table(header, rows), *_stale_lines(context, [r.name for r in runs])])
 
 
-def _at_budget(budget: dict[str, Any]) -> str:
+def _at_budget(budget: dict[str, Any]) -> tuple[str, str, str, str]:
     if budget["best"] is None:
-        return "-"
+        return ("-", "", "", "")
     entries = {(e["method"], float(e["demo_fraction"])): e for e in budget["entries"]}
     best = entries[(budget["best"]["method"], float(budget["best"]["demo_fraction"]))]
-    cell = f"{_curve(best)} {pct(best['success_rate'])}"
     gate = budget["best_gate"]
     against = [c for c in budget["comparisons"] if gate and c["against"] == gate["method"]]
-    cell += f"; gate {_points(against[0])}" if against else "; gate ="
     oracle = [e for e in budget["entries"] if e["method"] in reference_methods()]
-    return cell + (f"; oracle {pct(max(e['success_rate'] for e in oracle))}" if oracle else "")
+    return (
+        _curve(best),
+        pct(best["success_rate"]),
+        _points(against[0]) if against else "=",
+        pct(max(e["success_rate"] for e in oracle)) if oracle else "-",
+    )
 
 
-def _by_area(reading: dict[str, Any]) -> str:
+def _by_area(reading: dict[str, Any]) -> tuple[str, str, str, str]:
     if reading["best_auc"] is None:
-        return "-"
+        return ("-", "", "", "")
     best = reading["best_auc"]
     area = {(a["method"], float(a["demo_fraction"])): a["mean"] for a in reading["auc"]}
-    cell = f"{_curve(best)} {area[(best['method'], float(best['demo_fraction']))]:.2f}"
+    gates = [curve for curve in area if curve[0] in gated_methods()]
+    gate = max(gates, key=lambda curve: area[curve]) if gates else None
+    against = [
+        c
+        for c in reading["auc_comparisons"]
+        if gate is not None
+        and (c["against"], float(c["against_demo_fraction"])) == gate
+        and (c["method"], float(c["demo_fraction"])) == (best["method"], float(best["demo_fraction"]))
+    ]
     oracle = [v for (m, _), v in area.items() if m in reference_methods()]
-    return cell + (f"; oracle {max(oracle):.2f}" if oracle else "")
+    return (
+        _curve(best),
+        f"{area[(best['method'], float(best['demo_fraction']))]:.2f}",
+        _points(against[0]) if against else "=",
+        f"{max(oracle):.2f}" if oracle else "-",
+    )
 
 
 def _curve(entry: dict[str, Any]) -> str:
@@ -332,7 +380,7 @@ def queries_figure(context: BlockContext, names: str, alt: str) -> str:
                 plot_queries(found.json("benchmark/summary.json"), path)
             drawn = f"![{alt}]({context.link(path)})\n\n*Run `{name}`, drawn from its `benchmark/summary.json`.*"
             return "\n".join([drawn, *_stale_lines(context, [name])])
-    return _missing(names.split(",")[0])
+    return missing_run(names.split(",")[0])
 
 
 def _short(commit: str) -> str:
@@ -345,7 +393,7 @@ def manifest_line(context: BlockContext, name: str) -> str:
     """What made registry run ``name``."""
     found = context.runs.get(name)
     if found is None:
-        return _missing(name)
+        return missing_run(name)
     m = found.manifest
     commits = sorted({c for stage in m["stages"].values() for c in stage.get("commits", [])})
     kernels = m["machine"]["kernels"]
@@ -356,15 +404,3 @@ def manifest_line(context: BlockContext, name: str) -> str:
         f"{m['beside']}. Stages made by {', '.join(_short(c) for c in commits) or 'unrecorded commits'}; "
         f"checked current at {_short(m['commit'])}; now {_status(context, name)}."
     )
-
-
-#: Block kinds by name.
-BLOCKS: dict[str, Callable[..., str]] = {
-    "glance": glance,
-    "runs": runs_table,
-    "report": report_section,
-    "figure": figure,
-    "queries-figure": queries_figure,
-    "budgets": budgets_table,
-    "manifest": manifest_line,
-}

@@ -110,7 +110,7 @@ class SeedJob:
     protocols add their own fields."""
 
     task: Task
-    groundtruth: str
+    pistar: str
     """pi*'s file."""
     seed: int
     methods: tuple[str, ...]
@@ -179,7 +179,7 @@ def drive(
 ) -> None:
     """Run ``work`` on every job, in parallel; as each result arrives, ``save`` its artifacts and
     then append it to ``log`` with its methods' stamps. A job whose ``work`` returns a list (a
-    block of seeds, :func:`metadagger.metal.lane_blocks.in_blocks`) has each of its results saved and
+    block of seeds, :func:`metadagger.metal_dagger.lane_blocks.in_blocks`) has each of its results saved and
     logged in turn."""
     if not jobs:
         return

@@ -37,29 +37,29 @@ class RunLayout:
 
     # pi*
     @property
-    def groundtruth_dir(self) -> Path:
+    def pistar_dir(self) -> Path:
         """pi*'s folder."""
-        return self.root / "groundtruth"
+        return self.root / "pistar"
 
     @property
-    def groundtruth(self) -> Path:
+    def pistar(self) -> Path:
         """pi* itself."""
-        return self.groundtruth_dir / "policy.safetensors"
+        return self.pistar_dir / "policy.safetensors"
 
     @property
-    def groundtruth_metrics(self) -> Path:
+    def pistar_metrics(self) -> Path:
         """pi*'s success on its own and on unseen seeds, and its expert queries."""
-        return self.groundtruth_dir / "metrics.json"
+        return self.pistar_dir / "metrics.json"
 
     @property
-    def groundtruth_stamp(self) -> Path:
+    def pistar_stamp(self) -> Path:
         """What pi* is made from (written before its training starts)."""
-        return self.groundtruth_dir / "stamp.json"
+        return self.pistar_dir / "stamp.json"
 
     @property
-    def groundtruth_rounds(self) -> Path:
+    def pistar_rounds(self) -> Path:
         """Checkpoints of pi*'s fits (resume)."""
-        return self.groundtruth_dir / "rounds"
+        return self.pistar_dir / "rounds"
 
     # pairs
     @property
@@ -220,7 +220,7 @@ class RunLayout:
         return self.root / "tb"
 
     def tb_run(self, namespace: str) -> Path:
-        """The event files of one namespace, e.g. ``groundtruth`` or ``mapper/dm``."""
+        """The event files of one namespace, e.g. ``pistar`` or ``mapper/dm``."""
         return self.tb_dir / namespace
 
     # demo

@@ -3,7 +3,7 @@
 Every stage records, beside its artifacts, the config fields and input fingerprints it ran with
 (its *stamp*). A later run compares its own stamp with the recorded one: equal means the artifact
 can be reused; different means it is stale, and :func:`describe_changes` names the fields that
-differ (``pairs.dagger_rounds: 3 -> 4``, ``groundtruth: changed``).
+differ (``pairs.dagger_rounds: 3 -> 4``, ``pistar: changed``).
 """
 
 from __future__ import annotations

@@ -69,7 +69,7 @@ class Task(abc.ABC):
             env.reset(seed=seed)
         return env
 
-    def groundtruth_task(self) -> "Task":
+    def pistar_task(self) -> "Task":
         """The task pi* is trained on: this one (a family returns its nominal member)."""
         return self
 

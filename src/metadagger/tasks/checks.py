@@ -3,7 +3,7 @@
 :func:`check_task_code` is the cheap part (one env, a few steps, about a second): the observation
 space (uint8 images, height x width x channels, few channels), the learner's action space, that
 the expert's labels are valid learner actions, that ``combine`` and ``to_label`` agree, and that
-the seed draws the whole episode. ``reproduce``, ``groundtruth`` and ``pairs`` run it before any
+the seed draws the whole episode. ``reproduce``, ``pistar`` and ``pairs`` run it before any
 work; ``metadagger check-task`` runs it and then measures the expert on seeds. Every problem is a
 :class:`~metadagger.errors.UserError` naming the Task method, the value seen and what is expected.
 """

@@ -127,7 +127,7 @@ class FamilyTask(Task):
         """The base task's success rule."""
         return self.base.is_success(env)
 
-    def groundtruth_task(self) -> Task:
+    def pistar_task(self) -> Task:
         """The nominal member: the base task."""
         return self.base
 

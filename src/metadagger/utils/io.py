@@ -288,7 +288,7 @@ def _tensor_file(path: str | Path | None, called: str) -> Path:
     if path.suffix != ".safetensors":
         raise CheckpointError(
             f"{called}: {path} is not a .safetensors file; pass a file that metadagger wrote "
-            "(a policy: RUN/groundtruth/policy.safetensors; a mapper: RUN/mappers/KIND/mapper.safetensors)"
+            "(a policy: RUN/pistar/policy.safetensors; a mapper: RUN/mappers/KIND/mapper.safetensors)"
         )
     return path
 

@@ -60,7 +60,7 @@ NATIVE_SWITCH = "METADAGGER_KERNELS"
 
 #: Bumped by every change to metadagger's code that changes a number a stage makes; it is part
 #: of every stage's stamp (:func:`kernel_stamp`), so such a change marks finished work stale.
-NUMERICS = 2
+NUMERICS = 3
 
 #: Libraries that read their pin when they load, by module name and variable.
 _READ_AT_LOAD = {"numpy": "NPY_DISABLE_CPU_FEATURES", "cv2": "OPENCV_CPU_DISABLE"}

@@ -135,7 +135,9 @@ def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise UserError(f"{where}: unknown field(s) {', '.join(unknown)}; allowed: {', '.join(fields)}")
+        renamed = getattr(cls, "RENAMED", {})
+        hint = "".join(f" ({old} is now {renamed[old]})" for old in unknown if old in renamed)
+        raise UserError(f"{where}: unknown field(s) {', '.join(unknown)}{hint}; allowed: {', '.join(fields)}")
     kwargs = {
         name: _coerce(hints[name], _over_default(fields[name], value), f"{where}.{name}", name)
         for name, value in data.items()

@@ -10,7 +10,7 @@ import pytest
 from gymnasium.envs.box2d.car_racing import CarRacing
 from gymnasium.utils.env_checker import check_env
 
-from metadagger.cli.bench import smooth_actions
+from metadagger.cli.bench_env import smooth_actions
 from metadagger.errors import UserError
 from metadagger.tasks.carracing.env import CarRacingFast
 

@@ -33,7 +33,7 @@ def test_registered(task):
     made = make_task("fetch-family")
     assert isinstance(made, FetchFamily)
     assert made.name == "fetch-family" and made.learner_env_id == FAMILY_ID
-    assert isinstance(made.groundtruth_task(), FetchTask)
+    assert isinstance(made.pistar_task(), FetchTask)
     assert made.max_episode_steps == 50
     assert made.learner_action_space == gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
 

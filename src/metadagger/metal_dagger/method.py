@@ -33,14 +33,15 @@ import numpy as np
 import torch
 
 from metadagger.errors import UserError
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc, head_fit
+from metadagger.imitation.bc import BCConfig, fit_bc, head_fit
 from metadagger.imitation.data import Aggregate, Dataset, take_rows
 from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.gates import Episode, Gate, GateMemory, HeadPair, Labelled
 from metadagger.imitation.head_fits import Prior, fit_heads
 from metadagger.imitation.lanes import EpisodeRequest, Lane, Lanes, current_lane, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
-from metadagger.metal.groundtruth import cached_groundtruth, head_from_groundtruth
+from metadagger.metal_dagger.pistar import cached_pistar, head_from_pistar
 from metadagger.policies import Policy
 from metadagger.tasks.base import Task
 
@@ -66,17 +67,18 @@ class SeedLearner:
 
     Args:
         task: the task whose learner env is rolled out.
-        groundtruth: path of pi* (loaded once per process).
+        pistar: path of pi* (loaded once per process).
         seed: the env seed of every rollout.
         head_init_seed: the seed of the fresh (Xavier) head (:meth:`BCConfig.head_init_seed`).
     """
 
-    def __init__(self, task: Task, groundtruth: str, seed: int, *, head_init_seed: int) -> None:
+    def __init__(self, task: Task, pistar: str, seed: int, *, head_init_seed: int) -> None:
         self.task = task
         self.seed = seed
-        self.policy: Policy = head_from_groundtruth(cached_groundtruth(groundtruth), head_init_seed)
+        self.policy: Policy = head_from_pistar(cached_pistar(pistar), head_init_seed)
         self.cache = FeatureCache(self.policy)
-        # made inside a chain (:func:`~metadagger.metal.lane_blocks.run_block`), its episodes go to the chain's lane
+        # made inside a chain (:func:`~metadagger.metal_dagger.lane_blocks.run_block`), its episodes go to
+        # the chain's lane
         self._lane = current_lane()
         self.env: Any = task.make_env() if self._lane is None else None
 

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.metal.store import PairSplit, PairStore
+from metadagger.metal_dagger.store import PairSplit, PairStore
 from metadagger.utils.io import save_tensors
 
 DIM = 6
@@ -94,7 +94,7 @@ _WRITER = textwrap.dedent(
     """
     import sys, time
     import torch
-    from metadagger.metal.store import PairStore
+    from metadagger.metal_dagger.store import PairStore
 
     store = PairStore(sys.argv[1])
     done = store.done_seeds()

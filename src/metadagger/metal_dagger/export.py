@@ -18,9 +18,9 @@ import numpy as np
 from metadagger.errors import UserError
 from metadagger.imitation.minari_io import RecordedEpisode, check_new_dataset_name, write_dataset
 from metadagger.imitation.rollouts import rollout
-from metadagger.metal.groundtruth import load_groundtruth
-from metadagger.metal.pairs import PairConfig, pair_stamp, run_pair
-from metadagger.metal.store import PairStore
+from metadagger.metal_dagger.pairs import PairConfig, pair_stamp, run_pair
+from metadagger.metal_dagger.pistar import load_pistar
+from metadagger.metal_dagger.store import PairStore
 from metadagger.runfolder.driver import SeedJob, StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.tasks.base import Task
@@ -39,12 +39,12 @@ class ExportJob(SeedJob):
     """One seed's episodes to export."""
 
     config: PairConfig
-    what: str
+    content: str
 
 
 def seed_episodes(job: ExportJob) -> dict[str, Any]:
     """The episodes of one seed (see the module docstring); with the pair's heads unless ``demos``."""
-    if job.what == "demos":
+    if job.content == "demos":
         env = job.task.make_env()
         try:
             return {"seed": job.seed, "episodes": [RecordedEpisode(rollout(env, seed=job.seed, policy=None), round=0)]}
@@ -53,20 +53,20 @@ def seed_episodes(job: ExportJob) -> dict[str, Any]:
     episodes: list[RecordedEpisode] = []
     pair = run_pair(
         job.task,
-        job.groundtruth,
+        job.pistar,
         job.seed,
         job.config,
         on_episode=lambda round_idx, trajectory: episodes.append(RecordedEpisode(trajectory, round=round_idx)),
     )
-    if job.what == "dagger":
+    if job.content == "dagger":
         episodes = [e for e in episodes if e.round > 0]
     return {"seed": job.seed, "episodes": episodes, "w_bc": pair.w_bc, "w_da": pair.w_da}
 
 
-def check_export(what: str, fmt: str, name: str) -> None:
-    """Raise a :class:`UserError` for an unknown ``what`` or format, or a taken or malformed name."""
-    if what not in EXPORTS:
-        raise UserError(f"--what {what!r} is not an export; expected one of {', '.join(EXPORTS)}")
+def check_export(content: str, fmt: str, name: str) -> None:
+    """Raise a :class:`UserError` for an unknown ``content`` or format, or a taken or malformed name."""
+    if content not in EXPORTS:
+        raise UserError(f"--content {content!r} is not an export; expected one of {', '.join(EXPORTS)}")
     if fmt not in FORMATS:
         raise UserError(f"--format {fmt!r} is not supported; expected one of {', '.join(FORMATS)}")
     check_new_dataset_name(name)
@@ -77,14 +77,14 @@ def export_run(
     layout: RunLayout,
     config: PairConfig,
     *,
-    what: str,
+    content: str,
     name: str,
     seeds: Sequence[int],
     author: str = DEFAULT_AUTHOR,
     author_email: str | None = None,
     options: StageOptions = StageOptions(),
 ) -> dict[str, Any]:
-    """Write the run's ``what`` episodes of ``seeds`` as the Minari dataset ``name``, naming the
+    """Write the run's ``content`` episodes of ``seeds`` as the Minari dataset ``name``, naming the
     algorithm that made them, its ``author`` and the code (metadagger's version and commit).
 
     Returns:
@@ -92,17 +92,17 @@ def export_run(
         equalled the stored one bit for bit).
 
     Raises:
-        UserError: bad ``what`` or name, no seeds, or no pi* (every export but ``demos`` needs it).
+        UserError: bad ``content`` or name, no seeds, or no pi* (every export but ``demos`` needs it).
         RuntimeError: a re-run pair differs from the stored one (the run's code or inputs changed).
     """
-    check_export(what, "minari", name)
+    check_export(content, "minari", name)
     if not seeds:
         raise UserError("no seeds to export; pass --seeds or give the run pair seeds")
-    if what != "demos":
-        load_groundtruth(layout)  # a missing or corrupt pi* is named before any work
-    stored = _stored_pairs(task, layout, config, seeds) if what != "demos" else {}
+    if content != "demos":
+        load_pistar(layout)  # a missing or corrupt pi* is named before any work
+    stored = _stored_pairs(task, layout, config, seeds) if content != "demos" else {}
     jobs = [
-        ExportJob(task=task, groundtruth=str(layout.groundtruth), seed=s, methods=(what,), config=config, what=what)
+        ExportJob(task=task, pistar=str(layout.pistar), seed=s, methods=(content,), config=config, content=content)
         for s in seeds
     ]
     counts = {"episodes": 0, "steps": 0, "checked": 0}
@@ -123,15 +123,15 @@ def export_run(
         results = progress_bar(
             in_order(pool.imap_unordered(seed_episodes, jobs), [j.seed for j in jobs], key=_seed_of),
             total=len(jobs),
-            desc=f"export {what}",
+            desc=f"export {content}",
             enabled=options.progress,
         )
         folder = write_dataset(
             name,
             chunks(results),
             **spaces,
-            algorithm=f"metadagger {__version__} {what}: {_ALGORITHMS[what]}",
-            description=f"{task.name}: {_DESCRIPTIONS[what]} of seeds {seeds[0]}..{seeds[-1]} "
+            algorithm=f"metadagger {__version__} {content}: {_ALGORITHMS[content]}",
+            description=f"{task.name}: {_DESCRIPTIONS[content]} of seeds {seeds[0]}..{seeds[-1]} "
             f"({len(seeds)} seeds), from run {layout.root}",
             author=author,
             author_email=author_email,

@@ -1,10 +1,10 @@
 """Per-seed (w_BC, w_DA) pairs (paper 3.4.2).
 
-For each seed, the steps of :mod:`metadagger.metal.method`: the demonstration, w_BC (a fresh head
+For each seed, the steps of :mod:`metadagger.metal_dagger.method`: the demonstration, w_BC (a fresh head
 on pi*'s frozen trunk fitted by BC on it), then DAgger rounds from there -> w_DA; both rolled out.
 The seed's context is stored with its pair. The seeds run in parallel through
 :mod:`metadagger.utils.executors`; the driver alone writes each pair to the
-:class:`~metadagger.metal.store.PairStore` as soon as it arrives, so a
+:class:`~metadagger.metal_dagger.store.PairStore` as soon as it arrives, so a
 killed run resumes with the seeds that are not stored yet.
 """
 
@@ -23,9 +23,8 @@ from metadagger.imitation.data import Aggregate
 from metadagger.imitation.early_stop import check_threshold
 from metadagger.imitation.lanes import check_lanes, lanes_stamp
 from metadagger.imitation.rollouts import Trajectory
-from metadagger.metal.groundtruth import load_groundtruth
-from metadagger.metal.lane_blocks import in_blocks
-from metadagger.metal.method import (
+from metadagger.metal_dagger.lane_blocks import in_blocks
+from metadagger.metal_dagger.method import (
     CONTEXT_PARTS,
     SeedLearner,
     bc_head,
@@ -34,7 +33,8 @@ from metadagger.metal.method import (
     seed_context,
     seeded,
 )
-from metadagger.metal.store import PairStore
+from metadagger.metal_dagger.pistar import load_pistar
+from metadagger.metal_dagger.store import PairStore
 from metadagger.runfolder.driver import SeedJob, StageOptions, drive, plan
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import describe_changes, file_fingerprint, stamp_of
@@ -79,7 +79,7 @@ class PairConfig:
     """Cosine early-stop threshold of the learner's rollouts (paper 3.4.2, Fetch); None: off."""
     lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
     """Pair seeds made together, in blocks of this many, their episodes stepped in lockstep at this
-    batch shape (:func:`~metadagger.metal.lane_blocks.in_blocks`); 1 makes each seed alone. The pairs
+    batch shape (:func:`~metadagger.metal_dagger.lane_blocks.in_blocks`); 1 makes each seed alone. The pairs
     depend on it (a batch of one rounds the trunk's last bits otherwise), never on the workers."""
 
     def __post_init__(self) -> None:
@@ -122,7 +122,7 @@ class PairRun:
     w_da: np.ndarray
     """The head after the DAgger rounds."""
     context: np.ndarray
-    """The seed's context (:func:`metadagger.metal.method.seed_context`): what the ``conditioned`` mapper kind
+    """The seed's context (:func:`metadagger.metal_dagger.method.seed_context`): what the ``conditioned`` mapper kind
     reads beside w_BC."""
     record: dict[str, Any]
     """``bc`` and ``da`` outcomes, ``kept`` and ``outcome`` (as stored with the pair); for a task
@@ -134,7 +134,7 @@ class PairRun:
 
 def run_pair(
     task: Task,
-    groundtruth: str,
+    pistar: str,
     seed: int,
     config: PairConfig,
     *,
@@ -151,7 +151,7 @@ def run_pair(
     is fit on: the demonstration (round 0), then each DAgger round's rollout.
     """
     fit_seed = seed if fit_seed is None else fit_seed
-    with SeedLearner(task, groundtruth, seed, head_init_seed=config.bc.head_init_seed(seed)) as learner:
+    with SeedLearner(task, pistar, seed, head_init_seed=config.bc.head_init_seed(seed)) as learner:
         demo = demonstration(learner)
         data = demo.to_dataset()
         w_bc = bc_head(learner, data, seeded(config.bc, fit_seed))
@@ -199,7 +199,7 @@ def run_pair(
 
 def collect_pair(job: PairJob) -> dict[str, Any]:
     """Make one seed's pair; returns ``seed``, ``w_bc``, ``w_da``, ``context`` (float32 arrays) and ``record``."""
-    pair = run_pair(job.task, job.groundtruth, job.seed, job.config)
+    pair = run_pair(job.task, job.pistar, job.seed, job.config)
     return {"seed": job.seed, "w_bc": pair.w_bc, "w_da": pair.w_da, "context": pair.context, "record": pair.record}
 
 
@@ -211,7 +211,7 @@ def pair_stamp(task: Task, layout: RunLayout, config: PairConfig) -> dict[str, A
         **stamp_of(config, drop=("seeds", "val_fraction")),
         **lanes_stamp(config.lanes),
         "context": list(CONTEXT_PARTS),
-        "groundtruth_fingerprint": file_fingerprint(layout.groundtruth),
+        "pistar_fingerprint": file_fingerprint(layout.pistar),
     }
 
 
@@ -233,7 +233,7 @@ def collect_pairs(
 ) -> dict[str, Any]:
     """Collect the pairs of every seed not stored yet (and, with ``options.rebuild``, of every seed whose
     pair was made from another pi* or other settings), then write and return the outcome summary."""
-    load_groundtruth(layout)  # a missing or corrupt pi* is named before any work
+    load_pistar(layout)  # a missing or corrupt pi* is named before any work
     store = PairStore(layout.pairs_dir)
     stamps = {"pair": pair_stamp(task, layout, config)}
     todo = plan(
@@ -244,10 +244,7 @@ def collect_pairs(
         called="the pair",
         fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`",
     )
-    jobs = [
-        PairJob(task=task, groundtruth=str(layout.groundtruth), seed=p.seed, methods=p.methods, config=config)
-        for p in todo
-    ]
+    jobs = [PairJob(task=task, pistar=str(layout.pistar), seed=p.seed, methods=p.methods, config=config) for p in todo]
     work, units = in_blocks(collect_pair, jobs, config.lanes)
     drive(work, units, log=store, stamps=stamps, options=options, desc="pairs")
     current = {s for s, stamp in store.stamps().items() if stamp["pair"] == stamps["pair"]} & set(config.seeds)

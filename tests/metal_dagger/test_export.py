@@ -13,14 +13,14 @@ from toy_task import CorridorTask
 
 minari = pytest.importorskip("minari")
 
-from test_groundtruth_pairs import GT, PAIRS  # noqa: E402
+from test_pistar_pairs import GT, PAIRS  # noqa: E402
 
 from metadagger.errors import UserError  # noqa: E402
 from metadagger.imitation.collect import collect  # noqa: E402
 from metadagger.imitation.minari_io import read_demonstrations  # noqa: E402
-from metadagger.metal.export import export_run  # noqa: E402
-from metadagger.metal.groundtruth import train_groundtruth  # noqa: E402
-from metadagger.metal.pairs import collect_pairs, run_pair  # noqa: E402
+from metadagger.metal_dagger.export import export_run  # noqa: E402
+from metadagger.metal_dagger.pairs import collect_pairs, run_pair  # noqa: E402
+from metadagger.metal_dagger.pistar import train_pistar  # noqa: E402
 from metadagger.runfolder.driver import StageOptions  # noqa: E402
 from metadagger.runfolder.layout import RunLayout  # noqa: E402
 
@@ -39,7 +39,7 @@ def datasets(tmp_path, monkeypatch) -> Path:
 def run(tmp_path_factory) -> RunLayout:
     """pi* and the pairs of SEEDS on the toy corridor."""
     layout = RunLayout(tmp_path_factory.mktemp("run"))
-    train_groundtruth(CorridorTask(), GT, layout, progress=False)
+    train_pistar(CorridorTask(), GT, layout, progress=False)
     collect_pairs(CorridorTask(), layout, dataclasses.replace(PAIRS, seeds=SEEDS), OPTIONS)
     return layout
 
@@ -52,7 +52,7 @@ def _spaces(task) -> dict:
 
 def test_demos_round_trip_every_image_and_label(run):
     task = CorridorTask()
-    summary = export_run(task, run, PAIRS, what="demos", name="toy/demos-v0", seeds=SEEDS, options=OPTIONS)
+    summary = export_run(task, run, PAIRS, content="demos", name="toy/demos-v0", seeds=SEEDS, options=OPTIONS)
     demos = collect(task, SEEDS, policy=None)
     assert summary["episodes"] == len(SEEDS) and summary["steps"] == sum(t.steps for t in demos)
     dataset = minari.load_dataset("toy/demos-v0")
@@ -78,20 +78,20 @@ def test_demos_round_trip_every_image_and_label(run):
 
 def test_pairs_data_is_what_each_pair_was_fit_on(run):
     task = CorridorTask()
-    summary = export_run(task, run, PAIRS, what="pairs-data", name="toy/pairs-v0", seeds=SEEDS, options=OPTIONS)
+    summary = export_run(task, run, PAIRS, content="pairs-data", name="toy/pairs-v0", seeds=SEEDS, options=OPTIONS)
     assert summary["checked"] == len(SEEDS)  # every re-run pair equalled the stored one bit for bit
     episodes = list(minari.load_dataset("toy/pairs-v0").iterate_episodes())
     rounds = PAIRS.dagger_rounds + 1
     assert len(episodes) == len(SEEDS) * rounds
     recorded = []
-    run_pair(task, str(run.groundtruth), SEEDS[1], PAIRS, on_episode=lambda k, t: recorded.append((k, t)))
+    run_pair(task, str(run.pistar), SEEDS[1], PAIRS, on_episode=lambda k, t: recorded.append((k, t)))
     for episode, (round_idx, trajectory) in zip(episodes[rounds : 2 * rounds], recorded):
         assert int(episode.infos["round"][0]) == round_idx and int(episode.infos["seed"][0]) == SEEDS[1]
         assert np.array_equal(episode.observations[:-1], trajectory.obs)
         assert np.array_equal(episode.actions, trajectory.learner_actions)  # the learner's own actions
         assert np.array_equal(episode.infos["expert_label"][:-1], trajectory.expert_labels)
     # dagger alone: the learner's rollouts, no demonstrations
-    export_run(task, run, PAIRS, what="dagger", name="toy/dagger-v0", seeds=SEEDS, options=OPTIONS)
+    export_run(task, run, PAIRS, content="dagger", name="toy/dagger-v0", seeds=SEEDS, options=OPTIONS)
     dagger = list(minari.load_dataset("toy/dagger-v0").iterate_episodes())
     assert [int(e.infos["round"][0]) for e in dagger] == [k for _ in SEEDS for k in range(1, rounds)]
 
@@ -102,12 +102,12 @@ def test_export_is_deterministic_across_worker_counts(run, datasets):
         task,
         run,
         PAIRS,
-        what="pairs-data",
+        content="pairs-data",
         name="toy/a-v0",
         seeds=SEEDS,
         options=StageOptions(workers=1, progress=False),
     )
-    export_run(task, run, PAIRS, what="pairs-data", name="toy/b-v0", seeds=SEEDS, options=OPTIONS)
+    export_run(task, run, PAIRS, content="pairs-data", name="toy/b-v0", seeds=SEEDS, options=OPTIONS)
     a, b = (list(minari.load_dataset(n).iterate_episodes()) for n in ("toy/a-v0", "toy/b-v0"))
     assert len(a) == len(b)
     for x, y in zip(a, b):
@@ -141,14 +141,14 @@ def test_a_plain_minari_dataset_of_expert_actions_reads_as_demonstrations(datase
 def test_bad_input_is_one_clear_error(run, datasets):
     task = CorridorTask()
     with pytest.raises(UserError, match="not an export; expected one of demos, dagger, pairs-data"):
-        export_run(task, run, PAIRS, what="states", name="toy/x-v0", seeds=SEEDS)
+        export_run(task, run, PAIRS, content="states", name="toy/x-v0", seeds=SEEDS)
     with pytest.raises(UserError, match="not a Minari dataset id"):
-        export_run(task, run, PAIRS, what="demos", name="no version", seeds=SEEDS)
-    export_run(task, run, PAIRS, what="demos", name="toy/taken-v0", seeds=SEEDS[:1], options=OPTIONS)
+        export_run(task, run, PAIRS, content="demos", name="no version", seeds=SEEDS)
+    export_run(task, run, PAIRS, content="demos", name="toy/taken-v0", seeds=SEEDS[:1], options=OPTIONS)
     with pytest.raises(UserError, match="already exists"):
-        export_run(task, run, PAIRS, what="demos", name="toy/taken-v0", seeds=SEEDS[:1])
+        export_run(task, run, PAIRS, content="demos", name="toy/taken-v0", seeds=SEEDS[:1])
     with pytest.raises(UserError, match="pi\\* not found"):
-        export_run(task, RunLayout(datasets / "empty"), PAIRS, what="dagger", name="toy/y-v0", seeds=SEEDS)
+        export_run(task, RunLayout(datasets / "empty"), PAIRS, content="dagger", name="toy/y-v0", seeds=SEEDS)
     with pytest.raises(UserError, match="cannot load Minari dataset 'missing-v0'"):
         read_demonstrations("missing-v0", **_spaces(task))
     assert sorted(p.name for p in datasets.rglob("*-v0")) == ["taken-v0"]  # nothing half-written
@@ -158,15 +158,15 @@ def test_bad_input_is_one_clear_error(run, datasets):
     "args, needle",
     [
         (
-            ["--what", "states", "--name", "toy/x-v0"],
-            "--what 'states' is not an export; expected one of demos, dagger, pairs-data",
+            ["--content", "states", "--name", "toy/x-v0"],
+            "--content 'states' is not an export; expected one of demos, dagger, pairs-data",
         ),
         (
-            ["--what", "demos", "--format", "hdf5", "--name", "toy/x-v0"],
+            ["--content", "demos", "--format", "hdf5", "--name", "toy/x-v0"],
             "--format 'hdf5' is not supported; expected one of minari",
         ),
-        (["--what", "demos", "--name", "x"], "--name 'x' is not a Minari dataset id"),
-        (["--what", "demos", "--name", "toy/x-v0", "--seeds", "abc"], "bad seed list 'abc'"),
+        (["--content", "demos", "--name", "x"], "--name 'x' is not a Minari dataset id"),
+        (["--content", "demos", "--name", "toy/x-v0", "--seeds", "abc"], "bad seed list 'abc'"),
     ],
 )
 def test_export_command_refuses_bad_input_before_any_work(tmp_path, args, needle):

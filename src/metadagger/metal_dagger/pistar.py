@@ -1,4 +1,4 @@
-"""The ground-truth policy pi* (paper 3.4.1): one BC fit on expert demos of K seeds, then DAgger
+"""The "ground truth" policy pi* (paper 3.4.1): one BC fit on expert demos of K seeds, then DAgger
 rounds over all K seeds. Its layers 1..n-1 are frozen into every per-seed policy afterwards.
 
 Artifacts (paths from :class:`~metadagger.runfolder.layout.RunLayout`): pi*, its metrics (success on its
@@ -32,7 +32,7 @@ from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
 
 @dataclass(frozen=True)
-class GroundTruthConfig:
+class PiStarConfig:
     """How pi* is trained and measured."""
 
     seeds: tuple[int, ...] = tuple(range(0, 20))
@@ -70,38 +70,35 @@ class GroundTruthConfig:
         return set(self.seeds) | set(self.select_seeds) | set(self.eval_seeds)
 
     def __post_init__(self) -> None:
-        check_lanes("groundtruth.lanes", self.lanes)
+        check_lanes("pistar.lanes", self.lanes)
         if not self.seeds:
-            raise UserError("groundtruth.seeds must not be empty")
+            raise UserError("pistar.seeds must not be empty")
         if set(self.seeds) & set(self.eval_seeds):
-            raise UserError(
-                "groundtruth.eval_seeds must be unseen: they overlap groundtruth.seeds; pick disjoint ranges"
-            )
+            raise UserError("pistar.eval_seeds must be unseen: they overlap pistar.seeds; pick disjoint ranges")
         if set(self.select_seeds) & (set(self.seeds) | set(self.eval_seeds)):
             raise UserError(
-                "groundtruth.select_seeds must be held out: they overlap groundtruth.seeds or eval_seeds; pick "
-                "disjoint ranges"
+                "pistar.select_seeds must be held out: they overlap pistar.seeds or eval_seeds; pick disjoint ranges"
             )
         if self.select_seeds and self.dagger_rounds:
             raise UserError(
-                "groundtruth.select_seeds chooses an epoch of the BC fit and needs dagger_rounds: 0; "
+                "pistar.select_seeds chooses an epoch of the BC fit and needs dagger_rounds: 0; "
                 "drop select_seeds or set dagger_rounds: 0"
             )
         if not isinstance(self.select_every, int) or isinstance(self.select_every, bool) or self.select_every < 1:
-            raise UserError(f"groundtruth.select_every must be an integer >= 1, got {self.select_every!r}")
+            raise UserError(f"pistar.select_every must be an integer >= 1, got {self.select_every!r}")
         if self.dagger_rounds < 0:
-            raise UserError(f"groundtruth.dagger_rounds must be >= 0, got {self.dagger_rounds}")
+            raise UserError(f"pistar.dagger_rounds must be >= 0, got {self.dagger_rounds}")
         if (
             isinstance(self.min_success, bool)
             or not isinstance(self.min_success, (int, float))
             or not 0 <= self.min_success <= 1
         ):
-            raise UserError(f"groundtruth.min_success must be a number in [0, 1], got {self.min_success!r}; e.g. 0.2")
+            raise UserError(f"pistar.min_success must be a number in [0, 1], got {self.min_success!r}; e.g. 0.2")
         if self.bc.head_only:
-            raise UserError("groundtruth.bc.head_only must be false: pi* trains the whole policy")
+            raise UserError("pistar.bc.head_only must be false: pi* trains the whole policy")
 
 
-def groundtruth_stamp(task: Task, config: GroundTruthConfig) -> dict:
+def pistar_stamp(task: Task, config: PiStarConfig) -> dict:
     """What pi* is made from: the task and every setting of its training."""
     return {
         **kernel_stamp(),
@@ -111,17 +108,17 @@ def groundtruth_stamp(task: Task, config: GroundTruthConfig) -> dict:
     }
 
 
-def groundtruth_changes(task: Task, config: GroundTruthConfig, layout: RunLayout) -> list[str]:
+def pistar_changes(task: Task, config: PiStarConfig, layout: RunLayout) -> list[str]:
     """How the recorded pi* differs from one ``config`` would make (``[]``: the same, none yet, or a
     pi* put there by hand, without a stamp: downstream stamps still record its fingerprint)."""
-    if not layout.groundtruth_stamp.is_file():
+    if not layout.pistar_stamp.is_file():
         return []
-    return describe_changes(read_json(layout.groundtruth_stamp, "pi*'s stamp"), groundtruth_stamp(task, config))
+    return describe_changes(read_json(layout.pistar_stamp, "pi*'s stamp"), pistar_stamp(task, config))
 
 
-def train_groundtruth(
+def train_pistar(
     task: Task,
-    config: GroundTruthConfig,
+    config: PiStarConfig,
     layout: RunLayout,
     *,
     rebuild: bool = False,
@@ -143,19 +140,19 @@ def train_groundtruth(
         CheckpointError: the finished pi* cannot be read back (deleting it retrains it, resuming
             from its round checkpoints).
     """
-    changes = groundtruth_changes(task, config, layout)
+    changes = pistar_changes(task, config, layout)
     if changes and not rebuild:
         raise UserError(
-            f"pi* in {layout.groundtruth_dir} was made from another config ({'; '.join(changes)}); "
+            f"pi* in {layout.pistar_dir} was made from another config ({'; '.join(changes)}); "
             f"run `metadagger reproduce` (it rebuilds pi* and what depends on it) or use another --out"
         )
     if changes:
-        shutil.rmtree(layout.groundtruth_dir)
-    if layout.groundtruth.is_file() and layout.groundtruth_metrics.is_file():
-        load_policy(layout.groundtruth)  # a damaged pi* is named here rather than reused
-        return read_json(layout.groundtruth_metrics, "pi*'s metrics")
-    write_json(layout.groundtruth_stamp, groundtruth_stamp(task, config))
-    task = task.groundtruth_task()  # a family's pi* learns its nominal member (docs/families.md)
+        shutil.rmtree(layout.pistar_dir)
+    if layout.pistar.is_file() and layout.pistar_metrics.is_file():
+        load_policy(layout.pistar)  # a damaged pi* is named here rather than reused
+        return read_json(layout.pistar_metrics, "pi*'s metrics")
+    write_json(layout.pistar_stamp, pistar_stamp(task, config))
+    task = task.pistar_task()  # a family's pi* learns its nominal member (docs/families.md)
 
     demos = collect(task, config.seeds, policy=None, progress=progress, workers=workers)
     data = Dataset.concat(*(t.to_dataset() for t in demos))
@@ -178,10 +175,10 @@ def train_groundtruth(
         policy,
         data,
         config.bc,
-        layout.groundtruth_rounds / "round_0.safetensors",
+        layout.pistar_rounds / "round_0.safetensors",
         progress=progress,
         selector=selector,
-        called="pi*'s BC fit (groundtruth.bc)",
+        called="pi*'s BC fit (pistar.bc)",
     )
     history = []
     if config.dagger_rounds:
@@ -192,7 +189,7 @@ def train_groundtruth(
             initial=data,
             config=DAggerConfig(rounds=config.dagger_rounds, bc=config.bc),
             progress=progress,
-            checkpoints=layout.groundtruth_rounds,
+            checkpoints=layout.pistar_rounds,
             workers=workers,
             lanes=config.lanes,
         )
@@ -212,8 +209,8 @@ def train_groundtruth(
     }
     if selector is not None:
         metrics["bc_selection"] = selector.choice if bc_losses is not None else None
-    policy.save(layout.groundtruth)
-    write_json(layout.groundtruth_metrics, metrics)
+    policy.save(layout.pistar)
+    write_json(layout.pistar_metrics, metrics)
     return metrics
 
 
@@ -230,39 +227,37 @@ def _rate(summary: dict) -> str:
     return f"{summary['successes']}/{summary['episodes']} ({share:.0%}, 95% interval {low:.0%}-{high:.0%})"
 
 
-def check_pistar(metrics: dict, config: GroundTruthConfig, layout: RunLayout) -> None:
+def check_pistar(metrics: dict, config: PiStarConfig, layout: RunLayout) -> None:
     """Raise a :class:`UserError` when pi*'s success on its unseen seeds is below
     ``config.min_success``: later stages would measure nothing."""
     unseen = metrics["unseen_seeds"]
     if unseen["success_rate"] >= config.min_success:
         return
     raise UserError(
-        f"pi* in {layout.groundtruth_dir} is too weak to learn from: {pistar_rates(metrics)}, below "
-        f"groundtruth.min_success={config.min_success:g} on unseen seeds; with its trunk frozen the per-seed DAgger "
+        f"pi* in {layout.pistar_dir} is too weak to learn from: {pistar_rates(metrics)}, below "
+        f"pistar.min_success={config.min_success:g} on unseen seeds; with its trunk frozen the per-seed DAgger "
         "refits would rarely succeed and the later stages would measure nothing; make pi* stronger (more "
-        "groundtruth.seeds, groundtruth.bc.augment_shift, more epochs or dagger_rounds, policy_arch; "
-        'docs/custom_task.md, "Making pi* work on a new task"), or set groundtruth.min_success=0 to go on anyway'
+        "pistar.seeds, pistar.bc.augment_shift, more epochs or dagger_rounds, policy_arch; "
+        'docs/custom_task.md, "Making pi* work on a new task"), or set pistar.min_success=0 to go on anyway'
     )
 
 
-def load_groundtruth(layout: RunLayout) -> Policy:
+def load_pistar(layout: RunLayout) -> Policy:
     """The run's pi*; a missing or unreadable file is a :class:`UserError` naming it and the fix."""
-    if not layout.groundtruth.is_file():
-        raise UserError(
-            f"pi* not found at {layout.groundtruth}; run `metadagger groundtruth --out {layout.root}` first"
-        )
-    return load_policy(layout.groundtruth)
+    if not layout.pistar.is_file():
+        raise UserError(f"pi* not found at {layout.pistar}; run `metadagger pistar --out {layout.root}` first")
+    return load_policy(layout.pistar)
 
 
 @functools.lru_cache(maxsize=2)
-def cached_groundtruth(path: str) -> Policy:
+def cached_pistar(path: str) -> Policy:
     """pi* loaded once per worker process (callers copy it before changing it)."""
     return load_policy(path)
 
 
-def head_from_groundtruth(groundtruth: Policy, seed: int) -> Policy:
+def head_from_pistar(pistar: Policy, seed: int) -> Policy:
     """A copy of pi* with its trunk frozen and its head re-initialised from ``seed``."""
-    policy = groundtruth.copy()
+    policy = pistar.copy()
     policy.freeze_trunk()
     policy.reset_head(seed)
     return policy

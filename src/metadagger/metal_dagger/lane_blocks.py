@@ -2,7 +2,7 @@
 
 A protocol's per-seed ``work`` (a pair, say) is left as it is: :func:`run_block` runs each job
 of a block as a chain (:func:`~metadagger.imitation.lanes.run_chains`), and every
-:class:`~metadagger.metal.method.SeedLearner` the job makes finds the chain's lane by itself.
+:class:`~metadagger.metal_dagger.method.SeedLearner` the job makes finds the chain's lane by itself.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from metadagger.imitation.lanes import Lane, Lanes, run_chains
-from metadagger.metal.groundtruth import cached_groundtruth
+from metadagger.metal_dagger.pistar import cached_pistar
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ def run_block(block: LaneBlock) -> list[dict[str, Any]]:
     """Each job of ``block`` as a chain, every :class:`SeedLearner` it makes rolling out in the
     block's lanes through pi*'s trunk; the jobs' results in order."""
     first = block.jobs[0]
-    with Lanes(first.task, cached_groundtruth(first.groundtruth).net, width=block.width) as lanes:
+    with Lanes(first.task, cached_pistar(first.pistar).net, width=block.width) as lanes:
         return run_chains(lanes, [functools.partial(_job_chain, block.work, job) for job in block.jobs])
 
 

@@ -3,7 +3,7 @@
 Layout:
     ``<seed>.safetensors``  tensors ``w_bc`` and ``w_da``: the head after BC and after DAgger
                             (flat float32 vectors of one length), and ``context``, the seed's
-                            context (:func:`metadagger.metal.method.seed_context`; absent in pairs stored
+                            context (:func:`metadagger.metal_dagger.method.seed_context`; absent in pairs stored
                             without one), written atomically;
     ``pairs.jsonl``         one JSON line per seed: ``seed``, ``bc`` and ``da`` outcomes
                             (success, reward, steps, expert_queries), ``kept`` and free-form fields.

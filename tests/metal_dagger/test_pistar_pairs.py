@@ -17,20 +17,21 @@ import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.evaluation.report_run import groundtruth_section
-from metadagger.imitation.bc import BCConfig, FeatureCache, fit_bc
+from metadagger.evaluation.report_run import pistar_section
+from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.collect import collect
 from metadagger.imitation.early_stop import CosineEarlyStop
+from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.rollouts import rollout
-from metadagger.metal.groundtruth import (
-    GroundTruthConfig,
-    groundtruth_changes,
-    head_from_groundtruth,
-    train_groundtruth,
+from metadagger.metal_dagger.method import seed_context
+from metadagger.metal_dagger.pairs import PairConfig, collect_pairs, is_kept
+from metadagger.metal_dagger.pistar import (
+    PiStarConfig,
+    head_from_pistar,
+    pistar_changes,
+    train_pistar,
 )
-from metadagger.metal.method import seed_context
-from metadagger.metal.pairs import PairConfig, collect_pairs, is_kept
-from metadagger.metal.store import PairStore
+from metadagger.metal_dagger.store import PairStore
 from metadagger.policies import load_policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
@@ -39,8 +40,8 @@ from metadagger.runfolder.stamps import stamp_of
 TESTS = Path(__file__).resolve().parents[1]
 # Subprocesses and Ray workers import the toy tasks from here; the caller's PYTHONPATH (e.g. a
 # source checkout) is kept, so they import the same metadagger as this process.
-PYTHONPATH = os.pathsep.join([str(TESTS), str(TESTS / "metal"), *filter(None, [os.environ.get("PYTHONPATH")])])
-GT = GroundTruthConfig(
+PYTHONPATH = os.pathsep.join([str(TESTS), str(TESTS / "metal_dagger"), *filter(None, [os.environ.get("PYTHONPATH")])])
+GT = PiStarConfig(
     seeds=(0, 1, 2, 3), eval_seeds=(100, 101), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=3)
 )
 PAIRS = PairConfig(
@@ -52,76 +53,76 @@ PAIRS = PairConfig(
 )
 
 
-def groundtruth_path(run: Path) -> Path:
-    return RunLayout(run).groundtruth
+def pistar_path(run: Path) -> Path:
+    return RunLayout(run).pistar
 
 
 def with_pistar(gt_run: Path, run: Path) -> RunLayout:
     """A fresh run folder holding a copy of ``gt_run``'s pi*."""
     layout = RunLayout(run)
-    layout.groundtruth_dir.mkdir(parents=True)
-    layout.groundtruth.write_bytes(groundtruth_path(gt_run).read_bytes())
+    layout.pistar_dir.mkdir(parents=True)
+    layout.pistar.write_bytes(pistar_path(gt_run).read_bytes())
     return layout
 
 
 @pytest.fixture(scope="module")
 def gt_run(tmp_path_factory) -> Path:
     run = tmp_path_factory.mktemp("run")
-    train_groundtruth(CorridorTask(), GT, RunLayout(run), progress=False)
+    train_pistar(CorridorTask(), GT, RunLayout(run), progress=False)
     return run
 
 
 def test_pistar_in_lanes_does_not_depend_on_workers_and_is_not_taken_for_pistar_made_alone(tmp_path):
     laned = dataclasses.replace(GT, lanes=3)
     one, two = RunLayout(tmp_path / "one"), RunLayout(tmp_path / "two")
-    metrics = train_groundtruth(CorridorTask(), laned, one, progress=False)
-    assert train_groundtruth(CorridorTask(), laned, two, progress=False, workers=2) == metrics
-    assert one.groundtruth.read_bytes() == two.groundtruth.read_bytes()
-    assert any("lanes" in change for change in groundtruth_changes(CorridorTask(), GT, one))
-    with pytest.raises(UserError, match="groundtruth.lanes must be an integer from 1 to 256, got 0"):
+    metrics = train_pistar(CorridorTask(), laned, one, progress=False)
+    assert train_pistar(CorridorTask(), laned, two, progress=False, workers=2) == metrics
+    assert one.pistar.read_bytes() == two.pistar.read_bytes()
+    assert any("lanes" in change for change in pistar_changes(CorridorTask(), GT, one))
+    with pytest.raises(UserError, match="pistar.lanes must be an integer from 1 to 256, got 0"):
         dataclasses.replace(GT, lanes=0)
 
 
-def test_groundtruth_writes_policy_metrics_and_round_checkpoints(gt_run):
-    assert groundtruth_path(gt_run).is_file()
-    assert (gt_run / "groundtruth" / "metrics.json").is_file()
-    assert sorted(p.name for p in (gt_run / "groundtruth" / "rounds").iterdir()) == [
+def test_pistar_writes_policy_metrics_and_round_checkpoints(gt_run):
+    assert pistar_path(gt_run).is_file()
+    assert (gt_run / "pistar" / "metrics.json").is_file()
+    assert sorted(p.name for p in (gt_run / "pistar" / "rounds").iterdir()) == [
         "round_0.safetensors",
         "round_1.safetensors",
     ]
-    assert load_policy(groundtruth_path(gt_run)).head_size == 32 * 3 + 3
+    assert load_policy(pistar_path(gt_run)).head_size == 32 * 3 + 3
     # every fit's loss per epoch, for the TensorBoard curves; the last is the round's final loss
-    metrics = json.loads((gt_run / "groundtruth" / "metrics.json").read_text())
+    metrics = json.loads((gt_run / "pistar" / "metrics.json").read_text())
     assert len(metrics["bc_epoch_losses"]) == GT.bc.epochs
     assert [len(r["dagger/epoch_losses"]) for r in metrics["rounds"]] == [GT.bc.epochs] * GT.dagger_rounds
     assert all(r["dagger/epoch_losses"][-1] == r["dagger/final_loss"] for r in metrics["rounds"])
 
 
-def test_groundtruth_resumes_from_round_checkpoints(gt_run, tmp_path):
+def test_pistar_resumes_from_round_checkpoints(gt_run, tmp_path):
     # a run killed after its last fit: the checkpoints are there, the final policy is not
-    (tmp_path / "groundtruth").mkdir()
-    for src in (gt_run / "groundtruth" / "rounds").iterdir():
-        (tmp_path / "groundtruth" / "rounds").mkdir(exist_ok=True)
-        (tmp_path / "groundtruth" / "rounds" / src.name).write_bytes(src.read_bytes())
-    (tmp_path / "groundtruth" / "stamp.json").write_bytes((gt_run / "groundtruth" / "stamp.json").read_bytes())
-    metrics = train_groundtruth(CorridorTask(), GT, RunLayout(tmp_path), progress=False)
+    (tmp_path / "pistar").mkdir()
+    for src in (gt_run / "pistar" / "rounds").iterdir():
+        (tmp_path / "pistar" / "rounds").mkdir(exist_ok=True)
+        (tmp_path / "pistar" / "rounds" / src.name).write_bytes(src.read_bytes())
+    (tmp_path / "pistar" / "stamp.json").write_bytes((gt_run / "pistar" / "stamp.json").read_bytes())
+    metrics = train_pistar(CorridorTask(), GT, RunLayout(tmp_path), progress=False)
     assert all(r["dagger/final_loss"] is None for r in metrics["rounds"])  # nothing refitted
     assert metrics["bc_epoch_losses"] is None and all(r["dagger/epoch_losses"] is None for r in metrics["rounds"])
-    assert groundtruth_path(tmp_path).read_bytes() == groundtruth_path(gt_run).read_bytes()
+    assert pistar_path(tmp_path).read_bytes() == pistar_path(gt_run).read_bytes()
 
 
-def test_a_damaged_finished_groundtruth_is_named_and_retrained_once_deleted(gt_run, tmp_path):
+def test_a_damaged_finished_pistar_is_named_and_retrained_once_deleted(gt_run, tmp_path):
     shutil.copytree(gt_run, tmp_path / "run")
     layout = RunLayout(tmp_path / "run")
-    intact = layout.groundtruth.read_bytes()
-    layout.groundtruth.write_bytes(intact[:100])
+    intact = layout.pistar.read_bytes()
+    layout.pistar.write_bytes(intact[:100])
     with pytest.raises(
-        CheckpointError, match=f"policy checkpoint is corrupt or not a safetensors file: {layout.groundtruth}"
+        CheckpointError, match=f"policy checkpoint is corrupt or not a safetensors file: {layout.pistar}"
     ):
-        train_groundtruth(CorridorTask(), GT, layout, rebuild=True, progress=False)
-    layout.groundtruth.unlink()
-    train_groundtruth(CorridorTask(), GT, layout, progress=False)
-    assert layout.groundtruth.read_bytes() == intact
+        train_pistar(CorridorTask(), GT, layout, rebuild=True, progress=False)
+    layout.pistar.unlink()
+    train_pistar(CorridorTask(), GT, layout, progress=False)
+    assert layout.pistar.read_bytes() == intact
 
 
 def test_keep_rules():
@@ -177,8 +178,8 @@ def test_a_damaged_pistar_is_named_before_any_pair_is_touched(gt_run, tmp_path):
     layout = with_pistar(gt_run, tmp_path)
     collect_pairs(CorridorTask(), layout, first, StageOptions(workers=1, progress=False))
     before = {p.name: p.read_bytes() for p in (tmp_path / "pairs").iterdir()}
-    layout.groundtruth.write_bytes(layout.groundtruth.read_bytes()[:100])
-    with pytest.raises(CheckpointError, match=f"corrupt or not a safetensors file: {layout.groundtruth}"):
+    layout.pistar.write_bytes(layout.pistar.read_bytes()[:100])
+    with pytest.raises(CheckpointError, match=f"corrupt or not a safetensors file: {layout.pistar}"):
         collect_pairs(CorridorTask(), layout, PAIRS, StageOptions(workers=1, progress=False))
     assert {p.name: p.read_bytes() for p in (tmp_path / "pairs").iterdir()} == before
 
@@ -199,9 +200,9 @@ import signal, sys
 signal.signal(signal.SIGINT, signal.default_int_handler)
 from slow_task import SlowCorridorTask
 from metadagger.runfolder.layout import RunLayout
-from metadagger.metal.pairs import collect_pairs
+from metadagger.metal_dagger.pairs import collect_pairs
 from metadagger.runfolder.driver import StageOptions
-from test_groundtruth_pairs import PAIRS
+from test_pistar_pairs import PAIRS
 collect_pairs(SlowCorridorTask(), RunLayout(sys.argv[1]), PAIRS, StageOptions(workers=1, progress=False))
 """
 
@@ -260,7 +261,7 @@ def test_each_pair_stores_its_seed_context_from_the_demonstration_and_the_bc_rol
     store = PairStore(layout.pairs_dir)
     seed = PAIRS.seeds[0]
     stored = store.load_contexts([seed])[0]
-    policy = head_from_groundtruth(load_policy(layout.groundtruth), PAIRS.bc.head_init_seed(seed))
+    policy = head_from_pistar(load_policy(layout.pistar), PAIRS.bc.head_init_seed(seed))
     demo = collect(CorridorTask(), [seed], policy=None)[0].to_dataset()
     cache = FeatureCache(policy)
     fit_bc(policy, demo, dataclasses.replace(PAIRS.bc, seed=seed), cache=cache)
@@ -278,20 +279,19 @@ def test_each_pair_stores_its_seed_context_from_the_demonstration_and_the_bc_rol
     )
 
 
-def test_groundtruth_can_choose_its_bc_epoch_on_held_out_seeds(tmp_path):
+def test_pistar_can_choose_its_bc_epoch_on_held_out_seeds(tmp_path):
     config = dataclasses.replace(GT, dagger_rounds=0, select_seeds=(200, 201, 202, 203), select_every=2)
-    metrics = train_groundtruth(CorridorTask(), config, RunLayout(tmp_path), progress=False)
+    metrics = train_pistar(CorridorTask(), config, RunLayout(tmp_path), progress=False)
     choice = metrics["bc_selection"]
     assert [check["epoch"] for check in choice["history"]] == [2, 3] and choice["episodes"] == 4
     assert choice["successes"] == max(check["successes"] for check in choice["history"])
     saved, checkpoint = (
-        load_policy(groundtruth_path(tmp_path)),
-        load_policy(tmp_path / "groundtruth" / "rounds" / "round_0.safetensors"),
+        load_policy(pistar_path(tmp_path)),
+        load_policy(tmp_path / "pistar" / "rounds" / "round_0.safetensors"),
     )
     assert all(torch.equal(a, b) for a, b in zip(saved.net.parameters(), checkpoint.net.parameters()))
     assert any(
-        line.startswith(f"pi* is epoch {choice['epoch']} of its BC fit")
-        for line in groundtruth_section(RunLayout(tmp_path))
+        line.startswith(f"pi* is epoch {choice['epoch']} of its BC fit") for line in pistar_section(RunLayout(tmp_path))
     )
     # the options joined the config later: a pi* made without them keeps its stamp
     assert "select_seeds" not in stamp_of(GT) and "select_every" not in stamp_of(GT)
@@ -306,6 +306,6 @@ def test_groundtruth_can_choose_its_bc_epoch_on_held_out_seeds(tmp_path):
         ({"select_seeds": (200,), "dagger_rounds": 0, "select_every": 0}, "select_every must be an integer >= 1"),
     ],
 )
-def test_groundtruth_selection_settings_are_checked(changes, match):
+def test_pistar_selection_settings_are_checked(changes, match):
     with pytest.raises(ValueError, match=match):
         dataclasses.replace(GT, **changes)

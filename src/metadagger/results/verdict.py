@@ -1,0 +1,76 @@
+"""The ``verdict`` block: does a MetaL DAgger method beat every one of its references at equal queries?
+
+Each run's benchmark summary reads every MetaL DAgger curve that reads a learned mapper against its
+references, on the same seeds and at the same spend: its constant twins (the same method with a
+control's head, or zero, in the mapper's place), BC refitted and the best gate; at each budget and
+by the area under the curve (:func:`~metadagger.evaluation.benchmark_summary.budget_reading`). A
+curve beats its references at a reading when every one of those paired 95% intervals lies above 0
+there. For each run, on its unseen seeds and on its confirmation seeds where it has them, the block
+names every reading where a curve does, or says that none does and gives the closest: the reading
+whose lowest lower bound over the references is highest.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from metadagger.evaluation.tables import method_label
+from metadagger.results.tables import BlockContext, missing_run
+
+Curve = tuple[str, float]
+
+
+def verdict(context: BlockContext, names: str) -> str:
+    """One item per run of ``names`` (comma-separated) and seed set: where a MetaL DAgger method
+    beats all its references, or that none does and the closest."""
+    lines = []
+    for name in names.split(","):
+        found = context.runs.get(name)
+        if found is None:
+            lines.append(f"- `{name}`: {missing_run(name)}")
+            continue
+        sets = [("unseen seeds", "benchmark/summary.json"), ("confirmation seeds", "benchmark/confirm/summary.json")]
+        for seeds, path in sets:
+            if found.path(path).is_file():
+                lines.append(f"- `{name}`, {_judged(found.json(path).get('budgets'), seeds)}")
+    return "\n".join(lines)
+
+
+def _judged(reading: dict[str, Any] | None, seeds: str) -> str:
+    """The verdict on one seed set's equal-budget reading."""
+    if not reading:
+        return f"{seeds}: no DAgger rows, so no equal-budget reading."
+    readings = [(f"+{b['share']:.0%}", b["metal"]) for b in reading["budgets"]] + [("area", reading["auc_metal"])]
+    groups: dict[tuple[Curve, str], list[dict[str, Any]]] = {}
+    for where, comparisons in readings:
+        for c in comparisons:
+            groups.setdefault(((c["method"], float(c["demo_fraction"])), where), []).append(c)
+    head = f"{len(reading['seeds'])} {seeds}"
+    if not groups:
+        return f"{head}: no method that reads a learned mapper ran."
+    above = [key for key, comparisons in groups.items() if all(c["ci_low"] > 0 for c in comparisons)]
+    if above:
+        return f"{head}: above every one of its references: " + "; ".join(_reading(k, groups[k]) for k in above) + "."
+    closest = max(groups, key=lambda key: min(c["ci_low"] for c in groups[key]))
+    return (
+        f"{head}: no MetaL DAgger method is above all of its references at any budget or by area. "
+        f"Closest: {_reading(closest, groups[closest])}."
+    )
+
+
+def _reading(key: tuple[Curve, str], comparisons: list[dict[str, Any]]) -> str:
+    (method, fraction), where = key
+    label = method_label(method) + ("" if fraction == 1.0 else f" ({fraction:.0%} of the demonstration)")
+    at = "by area" if where == "area" else f"at demonstration {where}"
+    parts = [
+        f"against {_against(c)} {100 * c['difference']:+.0f} points ({100 * c['ci_low']:+.0f} to "
+        f"{100 * c['ci_high']:+.0f})"
+        for c in comparisons
+    ]
+    return f"{label} {at}, " + ", ".join(parts)
+
+
+def _against(comparison: dict[str, Any]) -> str:
+    fraction = float(comparison["against_demo_fraction"])
+    label = method_label(comparison["against"])
+    return label if fraction == 1.0 else f"{label} ({fraction:.0%} of the demonstration)"
