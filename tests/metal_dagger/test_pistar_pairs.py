@@ -309,3 +309,39 @@ def test_pistar_can_choose_its_bc_epoch_on_held_out_seeds(tmp_path):
 def test_pistar_selection_settings_are_checked(changes, match):
     with pytest.raises(ValueError, match=match):
         dataclasses.replace(GT, **changes)
+
+
+@pytest.mark.parametrize("refit_from", ["current", "origin"])
+def test_a_dagger_refit_starts_from_the_current_head_or_from_the_origin(gt_run, refit_from):
+    """``refit_from: origin`` makes every refit BC on the aggregate from the seed's fresh head (so BC
+    refitted on the demonstration alone is w_BC itself); ``current`` continues the rolled-out head."""
+    from metadagger.imitation.data import Aggregate
+    from metadagger.metal_dagger.method import SeedLearner, bc_head, dagger_rounds, demonstration, seeded
+
+    fit = dataclasses.replace(PAIRS.bc, refit_from=refit_from)
+    seed = PAIRS.seeds[0]
+    with SeedLearner(CorridorTask(), str(pistar_path(gt_run)), seed, head_init_seed=seed) as learner:
+        fresh = learner.head()
+        demo = demonstration(learner)
+        w_bc = bc_head(learner, demo.to_dataset(), seeded(fit, seed))
+        first = learner.roll(w_bc)
+        rounds = dagger_rounds(
+            learner, start=w_bc, first_rollout=first, demo=demo, rounds=1, fit=seeded(fit, seed), origin=fresh
+        )
+        [round_] = list(rounds)
+        learner.load(fresh if refit_from == "origin" else w_bc)
+        data = Aggregate([demo.to_dataset(), round_.labelled])
+        expected = bc_head(learner, data, seeded(fit, seed))
+        assert torch.equal(torch.from_numpy(round_.head), torch.from_numpy(expected))
+        if refit_from == "origin":
+            learner.load(fresh)
+            assert torch.equal(
+                torch.from_numpy(bc_head(learner, demo.to_dataset(), seeded(fit, seed))), torch.from_numpy(w_bc)
+            )
+            with pytest.raises(ValueError, match="needs origin="):
+                list(dagger_rounds(learner, start=w_bc, first_rollout=first, demo=demo, rounds=1, fit=fit))
+
+
+def test_an_unknown_refit_start_is_refused():
+    with pytest.raises(UserError, match="BCConfig.refit_from must be one of current, origin, got 'fresh'"):
+        BCConfig(refit_from="fresh")

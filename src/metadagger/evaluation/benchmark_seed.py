@@ -53,6 +53,7 @@ from metadagger.metal_dagger.method import (
     demonstration,
     demonstration_share,
     map_head,
+    refit_start,
     run_steps,
     seed_context,
     seeded,
@@ -256,6 +257,7 @@ def _rounds(
         early_stop=job.early_stop,
         prior=prior,
         reference=reference,
+        origin=start.fresh,
     )
 
 
@@ -321,11 +323,12 @@ def _last_round_row(job: BenchmarkJob, start: _Start, key: MethodKey, rounds: It
 
 
 def _refit_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # DAgger's refits (continuing from w_BC, DAgger's fit) on the demonstration alone
+    # DAgger's refits (from w_BC or the fresh head, as DAgger's fit says) on the demonstration alone
     [key] = keys
     data = start.demo.to_dataset()
     learner.load(start.w_bc)
     for index in range(1, key.rounds + 1):
+        learner.load(refit_start(job.dagger_bc, learner.head(), start.fresh))
         bc_head(learner, data, seeded(job.dagger_bc, job.seed), called=f"BC's refit {index}")
     return {key: benchmark_row(key, job.seed, learner.roll(early_stop=job.early_stop), len(data), start.labels())}
 

@@ -239,6 +239,7 @@ def evaluate_mdi_seed(job: MDIJob) -> dict[str, Any]:
                     rounds=1,
                     fit=refit,
                     early_stop=config.early_stop,
+                    origin=start,
                 )
                 heads[method, "twoshot"], final = round_.head, round_.rollout
             cosine_total, cosine_mean = _cosine(job.task, final)

@@ -85,6 +85,7 @@ def seed_clips(
     """Each of ``methods`` rolled out on ``seed``, in order: ``expert`` (the demonstration),
     ``bc`` (w_BC), ``dagger`` (after ``rounds`` rounds) or a mapper kind (MDM from w_BC)."""
     with SeedLearner(task, str(layout.pistar), seed, head_init_seed=bc.head_init_seed(seed)) as learner:
+        fresh = learner.head()
         demo = demonstration(learner)
         data = demo.to_dataset()
         w_bc = bc_head(learner, data, seeded(bc, seed))
@@ -110,6 +111,7 @@ def seed_clips(
                 rounds=rounds,
                 fit=seeded(dagger_bc, seed),
                 early_stop=early_stop,
+                origin=fresh,
             )
             clips["dagger"] = Clip(f"DAgger, {rounds} rounds", last.rollout, last.queries)
     return [clips[m] for m in methods]

@@ -37,6 +37,10 @@ HEAD_INITS = ("seed", "shared")
 LR_SCHEDULES = ("constant", "cosine")
 
 
+#: Where a DAgger refit may start (:attr:`BCConfig.refit_from`).
+REFIT_FROM = ("current", "origin")
+
+
 @dataclass(frozen=True)
 class BCConfig:
     """How one behavioural-cloning fit runs (defaults follow the paper's Table 8)."""
@@ -78,6 +82,14 @@ class BCConfig:
     plain autograd step. Head-only fits need 1: their steps are microseconds
     (docs/performance.md)."""
 
+    refit_from: str = field(default="current", metadata=STAMPED_UNLESS_DEFAULT)
+    """Read by DAgger's refits only (``pairs.dagger_bc``, ``mdi.dagger_bc``): where each round's
+    refit on the aggregated data starts. ``current``: the head the round rolled out, continued
+    with a fresh Adam. ``origin``: the head the seed's fits began from (the seed's fresh head for
+    DAgger from BC, so that every refit is BC on the aggregate, as DAgger retrains; the saved
+    initialisation for DAgger-MDI). On Fetch, continuing lost what BC had (docs/fetch.md,
+    "Refits that keep what BC had")."""
+
     def lr_at(self, epoch: int) -> float:
         """The learning rate of epoch ``epoch`` (counted from 0) under :attr:`lr_schedule`."""
         if self.lr_schedule == "constant":
@@ -97,6 +109,8 @@ class BCConfig:
             raise UserError(f"BCConfig.epochs must be an integer >= 1, got {self.epochs!r}")
         if not self.weight_decay >= 0:
             raise UserError(f"BCConfig.weight_decay must be >= 0, got {self.weight_decay}")
+        if self.refit_from not in REFIT_FROM:
+            raise UserError(f"BCConfig.refit_from must be one of {', '.join(REFIT_FROM)}, got {self.refit_from!r}")
         if not isinstance(self.seed, int):
             raise UserError(f"BCConfig.seed must be an integer, got {self.seed!r}")
         if not isinstance(self.augment_shift, int) or isinstance(self.augment_shift, bool) or self.augment_shift < 0:

@@ -262,12 +262,14 @@ def dagger_rounds(
     early_stop: float | None = None,
     prior: Prior | None = None,
     reference: np.ndarray | None = None,
+    origin: np.ndarray | None = None,
 ) -> Iterator[Round]:
     """Step 4: ``rounds`` DAgger rounds from head ``start``, whose rollout ``first_rollout`` round 1 labels.
 
     Each round labels the states of the last rollout that ``gate`` selects (all of them without
     one: plain DAgger), adds them to the demonstration and the earlier rounds' labels, refits the
-    head on all of it (continuing from the current head), and rolls the refitted head out.
+    head on all of it (continuing from the current head, or from ``origin`` where
+    ``fit.refit_from`` says so), and rolls the refitted head out.
 
     Args:
         learner: the seed's learner.
@@ -282,7 +284,11 @@ def dagger_rounds(
         prior: a Gaussian prior every round's refit adds to its loss (:mod:`metadagger.mapping.priors`).
         reference: the head a gate that compares heads compares the current one with (a mapper's
             for the seed, or a constant head).
+        origin: the head every refit starts from where ``fit.refit_from`` is ``origin`` (the seed's
+            fresh head for DAgger from BC; MDI's saved initialisation).
     """
+    if fit.refit_from == "origin" and origin is None:
+        raise ValueError("a refit from the origin needs origin= (the head the seed's fits began from)")
     if gate is not None and gate.reads_heads and reference is None:
         raise UserError(f"{type(gate).__name__} compares the current head with a reference head; pass reference=")
     generator = torch.Generator().manual_seed(learner.seed)
@@ -314,6 +320,7 @@ def dagger_rounds(
             data = data.append(labelled)
             actions = np.concatenate([actions, trajectory.learner_actions[keep]])
             queries += int(keep.sum())
+            learner.load(refit_start(fit, learner.head(), origin))  # type: ignore[arg-type]
             learner.fit(data, fit, called=f"DAgger round {index}'s refit", prior=prior)
         head = learner.head()
         if labelled is not None:
@@ -370,6 +377,11 @@ def _head_pair(learner: SeedLearner, reference: np.ndarray) -> HeadPair:
 
 def _tensor(values: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(values))
+
+
+def refit_start(fit: BCConfig, current: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """The head a refit of ``fit`` starts from: ``current``, or ``origin`` (:attr:`BCConfig.refit_from`)."""
+    return origin if fit.refit_from == "origin" else current
 
 
 def one_shot(learner: SeedLearner, init: np.ndarray, demo: Dataset, fit: BCConfig) -> np.ndarray:

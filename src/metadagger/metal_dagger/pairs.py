@@ -152,6 +152,7 @@ def run_pair(
     """
     fit_seed = seed if fit_seed is None else fit_seed
     with SeedLearner(task, pistar, seed, head_init_seed=config.bc.head_init_seed(seed)) as learner:
+        fresh = learner.head()
         demo = demonstration(learner)
         data = demo.to_dataset()
         w_bc = bc_head(learner, data, seeded(config.bc, fit_seed))
@@ -166,6 +167,7 @@ def run_pair(
                 rounds=config.dagger_rounds,
                 fit=seeded(config.dagger_bc, fit_seed),
                 early_stop=config.early_stop,
+                origin=fresh,
             )
         )
         context = seed_context(learner.cache, data, first.to_dataset())
