@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from metadagger.evaluation.benchmark_summary import AUC_POINTS, budget_reading, success_at_budget
+from metadagger.evaluation.benchmark_summary import AUC_POINTS, budget_reading, refit_check, success_at_budget
 
 
 def _row(method: str, setting: str, seed: int, success: bool, queries: int, fraction: float = 1.0) -> dict:
@@ -99,3 +99,27 @@ def test_each_metal_method_is_read_against_its_constant_twins_bc_refitted_and_th
         assert pairs["prior-ridge", "prior-zero"]["only_a"] == 4 and pairs["prior-ridge", "prior-zero"]["only_b"] == 0
     auc = {(c["method"], c["against"]): c for c in reading["auc_metal"]}
     assert auc["prior-ridge", "prior-zero"]["difference"] == pytest.approx(4 / 6)
+
+
+def test_the_refit_check_reads_each_refits_last_round_against_bc_on_the_whole_demonstration():
+    def rows(method, setting, successes, fraction=1.0):
+        return [
+            {"method": method, "setting": setting, "demo_fraction": fraction, "seed": s, "success": ok, "reward": 1.0}
+            for s, ok in enumerate(successes)
+        ]
+
+    bc = [True] * 8 + [False] * 2
+    table = (
+        rows("bc", "", bc)
+        + rows("bc", "", [False] * 10, fraction=0.5)
+        + rows("bc-refit", "3", [True] * 2 + [False] * 8)  # loses six of BC's seeds
+        + rows("dagger", "1", [False] * 10)
+        + rows("dagger", "3", [True] * 10)
+    )
+    checks = {c["method"]: c for c in refit_check(table)}
+    assert set(checks) == {"bc-refit", "dagger"}
+    assert checks["bc-refit"]["setting"] == "3" and checks["bc-refit"]["against"] == "bc"
+    assert (checks["bc-refit"]["only_a"], checks["bc-refit"]["only_b"]) == (0, 6)
+    assert checks["bc-refit"]["ci_high"] < 0
+    assert checks["dagger"]["setting"] == "3" and (checks["dagger"]["only_a"], checks["dagger"]["only_b"]) == (2, 0)
+    assert refit_check(rows("dagger", "3", [True] * 10)) == []

@@ -47,9 +47,7 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
     reward, mean queries, takeovers and episodes asked per seed; the queries spent on
     meta-training; the references (:func:`references`), every method's paired comparison with each
     (:func:`comparisons`), and the reading at equal budgets (:func:`budget_reading`)."""
-    groups: dict[Group, list[dict[str, Any]]] = {}
-    for r in rows:
-        groups.setdefault((r["method"], str(r["setting"]), float(r["demo_fraction"])), []).append(r)
+    groups = _groups(rows)
     entries = []
     for (method, setting, fraction), group in groups.items():
         s = summarize(group)
@@ -82,6 +80,31 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
         "budgets": reading,
         "coverage": coverage_reading(rows, reading),
     }
+
+
+def _groups(rows: list[dict[str, Any]]) -> dict[Group, list[dict[str, Any]]]:
+    groups: dict[Group, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["method"], str(r["setting"]), float(r["demo_fraction"])), []).append(r)
+    return groups
+
+
+def refit_check(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Does a refit keep what BC had? BC refitted and DAgger, each after its last round, against BC,
+    on the whole demonstration, paired on the seeds both ran (:func:`comparisons`); [] for a
+    benchmark without BC or without either."""
+    whole = {key: group for key, group in _groups(rows).items() if key[2] == 1.0}
+    bc = next((key for key in whole if key[0] == "bc"), None)
+    if bc is None:
+        return []
+    reference = [{"method": bc[0], "setting": bc[1], "demo_fraction": bc[2]}]
+    out = []
+    for method in (BC_REFIT, "dagger"):
+        settings = [key for key in whole if key[0] == method]
+        if settings:
+            last = max(settings, key=lambda key: int(key[1]))
+            out += comparisons({last: whole[last], bc: whole[bc]}, reference)
+    return out
 
 
 def _controls() -> set[str]:

@@ -11,9 +11,11 @@ import math
 from typing import Any
 
 from metadagger.evaluation.benchmark_figure import plot_queries
+from metadagger.evaluation.benchmark_summary import refit_check
 from metadagger.evaluation.coverage_figure import has_twins, plot_coverage
 from metadagger.evaluation.methods import MDM_PREFIX, reference_methods
 from metadagger.evaluation.paired import verdict
+from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json
@@ -70,6 +72,7 @@ def benchmark_section(layout: RunLayout) -> list[str]:
         lines
         + [""]
         + _paired(entries, summary.get("references", []), summary.get("comparisons", []))
+        + _refits(layout)
         + _budgets(summary.get("budgets"))
         + _confirmation(layout)
         + _coverage(layout, summary.get("coverage"))
@@ -131,6 +134,33 @@ def _paired(entries: list[dict[str, Any]], refs: list[dict[str, Any]], compariso
     ]
     lines += markdown_table(("method", "setting", *(f"against {n}" for n in names)), cells) + [""]
     return lines + _conclusions(entries, refs, found, names) + [""]
+
+
+def _refits(layout: RunLayout) -> list[str]:
+    """BC refitted and DAgger after their last rounds against BC: does a refit keep what BC had?"""
+    checks = refit_check(read_csv(layout.benchmark_table)) if layout.benchmark_table.is_file() else []
+    if not checks:
+        return []
+    cells = [
+        (
+            f"{method_label(c['method'])} {c['setting']}",
+            f"{_points(c['difference'])} ({_points(c['ci_low'])} to {_points(c['ci_high'])}); "
+            f"{c['only_a']}:{c['only_b']}, p {c['p_value']:.2g}",
+            "no: below BC" if verdict(c) == "worse" else "not shown below BC",
+        )
+        for c in checks
+    ]
+    return [
+        "### Do the refits keep what BC had?",
+        "",
+        "Each refit after its last round against BC's own head on the same seeds (success difference in points, "
+        "95% bootstrap interval; the seeds only it : only BC solved, McNemar p). A refit whose interval lies "
+        "below 0 loses what BC had: then DAgger is no baseline, and its heads are poor targets for a mapper "
+        '(docs/benchmark.md, "Refits that keep what BC had").',
+        "",
+        *markdown_table(("refit (rounds)", "against BC", "keeps what BC had"), cells),
+        "",
+    ]
 
 
 def _points(value: float) -> str:
