@@ -410,6 +410,6 @@ def test_a_config_of_an_older_shape_departs_by_its_sections_and_a_setting_added_
     (run / "config.yaml").write_text(yaml.safe_dump(data))
     reasons = run_staleness(RegistryRun(run, CURRENT))
     assert reasons == [
-        f"old_{section}: a section today's config does not have",
-        f"{section}: a section the run's config does not have",
+        f"old_{section}: a section no longer read",
+        f"{section}: a section new since",
     ]

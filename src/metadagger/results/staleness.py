@@ -28,24 +28,21 @@ IGNORED_KEYS = (VERSION_KEY, "log")
 
 
 def run_staleness(run: RegistryRun) -> list[str]:
-    """Why registry run ``run`` is stale, as ``setting: run's -> today's`` lines (config settings
-    first, then ``NUMERICS`` and ``LANE_NUMERICS``); empty for a current run."""
+    """Why registry run ``run`` is stale, as ``setting: run's -> today's`` lines (``NUMERICS`` and
+    ``LANE_NUMERICS`` first, then the config's sections and settings); empty for a current run."""
     canonical = canonical_run(run.name)
     made = _settings(_made_with(run))
     today = _settings(_as_data(resolve_config(canonical.task, canonical.preset, overrides=canonical.overrides)))
-    reasons = [f"{key}: a section today's config does not have" for key in made if key not in today]
-    reasons += [f"{key}: a section the run's config does not have" for key in today if key not in made]
-    reasons += describe_changes(
-        {k: v for k, v in made.items() if k in today}, {k: v for k, v in today.items() if k in made}
-    )
     numerics = run.manifest["machine"].get("numerics")
-    if numerics != NUMERICS:
-        reasons.append(f"NUMERICS {numerics} -> {NUMERICS}")
+    reasons = [] if numerics == NUMERICS else [f"NUMERICS {numerics} -> {NUMERICS}"]
     lane_numerics = run.manifest.get("lane_numerics")
     if _laned(made) and lane_numerics != LANE_NUMERICS:
-        reasons.append(
-            f"LANE_NUMERICS {lane_numerics if lane_numerics is not None else 'unrecorded'} -> {LANE_NUMERICS}"
-        )
+        recorded = lane_numerics if lane_numerics is not None else "unrecorded"
+        reasons.append(f"LANE_NUMERICS {recorded} -> {LANE_NUMERICS}")
+    reasons += [f"{key}: a section no longer read" for key in made if key not in today]
+    reasons += [f"{key}: a section new since" for key in today if key not in made]
+    shared = [key for key in made if key in today]
+    reasons += describe_changes({k: made[k] for k in shared}, {k: today[k] for k in shared})
     return reasons
 
 
