@@ -87,8 +87,8 @@ class BCConfig:
     refit on the aggregated data starts. ``current``: the head the round rolled out, continued
     with a fresh Adam. ``origin``: the head the seed's fits began from (the seed's fresh head for
     DAgger from BC, so that every refit is BC on the aggregate, as DAgger retrains; the saved
-    initialisation for DAgger-MDI). On Fetch, continuing lost what BC had (docs/fetch.md,
-    "Refits that keep what BC had")."""
+    initialisation for DAgger-MDI). Continuing at a large rate can lose what BC had
+    (docs/fetch.md, "Refits that keep what BC had")."""
 
     def lr_at(self, epoch: int) -> float:
         """The learning rate of epoch ``epoch`` (counted from 0) under :attr:`lr_schedule`."""
