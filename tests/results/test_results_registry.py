@@ -238,7 +238,11 @@ def test_a_stale_run_is_marked_with_what_departed_where_its_numbers_show(tmp_pat
         f"*Stale `carracing-quick` (run's -> today's): benchmark.lanes: 1 -> 8; NUMERICS {NUMERICS - 1} -> {NUMERICS}.*"
     )
     assert any(line.startswith("| `carracing-quick` (stale) |") for line in glance(context).splitlines())
-    assert marked in glance(context)
+    assert glance(context).endswith("`metadagger results status`): `carracing-quick`.*")
+    (run / "report").mkdir()
+    (run / "report" / "report.md").write_text("# Run\n\n## Table 1\n\n| a |\n|---|\n| 1 |\n")
+    assert report_section(context, "carracing-quick", "Table 1").endswith(marked)
+    assert report_section(BlockContext(runs, tmp_path), "carracing-quick", "Table 1").endswith("| 1 |")
     row = next(line for line in runs_table(context).splitlines() if line.startswith("| `carracing-quick`"))
     assert f"| stale: benchmark.lanes: 1 -> 8; NUMERICS {NUMERICS - 1} -> {NUMERICS} |" in row
     current = BlockContext(runs, tmp_path)

@@ -157,7 +157,7 @@ def glance(context: BlockContext) -> str:
             f"The paper reports {paper}.",
             "",
             *markdown_table(("run", "DAgger (last round)", "best gate", "ceiling: oracle"), queries),
-            *_stale_lines(context),
+            *_stale_names(context),
         ]
     )
 
@@ -205,6 +205,20 @@ def _status(context: BlockContext, name: str) -> str:
 def _run_cell(context: BlockContext, name: str) -> str:
     """A run's name for a table's first column, marked where the run is stale."""
     return f"`{name}` (stale)" if context.stale.get(name) else f"`{name}`"
+
+
+def _stale_names(context: BlockContext, names: list[str] | None = None) -> list[str]:
+    """For a table of many runs: one line naming its stale runs (of ``names``, default every run of
+    the registry), whose departures the runs table and ``metadagger results status`` give; nothing
+    when all are current."""
+    stale = [f"`{n}`" for n in (names if names is not None else context.runs) if context.stale.get(n)]
+    if not stale:
+        return []
+    return [
+        "",
+        f"*Stale, each made by a config or numerics other than today's (what departed: the runs table in "
+        f"docs/results.md, or `metadagger results status`): {', '.join(stale)}.*",
+    ]
 
 
 def _stale_lines(context: BlockContext, names: list[str] | None = None) -> list[str]:
@@ -311,7 +325,7 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
         "has it."
     )
     header = ("run", "budget", "best method", "success", "minus the best gate", "oracle")
-    return "\n".join([note, "", *markdown_table(header, rows), *_stale_lines(context, [r.name for r in runs])])
+    return "\n".join([note, "", *markdown_table(header, rows), *_stale_names(context, [r.name for r in runs])])
 
 
 def _at_budget(budget: dict[str, Any]) -> tuple[str, str, str, str]:
