@@ -82,7 +82,7 @@ def test_every_method_and_setting_has_a_row_per_seed(toy_run, rows):
         "dagger-novelty@0.5",
         "dagger-thrifty@0.25",
         "dagger-conformal@0.5",
-        "dagger-oracle@0",  # the ceiling, last
+        "dagger-oracle@0",  # the oracle, a reference, last
     ]
     # the shorter demonstration for BC and the gates; pi*'s head never reads it, DAgger keeps the whole one
     assert [key.id for key in keys] == [

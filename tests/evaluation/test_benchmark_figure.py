@@ -118,7 +118,7 @@ def test_styles_are_stable_and_distinct():
 
 def test_labels(monkeypatch):
     oracle = series_label("dagger-oracle")
-    assert oracle.endswith(" (ceiling)") and oracle.count("ceiling") == 1
+    assert oracle.endswith(" (reference)") and oracle.count("reference") == 1
     assert series_label("bc") == "BC"
     assert series_label("dagger-plugin") == "dagger-plugin"  # a plug-in gate the labels do not know
     assert control_label("mdm-mean-da") == "MDM mean-DA (control, 0 queries)"
@@ -127,7 +127,7 @@ def test_labels(monkeypatch):
         raise ValueError(method)
 
     monkeypatch.setattr(benchmark_figure, "method_label", unknown)
-    assert series_label("dagger-oracle") == f"{ORACLE_FALLBACK} (ceiling)"
+    assert series_label("dagger-oracle") == f"{ORACLE_FALLBACK} (reference)"
 
 
 def test_one_panel_per_demo_fraction(figure):
@@ -137,7 +137,7 @@ def test_one_panel_per_demo_fraction(figure):
     assert figure.axes[0].get_ylim() == pytest.approx((-0.03, 1.03))
     (legend,) = figure.legends
     labels = [t.get_text() for t in legend.get_texts()]
-    assert labels[0] == "BC" and labels[-1].endswith("(ceiling)") and len(labels) == len(set(labels)) == 15
+    assert labels[0] == "BC" and labels[-1].endswith("(reference)") and len(labels) == len(set(labels)) == 15
 
 
 def test_every_series_has_its_own_colour_and_marker(figure):
@@ -149,7 +149,7 @@ def test_every_series_has_its_own_colour_and_marker(figure):
     assert len(style) == 15
     assert len({c for c, _ in style.values()}) == len(style)
     assert len({m for _, m in markers.values()}) == len(markers) == 13
-    oracle = [label for label in style if label.endswith("(ceiling)")]
+    oracle = [label for label in style if label.endswith("(reference)")]
     assert len(oracle) == 1 and style[oracle[0]] == ("#000000", "*")
 
 

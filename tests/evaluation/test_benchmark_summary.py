@@ -53,7 +53,7 @@ def test_budgets_are_the_demonstration_plus_shares_of_daggers_queries_beyond_it(
     assert [b["mean_budget"] for b in reading["budgets"]] == [120.0, 140.0, 200.0]
     assert successes[0.05] == {"bc": 0, "dagger": 0, "dagger-safe": 6, "mdm-mean-da": 2, "dagger-oracle": 6}
     assert successes[0.25]["dagger-safe"] == 3  # its 180-query setting, the last within 200
-    # the oracle is a ceiling and the control a reference: neither is ranked
+    # the oracle and the control are references: neither is ranked
     assert all(b["best"] == {"method": "dagger-safe", "demo_fraction": 1.0} for b in reading["budgets"])
     against = {c["against"] for c in reading["budgets"][0]["comparisons"]}
     assert against == {"mdm-mean-da"}  # the best gate is the best method itself here

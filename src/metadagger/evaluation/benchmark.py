@@ -13,7 +13,7 @@ a query. Per seed, with rows ``(method, setting, demo_fraction, seed)``:
   (setting = the round), with cumulative queries.
 - ``dagger-<gate>`` for every gate (:mod:`metadagger.imitation.gate_registry`, plug-ins included):
   the same R rounds, labelling only the states the gate selects; one row per setting of the
-  gate's grid, after round R. ``dagger-oracle`` is the ceiling, not a method: it labels exactly
+  gate's grid, after round R. ``dagger-oracle`` is a reference, not a method: it labels exactly
   the states where the learner is wrong (``benchmark.ceiling``).
 - ``dagger-mdi``, ``dagger-bc-init``, ``dagger-xavier`` (runs with an ``mdi`` section): Table 6's
   one-shot and two-shot tests (settings ``one-shot``, ``two-shot``).
@@ -122,7 +122,8 @@ class BenchmarkConfig:
     gate_options: dict = field(default_factory=dict, metadata=STAMPED_UNLESS_DEFAULT)
     """Further fields of a gate by method, e.g. ``{dagger-lazy: {low: 0.5}}`` (a plug-in's options)."""
     ceiling: bool = True
-    """Run the oracle rule (``dagger-oracle``) beside the methods: the ceiling of what a gate could do."""
+    """Run the oracle rule (``dagger-oracle``) beside the methods: the learner's-mistakes rule, a reference
+    (gates can beat it; the key keeps its older name)."""
     demo_fractions: tuple[float, ...] = (1.0,)
     """Shares of the demonstration's steps that BC, the learned MDM kinds and the gated settings
     start from, in (0, 1], 1 (the whole demonstration) among them; plain DAgger and MDI always
@@ -171,7 +172,7 @@ class BenchmarkConfig:
             )
 
     def gated(self) -> list[str]:
-        """The gated methods this config runs, the oracle ceiling last where ``ceiling`` is on."""
+        """The gated methods this config runs, the oracle last where ``ceiling`` is on."""
         gated = gated_methods(references=True)
         chosen = [m for m in self.methods if m in gated]
         return chosen + [m for m in reference_methods() if self.ceiling and m not in chosen]
@@ -190,7 +191,7 @@ class BenchmarkConfig:
 
 
 def method_keys(config: BenchmarkConfig, *, rounds: int, kinds: tuple[str, ...], mdi: bool) -> list[MethodKey]:
-    """Every method key the benchmark rows of one seed are made of, in table order (the ceiling last)."""
+    """Every method key the benchmark rows of one seed are made of, in table order (the oracle last)."""
     methods = benchmark_methods()
     grids = {method: config.grid(method) for method in config.gated()}
     names = [*(m for m in config.methods if m != "mdi"), *(m for m in config.gated() if m not in config.methods)]

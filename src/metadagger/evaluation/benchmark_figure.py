@@ -5,7 +5,8 @@ the success of every cheaper point (:func:`frontier`), joined by a post-step lin
 Wilson intervals as error bars. Every method keeps one colour and one marker of its own across the
 panels (:func:`method_styles`). Methods that ask the expert nothing (the MDM controls) are dashed
 horizontal lines at their success; ``dagger-oracle``, which labels exactly where the learner is
-wrong, is the ceiling, drawn in black with dashes and stars.
+wrong, is a reference (the learner's-mistakes rule, not a ceiling), drawn in black with dashes and
+stars.
 """
 
 from __future__ import annotations
@@ -106,8 +107,8 @@ def series_label(method: str) -> str:
         label = method_label(method)
     except Exception:  # a plug-in method the label registry does not know
         label = ORACLE_FALLBACK if method == ORACLE else method
-    if method == ORACLE and not label.endswith("(ceiling)"):
-        return f"{label} (ceiling)"
+    if method == ORACLE and not label.endswith("(reference)"):
+        return f"{label} (reference)"
     return label
 
 
@@ -193,7 +194,7 @@ def draw_queries(summary: dict[str, Any]) -> Figure:
     Per panel each method draws its :func:`frontier` as a post-step line with error bars; points of
     several methods at one query count are spread sideways (:func:`dodge`). Zero-query methods are
     dashed horizontal lines on every panel (they never read the demonstration), the oracle is the
-    black ceiling, and one legend outside the axes names every series.
+    black reference, and one legend outside the axes names every series.
     """
     entries = list(summary["entries"])
     order = list(dict.fromkeys(e["method"] for e in entries))
@@ -287,7 +288,7 @@ def draw_queries(summary: dict[str, Any]) -> Figure:
     first.set_ylabel("success rate (95% Wilson interval)")
     first.set_ylim(-0.03, 1.03)
 
-    # The methods' series in their order, then the reference lines, then the ceiling.
+    # The methods' series in their order, then the reference lines, then the oracle.
     ranked = sorted(
         handles.items(),
         key=lambda kv: (kv[0].split("\0")[0] == ORACLE, kv[0].endswith("\0ref"), order.index(kv[0].split("\0")[0])),

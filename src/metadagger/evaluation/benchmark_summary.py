@@ -14,11 +14,12 @@ every method but the zero-query controls reads as a failure):
   from the demonstration's queries to plain DAgger's final queries; in [0, 1].
 
 At each budget the best method (references aside) is named, with paired intervals against each
-reference: the zero-query controls, BC refitted and the best gate at that budget. The oracle is a
-ceiling: tabled, never ranked. Each MetaL DAgger method that reads a learned mapper's head (MDM,
-the priors, the disagreement gate) is also read against its constant twins (the same method with
-a control's head, or zero, in the mapper's place: :func:`~metadagger.evaluation.methods.metal_twins`),
-BC refitted and the best gate, at each budget and by the area under the curve.
+reference: the zero-query controls, BC refitted and the best gate at that budget. The oracle (the
+learner's-mistakes rule) is a reference: tabled, never ranked. Each MetaL DAgger method that reads
+a learned mapper's head (MDM, the priors, the disagreement gate) is also read against its constant
+twins (the same method with a control's head, or zero, in the mapper's place:
+:func:`~metadagger.evaluation.methods.metal_twins`), BC refitted and the best gate, at each budget
+and by the area under the curve.
 """
 
 from __future__ import annotations
@@ -114,7 +115,7 @@ def _controls() -> set[str]:
 def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """What every method is compared with: each MDM control, BC refitted as DAgger (``bc-refit``),
     and the best gate (the gated DAgger setting with the highest success, the fewest queries on a
-    tie; the oracle is a ceiling, not a gate), as ``method``/``setting``/``demo_fraction``."""
+    tie; the oracle is a reference, not a gate), as ``method``/``setting``/``demo_fraction``."""
     controls, gated = _controls(), gated_methods()
     refs = [e for e in entries if e["method"] in controls]
     gates = [e for e in entries if e["method"] in gated]

@@ -291,7 +291,7 @@ class BenchmarkMethod:
     keys: KeyMaker
     """The keys of its rows on one seed."""
     reference: bool = False
-    """A reference (the oracle ceiling): drawn and tabled beside the methods, never ranked."""
+    """A reference (the oracle, the learner's-mistakes rule): drawn and tabled beside the methods, never ranked."""
 
 
 def _bc(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
@@ -409,7 +409,7 @@ def gated_methods(*, references: bool = False) -> dict[str, str]:
 
 
 def reference_methods() -> tuple[str, ...]:
-    """The methods that are references, never ranked: the oracle ceiling."""
+    """The methods that are references, never ranked: the oracle (the learner's-mistakes rule)."""
     return tuple(m.name for m in benchmark_methods().values() if m.reference)
 
 

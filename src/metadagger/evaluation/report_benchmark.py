@@ -174,7 +174,7 @@ def _conclusions(
     above_all = []
     for e in entries:
         if e["method"] in reference_methods():
-            continue  # the oracle is a ceiling, never ranked
+            continue  # the oracle is a reference, never ranked
         cs = [found.get((_key(e), _key(r))) for r in refs]
         if all(c is not None and verdict(c) == "better" for c in cs):
             above_all.append(_reference_label(e))

@@ -43,7 +43,7 @@ class GateDeclaration:
     shared: dict[str, str] = field(default_factory=dict)
     """Gate fields set from the benchmark's shared options: ``{field: option}``, e.g. ``{"K": "ensemble_heads"}``."""
     reference: bool = False
-    """A reference drawn beside the methods and never ranked among them (the oracle ceiling)."""
+    """A reference drawn beside the methods and never ranked among them (the oracle: the learner's-mistakes rule)."""
 
     def __post_init__(self) -> None:
         where = f"gate declaration {self.name!r}"
@@ -118,9 +118,10 @@ _BUILT_IN = (
     GateDeclaration(
         "oracle",
         OracleGate,
-        "Oracle: the learner's mistakes (ceiling)",
+        "Oracle: the learner's-mistakes rule (reference)",
         (0.5, 0.8, 0.95),
-        "the ceiling, not a method: the states where the learner's action differs from the expert's",
+        "a reference, not a method and not a ceiling: the states where the learner's action differs from the "
+        "expert's (gates can do better)",
         reference=True,
     ),
 )

@@ -16,7 +16,8 @@ The gates:
 - ``novelty(k, quantile)``: a state's score is its distance to the ``k``-th nearest labelled state.
 - ``thrifty(rate)`` and ``conformal(alpha)``: ThriftyDAgger's and CRSAIL's rules, which set their
   thresholds from the run so far (:mod:`metadagger.imitation.memory_gates`).
-- ``oracle(quantile)``, the ceiling, which reads the expert's labels of the round's states, and
+- ``oracle(quantile)``, the learner's-mistakes rule (a reference), which reads the expert's labels
+  of the round's states, and
   the disagreement gate, which reads two heads, MetaL DAgger's query rule
   (:mod:`metadagger.imitation.reading_gates`).
 

@@ -1,8 +1,8 @@
 """Gates that read more than a round's states: the oracle reads the expert's labels of them, the
 disagreement gate two heads.
 
-- ``oracle(quantile)``: the ceiling, not a method: it labels exactly the states where the learner
-  is wrong (:class:`OracleGate`).
+- ``oracle(quantile)``: the learner's-mistakes rule, a reference, not a method: it labels exactly
+  the states where the learner is wrong (:class:`OracleGate`).
 - :class:`DisagreementGate`: where a mapper's head for the seed and the current head act apart,
   MetaL DAgger's query rule; its benchmark methods (``disagree-<kind>``) are declared with the
   methods that need a mapper (:mod:`metadagger.evaluation.methods`).
@@ -34,7 +34,8 @@ def learner_error(learner_actions: Tensor, expert_labels: Tensor) -> Tensor:
 
 @dataclass(frozen=True)
 class OracleGate(Gate):
-    """The ceiling of every gate, not a method: it reads the expert's labels of the round's states
+    """The learner's-mistakes rule, a reference, not a method and not a ceiling (gates can beat
+    it): it reads the expert's labels of the round's states
     and labels exactly the states where the learner is wrong (:func:`learner_error` above 0), those
     whose error is at least the ``quantile``-quantile of the round's positive errors. With class
     labels every wrong state has error 1, so every setting labels all of them; with action vectors

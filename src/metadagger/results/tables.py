@@ -142,7 +142,8 @@ def glance(context: BlockContext) -> str:
         "DAgger: the best of the methods that read a learned mapper (MDM, the prior toward a mapper's head, its "
         "DAgger, the disagreement gate) and DAgger-MDI. The controls: pi*'s head and mean-DA use no query; BC "
         "refitted is w_BC refitted as DAgger refits it, on the demonstration alone ('-': the run has no such row). "
-        "Ceiling: the oracle rule, which labels exactly the states where the learner is wrong, at its best share. "
+        "Reference: the oracle, the learner's-mistakes rule, which labels exactly the states where the learner is "
+        "wrong, at its best share; not a ceiling (a gate can beat it). "
         "A run marked 'stale' was made by a config or numerics other than what its command makes now; the lines "
         "under the tables name what departed (docs/results.md). The best of each is chosen on these same seeds, "
         "which favours it; paired comparisons are in each run's report."
@@ -156,7 +157,7 @@ def glance(context: BlockContext) -> str:
             "",
             f"The paper reports {paper}.",
             "",
-            *markdown_table(("run", "DAgger (last round)", "best gate", "ceiling: oracle"), queries),
+            *markdown_table(("run", "DAgger (last round)", "best gate", "reference: oracle"), queries),
             *_stale_names(context),
         ]
     )
