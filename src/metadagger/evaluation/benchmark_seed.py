@@ -53,7 +53,6 @@ from metadagger.metal_dagger.method import (
     demonstration,
     demonstration_share,
     map_head,
-    refit_start,
     run_steps,
     seed_context,
     seeded,
@@ -328,7 +327,7 @@ def _refit_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner:
     data = start.demo.to_dataset()
     learner.load(start.w_bc)
     for index in range(1, key.rounds + 1):
-        learner.load(refit_start(job.dagger_bc, learner.head(), start.fresh))
+        learner.start_refit(job.dagger_bc, start.fresh)
         bc_head(learner, data, seeded(job.dagger_bc, job.seed), called=f"BC's refit {index}")
     return {key: benchmark_row(key, job.seed, learner.roll(early_stop=job.early_stop), len(data), start.labels())}
 

@@ -135,6 +135,14 @@ class SeedLearner:
             [fitted] = fit_heads([request], out_dim=out_dim, discrete=self.policy.discrete)
             self.load(fitted.head)
 
+    def start_refit(self, fit: BCConfig, origin: np.ndarray | None) -> None:
+        """Before a refit of ``fit``: load ``origin`` where ``fit.refit_from`` says the refit starts
+        there (:attr:`BCConfig.refit_from`); otherwise the refit continues the current head."""
+        if fit.refit_from == "origin":
+            if origin is None:
+                raise ValueError("a refit from the origin needs origin= (the head the seed's fits began from)")
+            self.load(origin)
+
     def close(self) -> None:
         """Close the env."""
         if self.env is not None:
@@ -287,8 +295,6 @@ def dagger_rounds(
         origin: the head every refit starts from where ``fit.refit_from`` is ``origin`` (the seed's
             fresh head for DAgger from BC; MDI's saved initialisation).
     """
-    if fit.refit_from == "origin" and origin is None:
-        raise ValueError("a refit from the origin needs origin= (the head the seed's fits began from)")
     if gate is not None and gate.reads_heads and reference is None:
         raise UserError(f"{type(gate).__name__} compares the current head with a reference head; pass reference=")
     generator = torch.Generator().manual_seed(learner.seed)
@@ -320,7 +326,7 @@ def dagger_rounds(
             data = data.append(labelled)
             actions = np.concatenate([actions, trajectory.learner_actions[keep]])
             queries += int(keep.sum())
-            learner.load(refit_start(fit, learner.head(), origin))  # type: ignore[arg-type]
+            learner.start_refit(fit, origin)
             learner.fit(data, fit, called=f"DAgger round {index}'s refit", prior=prior)
         head = learner.head()
         if labelled is not None:
@@ -377,11 +383,6 @@ def _head_pair(learner: SeedLearner, reference: np.ndarray) -> HeadPair:
 
 def _tensor(values: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(values))
-
-
-def refit_start(fit: BCConfig, current: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    """The head a refit of ``fit`` starts from: ``current``, or ``origin`` (:attr:`BCConfig.refit_from`)."""
-    return origin if fit.refit_from == "origin" else current
 
 
 def one_shot(learner: SeedLearner, init: np.ndarray, demo: Dataset, fit: BCConfig) -> np.ndarray:
