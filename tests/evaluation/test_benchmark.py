@@ -194,7 +194,8 @@ def _one_key_job(toy_run, key, seed: int, config: BenchmarkConfig) -> bench.Benc
 @pytest.mark.parametrize("gate, value", [("novelty", 0.5), ("thrifty", 0.25), ("conformal", 0.5)])
 def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate, value):
     """Every query is a state the gate selected: count the selections independently; a gate's memory
-    holds the demonstration, then each rollout it has gated, and nothing else."""
+    holds the demonstration, then each rollout it has gated, and nothing else; its view's outputs
+    are the learner's logits, whose argmax are the classes it took."""
     selected, remembered = [], []
     real = bench.make_gate
 
@@ -202,11 +203,14 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
         gate = real(name, setting, **options)
 
         class Counting:
-            reads_expert = reads_heads = False
+            reads_expert = reads_reference = False
 
-            def choose(self, *args, memory, **kwargs):
-                remembered.append([(len(e.features), e.succeeded) for e in memory.episodes])
-                chosen = gate.choose(*args, memory=memory, **kwargs)
+            def choose(self, view):
+                remembered.append([(len(e.features), e.succeeded) for e in view.memory.episodes])
+                # the learner's view: its logits where it acted, their argmax the classes it took
+                assert view.discrete and torch.equal(view.outputs.argmax(dim=1), view.actions)
+                assert torch.allclose(view.outputs.double(), view.outputs_of(view.head), atol=1e-5)
+                chosen = gate.choose(view)
                 selected.append(chosen.mask.nonzero().flatten().tolist())
                 return chosen
 
@@ -440,9 +444,9 @@ def test_the_disagreement_gate_compares_the_current_head_with_the_kinds_head(toy
     seen = []
     choose = DisagreementGate.choose
 
-    def spy(self, *args, **kwargs):
-        seen.append(kwargs["heads"])
-        return choose(self, *args, **kwargs)
+    def spy(self, view):
+        seen.append(view)
+        return choose(self, view)
 
     monkeypatch.setattr(DisagreementGate, "choose", spy)
     layout = _copy_run(toy_run, tmp_path / "run")
@@ -450,7 +454,7 @@ def test_the_disagreement_gate_compares_the_current_head_with_the_kinds_head(toy
     rows = _run(layout, config, executor="inline", workers=None)  # in this process: the spy sees every choice
     assert len(seen) == len(SEEDS) * 3 * ROUNDS  # every seed, quantile and round
     assert all(torch.equal(h.reference, pistar) for h in seen)
-    assert any(not torch.equal(h.current, h.reference) for h in seen)
+    assert any(not torch.equal(h.head, h.reference) for h in seen)
     table = {(r["method"], r["setting"], r["seed"]): r for r in rows}
     for seed in SEEDS:
         demo = table["bc", "", seed]["expert_queries"]

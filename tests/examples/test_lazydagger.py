@@ -1,10 +1,8 @@
 """The worked example examples/lazydagger: a gate in a package of its own, found through its entry point.
 
 The example is installed with ``pip install -e examples/lazydagger``; the tests do not install it.
-They write what installing it writes for its entry point, a distribution's ``dist-info`` folder
-with an ``entry_points.txt`` read from its ``pyproject.toml``, into a folder on ``sys.path`` (the
-worker processes inherit it), put the example's source folder there too, and let the gate
-registry load its plug-ins again; the registry is restored afterwards.
+They write what installing it writes for its entry point, read from its ``pyproject.toml``
+(``plugins`` in conftest.py), and put the example's source folder on ``sys.path``.
 """
 
 from __future__ import annotations
@@ -18,55 +16,35 @@ from pathlib import Path
 
 import pytest
 import torch
-from toy_task import CorridorTask
+from plugin_kit import toy_benchmark
 from typer.testing import CliRunner
 
 import metadagger.imitation.gate_registry as registry
 from metadagger.cli.main import app
 from metadagger.errors import UserError
-from metadagger.evaluation.benchmark import BenchmarkConfig, run_benchmark
+from metadagger.evaluation.benchmark import BenchmarkConfig
 from metadagger.evaluation.ledger import step_runs
 from metadagger.evaluation.rows import read_csv
 from metadagger.evaluation.tables import method_label
-from metadagger.imitation.bc import BCConfig
-from metadagger.imitation.gates import Labelled, SafeGate
-from metadagger.runfolder.driver import StageOptions
+from metadagger.imitation.gate_view import Labelled, LearnerView
+from metadagger.imitation.gates import SafeGate
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "lazydagger"
 PYPROJECT = tomllib.loads((EXAMPLE / "pyproject.toml").read_text())
 runner = CliRunner()
 
 
-def _install_metadata(site: Path, name: str, entry_points: dict[str, str]) -> None:
-    """What installing distribution ``name`` writes for its gate entry points: ``<name>-0.1.0.dist-info``."""
-    info = site / f"{name.replace('-', '_')}-0.1.0.dist-info"
-    info.mkdir(parents=True)
-    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.1.0\n")
-    lines = [f"{ep} = {value}" for ep, value in entry_points.items()]
-    (info / "entry_points.txt").write_text(f"[{registry.ENTRY_POINT_GROUP}]\n" + "\n".join(lines) + "\n")
+@pytest.fixture(autouse=True)
+def example_source(monkeypatch):
+    """The example's source folder on the path, as an editable install puts it (forgotten afterwards)."""
+    monkeypatch.syspath_prepend(str(EXAMPLE / "src"))
+    yield
+    _forget_example()
 
 
 def _forget_example() -> None:
     for module in [m for m in sys.modules if m.split(".")[0] == "metadagger_lazydagger"]:
         del sys.modules[module]
-
-
-@pytest.fixture
-def plugins(monkeypatch, tmp_path):
-    """``install(name, entry_points)``: a distribution with those gate entry points, as if installed;
-    the registry then loads the installed plug-ins again, and is restored after the test."""
-    monkeypatch.syspath_prepend(str(EXAMPLE / "src"))
-    monkeypatch.setattr(registry, "_GATES", dict(registry._GATES))
-    monkeypatch.setattr(registry, "_plugins_loaded", False)
-
-    def install(name: str, entry_points: dict[str, str]) -> Path:
-        site = tmp_path / f"site-{name}"
-        _install_metadata(site, name, entry_points)
-        monkeypatch.syspath_prepend(str(site))
-        return site
-
-    yield install
-    _forget_example()
 
 
 @pytest.fixture
@@ -76,13 +54,11 @@ def lazy(plugins):
 
 
 @pytest.fixture
-def gate_module(monkeypatch):
-    """The example's package, imported from its source folder (forgotten afterwards)."""
-    monkeypatch.syspath_prepend(str(EXAMPLE / "src"))
+def gate_module():
+    """The example's package, imported from its source folder."""
     import metadagger_lazydagger
 
-    yield metadagger_lazydagger
-    _forget_example()
+    return metadagger_lazydagger
 
 
 # --- the gate on hand-made scores and features ---------------------------------------------------
@@ -113,13 +89,17 @@ def _round(n: int = 160) -> tuple[torch.Tensor, torch.Tensor, Labelled]:
     return x.unsqueeze(1).float(), torch.zeros(n, dtype=torch.int64), labelled
 
 
+def _view(features: torch.Tensor, actions: torch.Tensor, labelled: Labelled) -> LearnerView:
+    """The round as a learner of two classes with an all-zero head saw it, taking ``actions``."""
+    return LearnerView.of(features, torch.zeros(2 * (features.shape[1] + 1)), labelled, actions=actions)
+
+
 @pytest.mark.parametrize("quantile", [0.5, 0.8, 0.95])
 def test_fewer_longer_runs_than_the_safe_gate_at_the_same_quantile(gate_module, quantile):
     features, actions, labelled = _round()
-    generator = torch.Generator().manual_seed(0)
     gate = gate_module.LazyGate(quantile)
-    chosen = gate.choose(features, actions, labelled, generator=generator)
-    safe = SafeGate(quantile).choose(features, actions, labelled, generator=generator)
+    chosen = gate.choose(_view(features, actions, labelled))
+    safe = SafeGate(quantile).choose(_view(features, actions, labelled))
     assert torch.equal(chosen.scores, safe.scores)  # SafeDAgger's score, unchanged
     assert chosen.scores[1:].gt(chosen.scores[:-1]).eq(features[1:, 0] > features[:-1, 0]).all()  # rises with x
 
@@ -145,7 +125,7 @@ def test_fewer_longer_runs_than_the_safe_gate_at_the_same_quantile(gate_module, 
 def test_a_lower_hand_back_labels_more_in_fewer_runs(gate_module):
     features, actions, labelled = _round()
     masks = [
-        gate_module.LazyGate(0.8, low=low).select(features, actions, labelled, generator=torch.Generator())
+        gate_module.LazyGate(0.8, low=low).choose(_view(features, actions, labelled)).mask
         for low in (0.8, 0.6, 0.3, 0.0)
     ]
     counts = [int(m.sum()) for m in masks]
@@ -156,7 +136,7 @@ def test_a_lower_hand_back_labels_more_in_fewer_runs(gate_module):
 def test_round_one_labels_every_state_as_the_safe_gate(gate_module):
     features, actions, _ = _round()
     demonstration = Labelled(features=features[:20], labels=actions[:20], learner_actions=actions[:20])
-    chosen = gate_module.LazyGate(0.8).choose(features, actions, demonstration, generator=torch.Generator())
+    chosen = gate_module.LazyGate(0.8).choose(_view(features, actions, demonstration))
     assert chosen.mask.all() and chosen.scores is None
 
 
@@ -260,8 +240,6 @@ def test_the_command_line_names_a_broken_plugin(plugins):
 
 # --- the benchmark on the toy corridor, end to end -------------------------------------------------
 
-BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
-
 
 def test_the_benchmark_runs_the_installed_gate_end_to_end(lazy, toy_run):
     config = BenchmarkConfig(
@@ -271,19 +249,7 @@ def test_the_benchmark_runs_the_installed_gate_end_to_end(lazy, toy_run):
         gate_options={"dagger-lazy": {"low": 0.2}},
         ceiling=False,
     )
-    rows = run_benchmark(
-        CorridorTask(),
-        toy_run,
-        config,
-        rounds=2,
-        bc=BC,
-        dagger_bc=BC,
-        early_stop=None,
-        kinds=("pistar-head",),
-        mdi=None,
-        meta_queries={"pistar": 900, "pairs": 100},
-        options=StageOptions(workers=1, progress=False),  # a worker process: it finds the gate on its own
-    )
+    rows = toy_benchmark(toy_run, config)  # in a worker process: it finds the gate on its own
     lazy_rows = [r for r in rows if r["method"] == "dagger-lazy"]
     assert sorted((r["setting"], r["seed"]) for r in lazy_rows) == [
         ("0.5", 300),

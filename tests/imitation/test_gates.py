@@ -6,17 +6,9 @@ import pytest
 import torch
 
 from metadagger.errors import UserError
-from metadagger.imitation.gate_registry import gated_names, make_gate
-from metadagger.imitation.gates import (
-    EnsembleGate,
-    Episode,
-    GateMemory,
-    Labelled,
-    NoveltyGate,
-    RandomGate,
-    SafeGate,
-    above_quantile,
-)
+from metadagger.imitation.gate_registry import gate_declarations, gated_names, make_gate
+from metadagger.imitation.gate_view import Episode, GateMemory, Labelled, LearnerView
+from metadagger.imitation.gates import EnsembleGate, NoveltyGate, RandomGate, SafeGate, above_quantile
 from metadagger.imitation.memory_gates import ConformalGate, ThriftyGate, conformal_threshold
 
 F = 32
@@ -25,6 +17,27 @@ N_NEAR = N_FAR = 100
 
 def gen(seed: int = 0) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
+
+
+def _heads(features: int, outputs: int, seed: int) -> torch.Tensor:
+    return torch.randn(outputs * (features + 1), generator=gen(seed))
+
+
+def view(
+    features: torch.Tensor,
+    learner: torch.Tensor,
+    labelled: Labelled,
+    generator: torch.Generator,
+    *,
+    memory: GateMemory | None = None,
+    head: torch.Tensor | None = None,
+    **reads: torch.Tensor,
+) -> LearnerView:
+    """The round's view with the learner's actions as given, acting with ``head`` (a random one of
+    three classes or of the actions' length, where not given)."""
+    outputs = 3 if labelled.discrete else labelled.labels.shape[1]
+    head = _heads(features.shape[1], outputs, 9) if head is None else head
+    return LearnerView.of(features, head, labelled, actions=learner, generator=generator, memory=memory, **reads)
 
 
 def actions(labels: torch.Tensor, discrete: bool) -> torch.Tensor:
@@ -69,7 +82,11 @@ every_gate = pytest.mark.parametrize("name", gated_names())  # the oracle reads 
 @every_gate
 def test_each_gate_returns_a_bool_mask_per_state(name, discrete):
     features, learner, labelled = mismatch_scene(discrete)
-    mask = make_gate(name, 0.5).select(features, learner, labelled, generator=gen())
+    if gate_declarations()[name].gate.needs_classes and not discrete:
+        with pytest.raises(UserError, match="reads the learner's class distribution, but it acts with action vectors"):
+            make_gate(name, 0.5).choose(view(features, learner, labelled, gen()))
+        return
+    mask = make_gate(name, 0.5).choose(view(features, learner, labelled, gen())).mask
     assert mask.dtype == torch.bool and mask.shape == (len(features),)
     assert 0 < int(mask.sum()) < len(features)
 
@@ -77,27 +94,29 @@ def test_each_gate_returns_a_bool_mask_per_state(name, discrete):
 @both
 @every_gate
 def test_gates_are_deterministic_given_the_generator_seed(name, discrete):
+    if gate_declarations()[name].gate.needs_classes and not discrete:
+        return  # refused on action vectors: test_each_gate_returns_a_bool_mask_per_state
     features, learner, labelled = mismatch_scene(discrete)
     gate = make_gate(name, 0.3)
-    first = gate.select(features, learner, labelled, generator=gen(7))
-    assert torch.equal(first, gate.select(features, learner, labelled, generator=gen(7)))
+    first = gate.choose(view(features, learner, labelled, gen(7))).mask
+    assert torch.equal(first, gate.choose(view(features, learner, labelled, gen(7))).mask)
 
 
 def test_ensemble_heads_are_drawn_from_the_generator():
     features, learner, labelled = scene(False)
     gate = EnsembleGate(quantile=0.5)
-    assert not torch.equal(*(gate.scores(features, learner, labelled, gen(s)) for s in (1, 2)))
+    assert not torch.equal(*(gate.scores(view(features, learner, labelled, gen(s))) for s in (1, 2)))
 
 
 def test_random_gate_labels_about_p_of_the_states():
     features, learner, labelled = scene(True)
     features, learner = features.repeat(10, 1), learner.repeat(10)  # 2000 states
     for p in (0.1, 0.5, 0.8):
-        share = RandomGate(p=p).select(features, learner, labelled, generator=gen(3)).float().mean().item()
+        share = RandomGate(p=p).choose(view(features, learner, labelled, gen(3))).mask.float().mean().item()
         assert abs(share - p) < 4 * (p * (1 - p) / len(features)) ** 0.5
-    assert not RandomGate(p=0.0).select(features, learner, labelled, generator=gen()).any()
-    assert RandomGate(p=1.0).select(features, learner, labelled, generator=gen()).all()
-    masks = [RandomGate(p=0.5).select(features, learner, labelled, generator=gen(s)) for s in (1, 2)]
+    assert not RandomGate(p=0.0).choose(view(features, learner, labelled, gen())).mask.any()
+    assert RandomGate(p=1.0).choose(view(features, learner, labelled, gen())).mask.all()
+    masks = [RandomGate(p=0.5).choose(view(features, learner, labelled, gen(s))).mask for s in (1, 2)]
     assert not torch.equal(*masks)
 
 
@@ -123,35 +142,35 @@ def test_quantile_rule_labels_the_top_share_of_distinct_scores():
 def test_uncertainty_gates_select_the_states_far_from_the_labelled_data(gate, discrete):
     features, learner, labelled = scene(discrete)
     for seed in range(3):
-        mask = gate.select(features, learner, labelled, generator=gen(seed))
+        mask = gate.choose(view(features, learner, labelled, gen(seed))).mask
         assert mask[N_NEAR:].all() and not mask[:N_NEAR].any()
 
 
 @both
 def test_ensemble_disagrees_more_off_the_labelled_data(discrete):
     features, learner, labelled = scene(discrete)
-    scores = EnsembleGate(quantile=0.5, K=8).scores(features, learner, labelled, gen())
+    scores = EnsembleGate(quantile=0.5, K=8).scores(view(features, learner, labelled, gen()))
     assert scores[N_NEAR:].min() > scores[:N_NEAR].max()
 
 
 @both
 def test_safe_gate_selects_states_like_the_labelled_mismatches(discrete):
     features, learner, labelled = mismatch_scene(discrete)
-    mask = SafeGate(quantile=0.5).select(features, learner, labelled, generator=gen())
+    mask = SafeGate(quantile=0.5).choose(view(features, learner, labelled, gen())).mask
     assert mask[N_NEAR:].all() and not mask[:N_NEAR].any()
 
 
 @both
 def test_safe_gate_labels_everything_when_there_is_no_mismatch_to_learn_from(discrete):
     features, learner, labelled = scene(discrete)  # learner action == label on every labelled state
-    assert SafeGate(quantile=0.9).select(features, learner, labelled, generator=gen()).all()
+    assert SafeGate(quantile=0.9).choose(view(features, learner, labelled, gen())).mask.all()
 
 
 @both
 def test_thrifty_gate_without_outcomes_to_learn_from_labels_the_novel_states(discrete):
     features, learner, labelled = scene(discrete)
     memory = GateMemory(episodes=[Episode(labelled.features, succeeded=True)])  # the demonstration only: no risk
-    mask = ThriftyGate(rate=0.5).select(features, learner, labelled, generator=gen(), memory=memory)
+    mask = ThriftyGate(rate=0.5).choose(view(features, learner, labelled, gen(), memory=memory)).mask
     assert mask[N_NEAR:].all() and not mask[:N_NEAR].any()
     assert memory.notes["thrifty"]["risk"] == [] and len(memory.notes["thrifty"]["novelty"]) == 1
 
@@ -176,8 +195,8 @@ def test_thrifty_gate_labels_the_risky_states_beside_the_novel_ones():
     a, b = features[:N_NEAR], features[N_NEAR:]
     memory = GateMemory(episodes=[Episode(a[::2], succeeded=True), Episode(b[::2], succeeded=False)])
     gate = ThriftyGate(rate=0.3)
-    mask = gate.select(features, learner, labelled, generator=gen(), memory=memory)
-    novel = gate.select(features, learner, labelled, generator=gen(), memory=GateMemory())  # novelty alone
+    mask = gate.choose(view(features, learner, labelled, gen(), memory=memory)).mask
+    novel = gate.choose(view(features, learner, labelled, gen(), memory=GateMemory())).mask  # novelty alone
     assert not (novel & ~mask).any()  # the union of both tests: every novel state, and
     risky = mask & ~novel
     assert risky.any() and not risky[:N_NEAR].any()  # risky ones only where the episodes failed
@@ -187,13 +206,13 @@ def test_thrifty_gate_labels_the_risky_states_beside_the_novel_ones():
 def test_thrifty_thresholds_hold_every_estimate_of_the_run():
     features, learner, labelled = scene(True)  # N_NEAR familiar states, then N_FAR novel ones
     gate, memory = ThriftyGate(rate=0.25), GateMemory()
-    first = gate.select(features, learner, labelled, generator=gen(), memory=memory)
+    first = gate.choose(view(features, learner, labelled, gen(), memory=memory)).mask
     assert first[N_NEAR:].sum() == 50 and not first[:N_NEAR].any()  # the top quarter of 200 states
     # a round of familiar states only: the run's threshold sits among the novel states, so none is labelled,
     # where a threshold from this round alone would label a quarter of them
-    again = gate.select(features[:N_NEAR], learner[:N_NEAR], labelled, generator=gen(), memory=memory)
+    again = gate.choose(view(features[:N_NEAR], learner[:N_NEAR], labelled, gen(), memory=memory)).mask
     assert not again.any() and len(memory.notes["thrifty"]["novelty"]) == 2
-    assert ThriftyGate(rate=0.25).select(features[:N_NEAR], learner[:N_NEAR], labelled, generator=gen()).sum() == 25
+    assert ThriftyGate(rate=0.25).choose(view(features[:N_NEAR], learner[:N_NEAR], labelled, gen())).mask.sum() == 25
 
 
 def test_conformal_threshold_is_the_finite_sample_quantile():
@@ -208,12 +227,12 @@ def test_conformal_gate_calibrates_once_on_the_first_round(discrete):
     features, learner, labelled = scene(discrete)
     near, far = features[:N_NEAR], features[N_NEAR:]
     gate, memory = ConformalGate(alpha=0.1), GateMemory()
-    first = gate.select(near, learner[:N_NEAR], labelled, generator=gen(), memory=memory)
+    first = gate.choose(view(near, learner[:N_NEAR], labelled, gen(), memory=memory)).mask
     assert int(first.sum()) == N_NEAR - 91  # above the ceil(101 * 0.9) = 91st smallest of 100 distinct distances
     threshold = memory.notes["conformal"]
-    assert gate.select(far, learner[N_NEAR:], labelled, generator=gen(), memory=memory).all()  # far beyond it
+    assert gate.choose(view(far, learner[N_NEAR:], labelled, gen(), memory=memory)).mask.all()  # far beyond it
     assert memory.notes["conformal"] == threshold  # kept, not recalibrated on the far round
-    assert int(ConformalGate(alpha=0.1).select(far, learner[N_NEAR:], labelled, generator=gen()).sum()) == N_FAR - 91
+    assert int(ConformalGate(alpha=0.1).choose(view(far, learner[N_NEAR:], labelled, gen())).mask.sum()) == N_FAR - 91
 
 
 def test_make_gate_maps_the_sweep_value_and_options():
@@ -229,7 +248,8 @@ def test_make_gate_maps_the_sweep_value_and_options():
 def test_bad_names_settings_and_options_are_user_errors():
     with pytest.raises(
         UserError,
-        match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty, thrifty, conformal, oracle",
+        match="unknown gate 'dropout': expected one of random, ensemble, safe, novelty, least-confidence, margin, "
+        "entropy, thrifty, conformal, oracle",
     ):
         make_gate("dropout", 0.5)
     with pytest.raises(UserError, match=r"RandomGate.p must be in \[0, 1\], got 1.5"):
@@ -258,11 +278,11 @@ def test_mismatched_inputs_are_user_errors():
     features, learner, labelled = scene(True)
     gate = NoveltyGate(quantile=0.5)
     with pytest.raises(UserError, match="width 8 but the labelled ones 32"):
-        gate.select(features[:, :8], learner, labelled, generator=gen())
+        gate.choose(view(features[:, :8], learner, labelled, gen())).mask
     with pytest.raises(UserError, match=r"learner actions must be torch.int64 \(200,\)"):
-        gate.select(features, learner.float(), labelled, generator=gen())
+        gate.choose(view(features, learner.float(), labelled, gen())).mask
     with pytest.raises(UserError, match="k = 61 needs at least 61 labelled states, got 60"):
-        NoveltyGate(quantile=0.5, k=61).select(features, learner, labelled, generator=gen())
+        NoveltyGate(quantile=0.5, k=61).choose(view(features, learner, labelled, gen())).mask
     with pytest.raises(UserError, match="learner_actions must be laid out as the labels"):
         Labelled(labelled.features, labelled.labels, labelled.labels[:5])
     with pytest.raises(UserError, match=r"Labelled.labels must be int64 \[M\] or float32 \[M, d\]"):
@@ -276,47 +296,42 @@ def test_the_oracle_labels_exactly_the_states_where_the_learner_is_wrong(discret
     wrong = torch.zeros(len(features), dtype=torch.bool)
     wrong[::7] = True
     expert[wrong] = actions(torch.ones(int(wrong.sum()), dtype=torch.int64), discrete)
-    chosen = make_gate("oracle", 0.0).choose(features, learner, labelled, generator=gen(), expert_labels=expert)
+    chosen = make_gate("oracle", 0.0).choose(view(features, learner, labelled, gen(), expert_labels=expert))
     assert torch.equal(chosen.mask, wrong)  # at 0 every wrong state, and nothing else
     assert torch.equal(chosen.scores > 0, wrong)
     if not discrete:  # with action vectors a higher setting keeps the larger errors only
         expert[wrong] = expert[wrong] * torch.arange(1, int(wrong.sum()) + 1).float()[:, None]
-        top = make_gate("oracle", 0.5).choose(features, learner, labelled, generator=gen(), expert_labels=expert)
+        top = make_gate("oracle", 0.5).choose(view(features, learner, labelled, gen(), expert_labels=expert))
         assert top.mask.sum() < wrong.sum() and (top.mask & ~wrong).sum() == 0
-    with pytest.raises(UserError, match="the oracle gate needs the expert's labels"):
-        make_gate("oracle", 0.0).choose(features, learner, labelled, generator=gen())
+    with pytest.raises(UserError, match="OracleGate reads the expert's labels of the round's states"):
+        make_gate("oracle", 0.0).choose(view(features, learner, labelled, gen()))
 
 
 @both
 def test_score_gates_report_the_scores_they_chose_by(discrete):
     features, learner, labelled = mismatch_scene(discrete)
     for name in ("ensemble", "safe", "novelty", "conformal"):
-        chosen = make_gate(name, 0.5).choose(features, learner, labelled, generator=gen())
+        chosen = make_gate(name, 0.5).choose(view(features, learner, labelled, gen()))
         assert chosen.scores is not None and chosen.scores.shape == (len(features),)
-        assert torch.equal(chosen.mask, make_gate(name, 0.5).select(features, learner, labelled, generator=gen()))
-    assert make_gate("random", 0.5).choose(features, learner, labelled, generator=gen()).scores is None
-
-
-def _heads(features: int, outputs: int, seed: int) -> torch.Tensor:
-    return torch.randn(outputs * (features + 1), generator=gen(seed))
+        assert torch.equal(chosen.mask, make_gate(name, 0.5).choose(view(features, learner, labelled, gen())).mask)
+    assert make_gate("random", 0.5).choose(view(features, learner, labelled, gen())).scores is None
 
 
 @both
 def test_the_disagreement_gate_labels_where_the_two_heads_act_apart(discrete):
     """Equal heads label nothing; otherwise the states above the round's quantile of the heads'
     total variation distance (class distributions) or squared distance (actions) are labelled."""
-    from metadagger.imitation.gates import HeadPair
     from metadagger.imitation.reading_gates import DisagreementGate, head_disagreement
 
     outputs = 3 if discrete else 2
     features, learner, labelled = scene(discrete)
     current = _heads(F, outputs, 3)
     gate = DisagreementGate(0.5)
-    same = gate.choose(features, learner, labelled, generator=gen(), heads=HeadPair(current, current.clone(), outputs))
+    same = gate.choose(view(features, learner, labelled, gen(), head=current, reference=current.clone()))
     assert not same.mask.any() and torch.equal(same.scores, torch.zeros(len(features), dtype=torch.float64))
     reference = _heads(F, outputs, 4)
-    chosen = gate.choose(features, learner, labelled, generator=gen(), heads=HeadPair(current, reference, outputs))
-    expected = head_disagreement(HeadPair(current, reference, outputs), features, discrete)
+    chosen = gate.choose(view(features, learner, labelled, gen(), head=current, reference=reference))
+    expected = head_disagreement(view(features, learner, labelled, gen(), head=current, reference=reference))
     assert torch.equal(chosen.scores, expected) and torch.equal(chosen.mask, above_quantile(expected, 0.5))
 
     def out(head: torch.Tensor) -> torch.Tensor:
@@ -331,14 +346,61 @@ def test_the_disagreement_gate_labels_where_the_two_heads_act_apart(discrete):
     assert torch.allclose(expected, direct)
 
 
-def test_the_disagreement_gate_needs_two_heads_of_one_length():
-    from metadagger.imitation.gates import HeadPair
+def test_the_disagreement_gate_needs_a_reference_head_of_the_learners_layout():
     from metadagger.imitation.reading_gates import DisagreementGate
 
     features, learner, labelled = scene(True)
-    with pytest.raises(UserError, match="the disagreement gate compares two heads"):
-        DisagreementGate(0.5).choose(features, learner, labelled, generator=gen())
-    with pytest.raises(UserError, match="HeadPair heads must be flat and of one length"):
-        HeadPair(torch.zeros(9), torch.zeros(8), 3)
+    with pytest.raises(UserError, match="DisagreementGate compares the learner's head with a reference head"):
+        DisagreementGate(0.5).choose(view(features, learner, labelled, gen()))
+    with pytest.raises(UserError, match=r"the reference head must be laid out as the learner's \(99,\)"):
+        view(features, learner, labelled, gen(), reference=torch.zeros(98))
     with pytest.raises(UserError, match=r"DisagreementGate.quantile must be in \[0, 1\)"):
         DisagreementGate(1.0)
+
+
+def test_uncertainty_scores_are_least_confidence_margin_and_entropy_of_the_class_distribution():
+    from metadagger.imitation.uncertainty_gates import entropy, least_confidence, margin
+
+    p = torch.tensor([[1.0, 0.0, 0.0], [0.5, 0.3, 0.2], [1 / 3, 1 / 3, 1 / 3]], dtype=torch.float64)
+    assert torch.allclose(least_confidence(p), torch.tensor([0.0, 0.5, 2 / 3], dtype=torch.float64))
+    assert torch.allclose(margin(p), torch.tensor([0.0, 0.8, 1.0], dtype=torch.float64))
+    h = -(0.5 * torch.tensor(0.5).log() + 0.3 * torch.tensor(0.3).log() + 0.2 * torch.tensor(0.2).log())
+    expected = torch.tensor([0.0, float(h), float(torch.tensor(3.0).log())], dtype=torch.float64)
+    assert torch.allclose(entropy(p), expected)
+
+
+@pytest.mark.parametrize("name", ["least-confidence", "margin", "entropy"])
+def test_uncertainty_gates_label_where_the_learners_own_classes_are_unsure(name):
+    """A head sure of its class on the labelled blobs and unsure far from them: far states are labelled,
+    whatever the features' scale; the scores are the measure of softmax(logits), above the round's quantile."""
+    features, learner, labelled = scene(True)
+    # logits: the features' projections on the three blob centres, sharp near a centre and flat far away
+    centres = torch.stack([labelled.features[labelled.labels == c].mean(dim=0) for c in range(3)])
+    sharp = 10 * centres / centres.norm(dim=1, keepdim=True) ** 2
+    head = torch.cat([sharp.flatten(), torch.zeros(3)]).float()
+    far_flat = features.clone()
+    far_flat[N_NEAR:] *= 0.01  # far states shrunk toward 0: their logits near equal
+    chosen = make_gate(name, 0.5).choose(view(far_flat, learner, labelled, gen(), head=head))
+    assert chosen.mask[N_NEAR:].all() and not chosen.mask[:N_NEAR].any()
+    p = (far_flat.double() @ head[:-3].view(3, F).double().T).softmax(dim=1)
+    assert torch.allclose(chosen.scores, make_gate(name, 0.5).measure(p))
+
+
+def test_a_plug_in_gate_that_reads_a_reference_head_is_refused_at_its_declaration():
+    from metadagger.imitation.gate_registry import GateDeclaration
+    from metadagger.imitation.reading_gates import DisagreementGate
+
+    with pytest.raises(UserError, match=r"reads a reference head, which the benchmark hands only to MetaL DAgger's"):
+        GateDeclaration("mine", DisagreementGate, "DAgger, mine", (0.5,), "compares heads")
+
+
+def test_gates_of_class_distributions_are_refused_on_action_vectors_naming_those_that_serve():
+    from metadagger.imitation.gate_registry import check_gates_serve
+
+    check_gates_serve(["dagger-entropy", "dagger-safe"], discrete=True, task="carracing")
+    with pytest.raises(UserError) as refused:
+        check_gates_serve(["dagger-safe", "dagger-margin", "dagger-entropy"], discrete=False, task="fetch")
+    assert str(refused.value).startswith(
+        "benchmark method(s) dagger-margin, dagger-entropy read the learner's class distribution, but task fetch acts "
+        "with action vectors; drop them, or use a gate that serves it: dagger-random, dagger-ensemble, dagger-safe"
+    )

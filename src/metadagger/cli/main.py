@@ -271,9 +271,14 @@ def benchmark(
     executor: str = EXECUTOR,
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
+    report: bool = typer.Option(
+        True, "--report/--no-report", help="Write the run's report/report.md again at the end (default: yes)."
+    ),
 ) -> None:
     """Success against expert queries: DAgger, gated DAgger baselines and MetaL DAgger on unseen
-    seeds (benchmark/queries.csv, summary.json, queries.png). Only the missing rows are run."""
+    seeds (benchmark/queries.csv, summary.json, queries.png), then the run's report. Only the
+    missing rows are run."""
+    from metadagger.evaluation.report import build_report
     from metadagger.pipeline.stages import load_run, stage_benchmark
     from metadagger.runfolder.layout import RunLayout
     from metadagger.utils.yaml_config import parse_seeds
@@ -294,6 +299,10 @@ def benchmark(
         f"benchmark: {len(rows)} rows on {len({r['seed'] for r in rows})} seeds; wrote {layout.benchmark_table}, "
         f"{layout.benchmark_summary}, {layout.benchmark_figure}"
     )
+    if report:
+        typer.echo(f"wrote {build_report(layout)}")
+    else:
+        typer.echo(f"the report is left as it was: `metadagger report --out {out}` writes it again")
 
 
 @app.command()

@@ -103,11 +103,13 @@ class BenchmarkConfig:
     confirm_seeds: tuple[int, ...] = ()
     """A second set of unseen seeds, fixed before any result is read, on which the same methods run
     again into ``benchmark/confirm/``: a reading chosen on the first set is checked on these."""
-    methods: tuple[str, ...] = ("bc", "mdm", "dagger", BC_REFIT, *(d for d in built_in_grids()))
+    methods: tuple[str, ...] = ("bc", "mdm", "dagger", BC_REFIT, *built_in_grids(every_task=True))
     """Benchmark methods (``metadagger config methods`` lists every one, plug-ins' included): ``bc``,
     ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, ``bc-refit`` (w_BC refitted as DAgger
     refits it, on the demonstration alone: a control), the gated methods ``dagger-<gate>``, and
-    ``mdi`` (the MDI protocol's methods; runs with an ``mdi`` section)."""
+    ``mdi`` (the MDI protocol's methods; runs with an ``mdi`` section). The default holds every
+    built-in gate that serves every task: the uncertainty gates, which read a class distribution,
+    are named by the presets of tasks with classes."""
     grids: dict = field(default_factory=built_in_grids)
     """Each gated method's sweep (a gate left out sweeps its declared grid): the random share p;
     the score quantile above which a state is labelled (about 1 - quantile of each round's

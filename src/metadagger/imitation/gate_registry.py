@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterable
 
 from metadagger.errors import UserError
 from metadagger.imitation.gates import EnsembleGate, Gate, NoveltyGate, RandomGate, SafeGate
 from metadagger.imitation.memory_gates import ConformalGate, ThriftyGate
 from metadagger.imitation.reading_gates import OracleGate
+from metadagger.imitation.uncertainty_gates import EntropyGate, LeastConfidenceGate, MarginGate
 from metadagger.utils.plugins import load_plugins
 
 #: Entry-point group through which installed packages add gates.
@@ -55,6 +56,12 @@ class GateDeclaration:
             )
         if self.gate.reads_expert and not self.reference:
             raise UserError(f"{where}: a gate that reads the expert's labels can only be a reference (reference=True)")
+        if self.gate.reads_reference:
+            raise UserError(
+                f"{where}: {self.gate.__name__} reads a reference head, which the benchmark hands only to MetaL "
+                "DAgger's disagreement methods (disagree-<kind>); read the learner's own view.head and view.outputs "
+                "instead, and drop reads_reference"
+            )
         if not self.grid:
             raise UserError(f"{where}: the default grid must not be empty")
         fields = {f.name for f in dataclasses.fields(self.gate)}
@@ -98,6 +105,28 @@ _BUILT_IN = (
         (0.5, 0.8, 0.95),
         "distance to the k-th nearest labelled state, above a quantile",
         shared={"k": "novelty_k"},
+    ),
+    GateDeclaration(
+        "least-confidence",
+        LeastConfidenceGate,
+        "DAgger, least-confidence gate",
+        (0.5, 0.8, 0.95),
+        "uncertainty sampling: 1 - the learner's largest class probability, above a quantile (classes only)",
+    ),
+    GateDeclaration(
+        "margin",
+        MarginGate,
+        "DAgger, margin gate",
+        (0.5, 0.8, 0.95),
+        "uncertainty sampling: 1 - the gap between the learner's two likeliest classes, above a quantile "
+        "(classes only)",
+    ),
+    GateDeclaration(
+        "entropy",
+        EntropyGate,
+        "DAgger, entropy gate",
+        (0.5, 0.8, 0.95),
+        "uncertainty sampling: the entropy of the learner's class distribution, above a quantile (classes only)",
     ),
     GateDeclaration(
         "thrifty",
@@ -180,9 +209,26 @@ def gate_of_method(method: str) -> GateDeclaration:
     return gates[method]
 
 
-def built_in_grids() -> dict[str, list[float]]:
-    """The default sweeps of the built-in gates that are methods, by method (``benchmark.grids``'s default)."""
-    return {d.method: list(d.grid) for d in _BUILT_IN if not d.reference}
+def check_gates_serve(methods: Iterable[str], *, discrete: bool, task: str) -> None:
+    """A :class:`UserError` naming the gated ``methods`` that read the learner's class distribution
+    when ``task`` acts with action vectors (not ``discrete``), and the gates that do serve it."""
+    if discrete:
+        return
+    gates = gate_declarations()
+    refused = [m for m in methods if m.startswith(GATED_PREFIX) and m in {d.method for d in gates.values()}]
+    refused = [m for m in refused if gate_of_method(m).gate.needs_classes]
+    if refused:
+        serving = [d.method for d in gates.values() if not d.gate.needs_classes and not d.reference]
+        raise UserError(
+            f"benchmark method(s) {', '.join(refused)} read the learner's class distribution, but task {task} acts "
+            f"with action vectors; drop them, or use a gate that serves it: {', '.join(serving)}"
+        )
+
+
+def built_in_grids(*, every_task: bool = False) -> dict[str, list[float]]:
+    """The default sweeps of the built-in gates that are methods, by method (``benchmark.grids``'s
+    default); ``every_task``: of those that serve every task alone (none that reads a class distribution)."""
+    return {d.method: list(d.grid) for d in _BUILT_IN if not d.reference and not (every_task and d.gate.needs_classes)}
 
 
 def make_gate(name: str, setting: float, **options: Any) -> Gate:

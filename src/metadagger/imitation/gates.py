@@ -2,9 +2,10 @@
 
 Plain DAgger asks the expert to label every state the learner visited in a round. A gate asks
 only about some of them (each label is one expert query) and is judged by the return it reaches
-for the queries it spends. Every gate answers the same question through
-:meth:`Gate.select`: given this round's trunk features and learner actions, and every state
-labelled so far (:class:`Labelled`), a boolean mask of the states to label.
+for the queries it spends. Every gate answers the same question through :meth:`Gate.choose`:
+given the round as the learner lived it (:class:`~metadagger.imitation.gate_view.LearnerView`:
+its visited states' trunk features, its outputs and actions there, its head, every state
+labelled so far), a boolean mask of the states to label.
 
 The gates:
 
@@ -14,11 +15,13 @@ The gates:
 - ``safe(quantile)``: a ridge classifier of "the learner's action differs from the expert's" fitted
   on the labelled states; a state's score is its predicted mismatch.
 - ``novelty(k, quantile)``: a state's score is its distance to the ``k``-th nearest labelled state.
+- ``least-confidence``, ``margin`` and ``entropy`` (quantile): uncertainty sampling on the
+  learner's own class distribution (:mod:`metadagger.imitation.uncertainty_gates`).
 - ``thrifty(rate)`` and ``conformal(alpha)``: ThriftyDAgger's and CRSAIL's rules, which set their
   thresholds from the run so far (:mod:`metadagger.imitation.memory_gates`).
 - ``oracle(quantile)``, the learner's-mistakes rule (a reference), which reads the expert's labels
   of the round's states, and
-  the disagreement gate, which reads two heads, MetaL DAgger's query rule
+  the disagreement gate, which reads a reference head, MetaL DAgger's query rule
   (:mod:`metadagger.imitation.reading_gates`).
 
 Each gate but the disagreement gate is declared once, with its label and default grid, in
@@ -30,8 +33,8 @@ this round's scores (:func:`above_quantile`), so about a ``1 - quantile`` share 
 scores is labelled whatever the task's feature scale: one grid of settings serves every task.
 The thrifty and conformal gates set their thresholds from the run so far instead, so their share
 falls as the learner's states grow familiar; what they remember across the rounds of one run is
-in a :class:`GateMemory` that the DAgger loop keeps. docs/benchmark.md says where the two differ
-from the published methods.
+in a :class:`~metadagger.imitation.gate_view.GateMemory` that the DAgger loop keeps.
+docs/benchmark.md says where the two differ from the published methods.
 
 Discrete tasks are told apart from continuous ones by the dtype of the labels: int64 class
 indices or float32 action vectors. Gates take no number of classes: a head fitted on the
@@ -42,99 +45,14 @@ label + 1.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch import Tensor
 
 from metadagger.errors import UserError
-
-
-@dataclass(frozen=True)
-class Labelled:
-    """Every state labelled so far: the demonstration's and earlier rounds' labelled states.
-
-    On the demonstration's states the learner action is the expert's own label.
-    """
-
-    features: Tensor
-    """Trunk features, float32 [M, F]."""
-    labels: Tensor
-    """Expert labels: int64 class indices [M] or float32 actions [M, d]."""
-    learner_actions: Tensor
-    """The learner's actions at the same states, laid out as ``labels``."""
-
-    def __post_init__(self) -> None:
-        if self.features.dtype != torch.float32 or self.features.ndim != 2 or len(self.features) == 0:
-            raise UserError(
-                f"Labelled.features must be float32 [M, F] with M >= 1, got {self.features.dtype} "
-                f"{tuple(self.features.shape)}"
-            )
-        m = len(self.features)
-        if self.labels.dtype == torch.int64:
-            if tuple(self.labels.shape) != (m,):
-                raise UserError(
-                    f"Labelled.labels of class indices must be [M] = ({m},), got {tuple(self.labels.shape)}"
-                )
-        elif self.labels.dtype != torch.float32 or self.labels.ndim != 2 or len(self.labels) != m:
-            raise UserError(
-                f"Labelled.labels must be int64 [M] or float32 [M, d] with M = {m}, got {self.labels.dtype} "
-                f"{tuple(self.labels.shape)}"
-            )
-        if self.learner_actions.dtype != self.labels.dtype or self.learner_actions.shape != self.labels.shape:
-            raise UserError(
-                f"Labelled.learner_actions must be laid out as the labels ({self.labels.dtype} "
-                f"{tuple(self.labels.shape)}), "
-                f"got {self.learner_actions.dtype} {tuple(self.learner_actions.shape)}"
-            )
-
-    @property
-    def discrete(self) -> bool:
-        """Whether the labels are class indices."""
-        return self.labels.dtype == torch.int64
-
-
-@dataclass(frozen=True)
-class Episode:
-    """A finished episode of the run: its visited states' trunk features and its outcome."""
-
-    features: Tensor
-    """Trunk features of every visited state, float32 [T, F]."""
-    succeeded: bool
-    """The task's success rule at its end."""
-
-
-@dataclass
-class GateMemory:
-    """What the gates of one DAgger run may know of its earlier rounds (one per run).
-
-    The DAgger loop adds each episode once its states have been gated (the demonstration first);
-    a gate keeps its own thresholds and estimates in ``notes``, under its name.
-    """
-
-    episodes: list[Episode] = field(default_factory=list)
-    """The finished episodes before this round's rollout, in order."""
-    notes: dict[str, Any] = field(default_factory=dict)
-    """Each gate's own record across rounds."""
-
-
-def _check_round(features: Tensor, learner_actions: Tensor, labelled: Labelled) -> None:
-    if features.dtype != torch.float32 or features.ndim != 2 or len(features) == 0:
-        raise UserError(
-            f"a gate needs float32 features [N, F] with N >= 1, got {features.dtype} {tuple(features.shape)}"
-        )
-    if features.shape[1] != labelled.features.shape[1]:
-        raise UserError(
-            f"this round's features have width {features.shape[1]} but the labelled ones "
-            f"{labelled.features.shape[1]}; use one trunk for both"
-        )
-    expected = (len(features),) + tuple(labelled.labels.shape[1:])
-    if learner_actions.dtype != labelled.labels.dtype or tuple(learner_actions.shape) != expected:
-        raise UserError(
-            f"learner actions must be {labelled.labels.dtype} {expected} (one per state, laid out as the labels), "
-            f"got {learner_actions.dtype} {tuple(learner_actions.shape)}"
-        )
+from metadagger.imitation.gate_view import Labelled, LearnerView, Selection
 
 
 def check_quantile(owner: str, quantile: float) -> None:
@@ -192,117 +110,51 @@ def check_ridge(owner: str, ridge: float) -> None:
         raise UserError(f"{owner}.ridge must be > 0, got {ridge!r}")
 
 
-@dataclass(frozen=True)
-class Selection:
-    """A gate's choice in one round: the states to label, and each state's score where the gate has one."""
-
-    mask: Tensor
-    """Bool [N]: True for a state to label."""
-    scores: Tensor | None = None
-    """The score [N] the choice was made on (higher: more worth a query); None for a gate without one."""
-
-
-@dataclass(frozen=True)
-class HeadPair:
-    """The two heads a :class:`DisagreementGate` compares, flat (weight rows, then bias)."""
-
-    current: Tensor
-    """The head whose rollout the round gates."""
-    reference: Tensor
-    """The head it is compared with: a mapper's for the seed (the MetaL rule), or a constant one (its twin)."""
-    outputs: int
-    """The heads' outputs: classes (discrete) or the action's length."""
-
-    def __post_init__(self) -> None:
-        if self.current.shape != self.reference.shape or self.current.ndim != 1:
-            raise UserError(
-                f"HeadPair heads must be flat and of one length, got {tuple(self.current.shape)} and "
-                f"{tuple(self.reference.shape)}; compare heads of one policy"
-            )
-
-
 class Gate(ABC):
     """A query rule of gated DAgger: which of a round's visited states get an expert label.
 
     A gate of your own subclasses this (or :class:`ScoreGate`), names the field its sweep sets in
-    ``setting``, implements ``_select`` and is declared once in
-    :mod:`metadagger.imitation.gate_registry` (docs/benchmark.md, "Adding a gate").
+    ``setting``, implements ``_select`` on the round's :class:`~metadagger.imitation.gate_view.LearnerView`
+    and is declared once in :mod:`metadagger.imitation.gate_registry` (docs/benchmark.md, "Adding a gate").
     """
 
     setting: ClassVar[str]
     """The field set by the sweep value of :func:`~metadagger.imitation.gate_registry.make_gate`."""
     reads_expert: ClassVar[bool] = False
     """Whether the gate reads the expert's labels of the round's states: only a reference may (the oracle)."""
-    reads_heads: ClassVar[bool] = False
-    """Whether the gate reads the current head and a reference head (:class:`HeadPair`)."""
+    reads_reference: ClassVar[bool] = False
+    """Whether the gate reads a reference head beside the learner's (MetaL DAgger's disagreement rule)."""
+    needs_classes: ClassVar[bool] = False
+    """Whether the gate reads the learner's class distribution, so serves classification heads alone."""
 
-    def choose(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        *,
-        generator: torch.Generator,
-        memory: GateMemory | None = None,
-        expert_labels: Tensor | None = None,
-        heads: HeadPair | None = None,
-    ) -> Selection:
-        """As :meth:`select`, with the scores the choice was made on; ``expert_labels`` (this round's
-        states' labels, laid out as ``labelled.labels``) is read by a reference gate alone, ``heads``
-        by a gate that compares two heads."""
-        _check_round(features, learner_actions, labelled)
-        memory = GateMemory() if memory is None else memory
-        chosen = self._choose(features, learner_actions, labelled, generator, memory, expert_labels, heads)
-        return chosen if isinstance(chosen, Selection) else Selection(chosen)
-
-    def select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        *,
-        generator: torch.Generator,
-        memory: GateMemory | None = None,
-    ) -> Tensor:
-        """The states of this round to label.
+    def choose(self, view: LearnerView) -> Selection:
+        """The states of this round to label, with the scores the choice was made on.
 
         Args:
-            features: trunk features of this round's visited states, float32 [N, F].
-            learner_actions: the learner's actions there, int64 [N] or float32 [N, d] as the labels.
-            labelled: every state labelled so far, for gates that fit on it.
-            generator: the source of all randomness.
-            memory: the run's earlier rounds, for gates that remember (updated in place); None is
-                a run's first round with nothing remembered.
+            view: the round as the learner lived it; it must carry what the gate declares it reads.
 
         Returns:
-            A bool mask [N]: True for a state to label.
+            A :class:`Selection`: a bool mask [N] (True: label the state) and the scores, where the gate has some.
         """
-        return self.choose(features, learner_actions, labelled, generator=generator, memory=memory).mask
+        name = type(self).__name__
+        if self.reads_expert and view.expert_labels is None:
+            raise UserError(f"{name} reads the expert's labels of the round's states: build the view with them")
+        if self.reads_reference and view.reference is None:
+            raise UserError(f"{name} compares the learner's head with a reference head: build the view with reference")
+        if self.needs_classes and not view.discrete:
+            raise UserError(f"{name} reads the learner's class distribution, but it acts with action vectors here")
+        chosen = self._select(view)
+        chosen = chosen if isinstance(chosen, Selection) else Selection(chosen)
+        n = len(view.features)
+        if chosen.mask.dtype != torch.bool or tuple(chosen.mask.shape) != (n,):
+            raise UserError(f"{name} must choose a bool mask [{n}], got {chosen.mask.dtype} {tuple(chosen.mask.shape)}")
+        if chosen.scores is not None and tuple(chosen.scores.shape) != (n,):
+            raise UserError(f"{name}'s scores must be one per state [{n}], got {tuple(chosen.scores.shape)}")
+        return chosen
 
-    def _choose(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-        expert_labels: Tensor | None,
-        heads: HeadPair | None,
-    ) -> Tensor | Selection:
-        """The choice from every input a round may give; a gate that reads the expert's labels or two
-        heads overrides this, every other gate :meth:`_select`."""
-        return self._select(features, learner_actions, labelled, generator, memory)
-
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor | Selection:
+    @abstractmethod
+    def _select(self, view: LearnerView) -> Tensor | Selection:
         """The states to label: a bool mask [N], or a :class:`Selection` with the scores behind it."""
-        raise NotImplementedError(f"{type(self).__name__} must implement _select (docs/benchmark.md, 'Adding a gate')")
 
 
 @dataclass(frozen=True)
@@ -317,15 +169,8 @@ class RandomGate(Gate):
         if not 0.0 <= self.p <= 1.0:
             raise UserError(f"RandomGate.p must be in [0, 1], got {self.p!r}")
 
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor:
-        return torch.rand(len(features), generator=generator) < self.p
+    def _select(self, view: LearnerView) -> Tensor:
+        return torch.rand(len(view.features), generator=view.generator) < self.p
 
 
 class ScoreGate(Gate):
@@ -334,21 +179,12 @@ class ScoreGate(Gate):
     setting: ClassVar[str] = "quantile"
     quantile: float
 
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor:
-        scores = self.scores(features, learner_actions, labelled, generator)
+    def _select(self, view: LearnerView) -> Selection:
+        scores = self.scores(view)
         return Selection(above_quantile(scores, self.quantile), scores)
 
     @abstractmethod
-    def scores(
-        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
-    ) -> Tensor:
+    def scores(self, view: LearnerView) -> Tensor:
         """One score per state [N]; higher means more worth an expert query."""
 
 
@@ -377,13 +213,11 @@ class EnsembleGate(ScoreGate):
         check_count("EnsembleGate.K", self.K, 2)
         check_ridge("EnsembleGate", self.ridge)
 
-    def scores(
-        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
-    ) -> Tensor:
+    def scores(self, view: LearnerView) -> Tensor:
         """Disagreement of the ``K`` bootstrap heads at each state [N]."""
-        outputs = bootstrap_outputs(features, labelled, self.K, self.ridge, generator)
+        outputs = bootstrap_outputs(view.features, view.labelled, self.K, self.ridge, view.generator)
         variance = outputs.var(dim=0, unbiased=False).sum(dim=1)
-        if not labelled.discrete:
+        if not view.discrete:
             return variance
         votes = torch.nn.functional.one_hot(outputs.argmax(dim=2), outputs.shape[2]).double().mean(dim=0)
         entropy = -(votes * votes.clamp_min(1e-12).log()).sum(dim=1)
@@ -430,24 +264,15 @@ class SafeGate(ScoreGate):
         check_quantile("SafeGate", self.quantile)
         check_ridge("SafeGate", self.ridge)
 
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor:
-        if len(_mismatch(labelled).unique()) < 2:
-            return torch.ones(len(features), dtype=torch.bool)
-        return super()._select(features, learner_actions, labelled, generator, memory)
+    def _select(self, view: LearnerView) -> Tensor | Selection:
+        if len(_mismatch(view.labelled).unique()) < 2:
+            return torch.ones(len(view.features), dtype=torch.bool)
+        return super()._select(view)
 
-    def scores(
-        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
-    ) -> Tensor:
+    def scores(self, view: LearnerView) -> Tensor:
         """Predicted mismatch of the learner's action at each state [N]."""
-        weights = ridge_weights(labelled.features, _mismatch(labelled).double().unsqueeze(1), self.ridge)
-        return (with_bias(features) @ weights).squeeze(1)
+        weights = ridge_weights(view.labelled.features, _mismatch(view.labelled).double().unsqueeze(1), self.ridge)
+        return (with_bias(view.features) @ weights).squeeze(1)
 
 
 def _mismatch(labelled: Labelled) -> Tensor:
@@ -472,11 +297,9 @@ class NoveltyGate(ScoreGate):
         check_quantile("NoveltyGate", self.quantile)
         check_count("NoveltyGate.k", self.k, 1)
 
-    def scores(
-        self, features: Tensor, learner_actions: Tensor, labelled: Labelled, generator: torch.Generator
-    ) -> Tensor:
+    def scores(self, view: LearnerView) -> Tensor:
         """Distance of each state to its ``k``-th nearest labelled state [N]."""
-        return neighbour_distance(features, labelled, self.k, "NoveltyGate")
+        return neighbour_distance(view.features, view.labelled, self.k, "NoveltyGate")
 
 
 def neighbour_distance(features: Tensor, labelled: Labelled, k: int, owner: str) -> Tensor:

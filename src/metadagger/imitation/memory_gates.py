@@ -5,7 +5,7 @@
 - ``conformal(alpha)``: CRSAIL's rule (arXiv 2512.00453), a neighbour distance above one threshold
   calibrated by conformal prediction on the first round's states, then kept.
 
-What they remember is in the run's :class:`~metadagger.imitation.gates.GateMemory`; the interface
+What they remember is in the run's :class:`~metadagger.imitation.gate_view.GateMemory`; the interface
 and the other gates are in :mod:`metadagger.imitation.gates`.
 """
 
@@ -18,12 +18,9 @@ from typing import ClassVar
 import torch
 from torch import Tensor
 
+from metadagger.imitation.gate_view import Episode, LearnerView, Selection
 from metadagger.imitation.gates import (
-    Episode,
     Gate,
-    GateMemory,
-    Labelled,
-    Selection,
     bootstrap_outputs,
     check_count,
     check_ridge,
@@ -65,21 +62,13 @@ class ThriftyGate(Gate):
         check_ridge("ThriftyGate", self.ridge)
         check_ridge("ThriftyGate.risk", self.risk_ridge)
 
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor:
-        record = memory.notes.setdefault("thrifty", {"novelty": [], "risk": []})
-        novelty = (
-            bootstrap_outputs(features, labelled, self.K, self.ridge, generator).var(dim=0, unbiased=False).sum(dim=1)
-        )
+    def _select(self, view: LearnerView) -> Tensor:
+        record = view.memory.notes.setdefault("thrifty", {"novelty": [], "risk": []})
+        heads = bootstrap_outputs(view.features, view.labelled, self.K, self.ridge, view.generator)
+        novelty = heads.var(dim=0, unbiased=False).sum(dim=1)
         record["novelty"].append(novelty)
         mask = novelty > torch.quantile(torch.cat(record["novelty"]), 1.0 - self.rate)
-        risk = self.risk(features, memory.episodes)
+        risk = self.risk(view.features, view.memory.episodes)
         if risk is not None:
             record["risk"].append(risk)
             mask |= risk > torch.quantile(torch.cat(record["risk"]), 1.0 - self.rate)
@@ -126,15 +115,9 @@ class ConformalGate(Gate):
         check_share("ConformalGate.alpha", self.alpha)
         check_count("ConformalGate.k", self.k, 1)
 
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Tensor:
-        scores = neighbour_distance(features, labelled, self.k, "ConformalGate")
-        if "conformal" not in memory.notes:
-            memory.notes["conformal"] = conformal_threshold(scores, self.alpha)
-        return Selection(scores.double() > memory.notes["conformal"], scores)
+    def _select(self, view: LearnerView) -> Selection:
+        scores = neighbour_distance(view.features, view.labelled, self.k, "ConformalGate")
+        notes = view.memory.notes
+        if "conformal" not in notes:
+            notes["conformal"] = conformal_threshold(scores, self.alpha)
+        return Selection(scores.double() > notes["conformal"], scores)

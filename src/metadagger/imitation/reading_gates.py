@@ -1,5 +1,5 @@
-"""Gates that read more than a round's states: the oracle reads the expert's labels of them, the
-disagreement gate two heads.
+"""Gates that read more than the learner's view: the oracle reads the expert's labels of the round's
+states, the disagreement gate a reference head.
 
 - ``oracle(quantile)``: the learner's-mistakes rule, a reference, not a method: it labels exactly
   the states where the learner is wrong (:class:`OracleGate`).
@@ -7,8 +7,9 @@ disagreement gate two heads.
   MetaL DAgger's query rule; its benchmark methods (``disagree-<kind>``) are declared with the
   methods that need a mapper (:mod:`metadagger.evaluation.methods`).
 
-Both override :meth:`~metadagger.imitation.gates.Gate._choose`, which receives every input a
-round may give; the interface and the other gates are in :mod:`metadagger.imitation.gates`.
+Each declares what it reads (``reads_expert``, ``reads_reference``), and the DAgger loop hands it
+that in the round's :class:`~metadagger.imitation.gate_view.LearnerView`; the interface and the
+other gates are in :mod:`metadagger.imitation.gates`.
 """
 
 from __future__ import annotations
@@ -19,9 +20,8 @@ from typing import ClassVar
 import torch
 from torch import Tensor
 
-from metadagger.errors import UserError
-from metadagger.imitation.gates import Gate, GateMemory, HeadPair, Labelled, Selection, above_quantile, check_quantile
-from metadagger.imitation.head_fits import head_outputs
+from metadagger.imitation.gate_view import LearnerView, Selection
+from metadagger.imitation.gates import Gate, above_quantile, check_quantile
 
 
 def learner_error(learner_actions: Tensor, expert_labels: Tensor) -> Tensor:
@@ -49,22 +49,8 @@ class OracleGate(Gate):
     def __post_init__(self) -> None:
         check_quantile("OracleGate", self.quantile)
 
-    def _choose(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-        expert_labels: Tensor | None,
-        heads: HeadPair | None,
-    ) -> Selection:
-        if expert_labels is None or expert_labels.shape != learner_actions.shape:
-            raise UserError(
-                "the oracle gate needs the expert's labels of this round's states, laid out as the learner's actions "
-                f"{tuple(learner_actions.shape)}; pass expert_labels"
-            )
-        errors = learner_error(learner_actions, expert_labels)
+    def _select(self, view: LearnerView) -> Selection:
+        errors = learner_error(view.actions, view.expert_labels)
         wrong = errors > 0
         if not wrong.any():
             return Selection(wrong, errors)
@@ -72,13 +58,12 @@ class OracleGate(Gate):
         return Selection(wrong & (errors >= threshold), errors)
 
 
-def head_disagreement(heads: HeadPair, features: Tensor, discrete: bool) -> Tensor:
-    """Per state [N], how far apart the two heads act: the total variation distance between their
-    class distributions (discrete, in [0, 1]), or the squared distance between their actions."""
-    x = features.double()
-    a = head_outputs(heads.current.double(), x, heads.outputs)
-    b = head_outputs(heads.reference.double(), x, heads.outputs)
-    if discrete:
+def head_disagreement(view: LearnerView) -> Tensor:
+    """Per state [N], how far apart the learner's head and the reference head act: the total
+    variation distance between their class distributions (discrete, in [0, 1]), or the squared
+    distance between their actions."""
+    a, b = view.outputs_of(view.head), view.outputs_of(view.reference)
+    if view.discrete:
         return 0.5 * (a.softmax(dim=1) - b.softmax(dim=1)).abs().sum(dim=1)
     return (a - b).square().sum(dim=1)
 
@@ -95,24 +80,13 @@ class DisagreementGate(Gate):
     """
 
     setting: ClassVar[str] = "quantile"
-    reads_heads: ClassVar[bool] = True
+    reads_reference: ClassVar[bool] = True
     quantile: float
     """Scores strictly above this quantile of the round's scores are labelled, in [0, 1)."""
 
     def __post_init__(self) -> None:
         check_quantile("DisagreementGate", self.quantile)
 
-    def _choose(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-        expert_labels: Tensor | None,
-        heads: HeadPair | None,
-    ) -> Selection:
-        if heads is None:
-            raise UserError("the disagreement gate compares two heads: pass heads=HeadPair(current, reference, ...)")
-        scores = head_disagreement(heads, features, labelled.discrete)
+    def _select(self, view: LearnerView) -> Selection:
+        scores = head_disagreement(view)
         return Selection(above_quantile(scores, self.quantile), scores)

@@ -37,8 +37,9 @@ from metadagger.imitation.bc import BCConfig, fit_bc, head_fit
 from metadagger.imitation.data import Aggregate, Dataset, take_rows
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.features import FeatureCache
-from metadagger.imitation.gates import Episode, Gate, GateMemory, HeadPair, Labelled
-from metadagger.imitation.head_fits import Prior, fit_heads
+from metadagger.imitation.gate_view import Episode, GateMemory, Labelled, LearnerView
+from metadagger.imitation.gates import Gate
+from metadagger.imitation.head_fits import Prior, fit_heads, head_outputs
 from metadagger.imitation.lanes import EpisodeRequest, Lane, Lanes, current_lane, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.metal_dagger.pistar import cached_pistar, head_from_pistar
@@ -295,7 +296,7 @@ def dagger_rounds(
         origin: the head every refit starts from where ``fit.refit_from`` is ``origin`` (the seed's
             fresh head for DAgger from BC; MDI's saved initialisation).
     """
-    if gate is not None and gate.reads_heads and reference is None:
+    if gate is not None and gate.reads_reference and reference is None:
         raise UserError(f"{type(gate).__name__} compares the current head with a reference head; pass reference=")
     generator = torch.Generator().manual_seed(learner.seed)
     data = Aggregate([demo.to_dataset()])
@@ -314,8 +315,7 @@ def dagger_rounds(
         if gate is None:
             keep = np.ones(trajectory.steps, dtype=bool)
         else:
-            heads = _head_pair(learner, reference) if reference is not None and gate.reads_heads else None
-            keep, scores = _gate_mask(gate, learner.cache, data, actions, trajectory, generator, memory, heads)
+            keep, scores = _gate_mask(gate, learner, data, actions, trajectory, generator, memory, reference)
         labelled = None
         if keep.any():
             labelled = Dataset(
@@ -347,38 +347,39 @@ def dagger_rounds(
 
 def _gate_mask(
     gate: Gate,
-    cache: FeatureCache,
+    learner: SeedLearner,
     data: Aggregate,
     actions: np.ndarray,
     trajectory: Trajectory,
     generator: torch.Generator,
     memory: GateMemory,
-    heads: HeadPair | None = None,
+    reference: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The states of ``trajectory`` that ``gate`` chooses to label, given everything labelled so far
-    and the run's finished episodes (``memory``), to which ``trajectory`` is then added; and the
-    scores it chose them by, where it has some. Only a reference gate (the oracle) sees the
-    expert's labels of the round's states."""
-    labelled = Labelled(features=cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions))
-    features = cache.features_of(trajectory.to_dataset())
-    chosen = gate.choose(
-        features,
-        _tensor(trajectory.learner_actions),
-        labelled,
+    """The states of ``trajectory`` that ``gate`` chooses to label, from the round's
+    :class:`~metadagger.imitation.gate_view.LearnerView` (everything labelled so far, the run's
+    finished episodes in ``memory``, to which ``trajectory`` is then added); and the scores it chose
+    them by, where it has some. Only a gate that declares it sees ``reference``, and only a
+    reference gate (the oracle) the expert's labels of the round's states."""
+    labelled = Labelled(
+        features=learner.cache.features_of(data), labels=_tensor(data.labels), learner_actions=_tensor(actions)
+    )
+    features = learner.cache.features_of(trajectory.to_dataset())
+    head = torch.from_numpy(learner.head())
+    view = LearnerView(
+        features=features,
+        outputs=head_outputs(head, features, int(learner.policy.net.head.out_features)),
+        actions=_tensor(trajectory.learner_actions),
+        head=head,
+        labelled=labelled,
         generator=generator,
         memory=memory,
+        reference=torch.as_tensor(reference, dtype=torch.float32) if gate.reads_reference else None,
         expert_labels=_tensor(trajectory.expert_labels) if gate.reads_expert else None,
-        heads=heads,
     )
+    chosen = gate.choose(view)
     memory.episodes.append(Episode(features=features, succeeded=bool(trajectory.success)))
     scores = None if chosen.scores is None else chosen.scores.double().numpy()
     return chosen.mask.numpy(), scores
-
-
-def _head_pair(learner: SeedLearner, reference: np.ndarray) -> HeadPair:
-    """The learner's current head (the one its last rollout acted with) beside ``reference``."""
-    outputs = int(learner.policy.net.head.out_features)
-    return HeadPair(torch.from_numpy(learner.head()), torch.as_tensor(reference, dtype=torch.float32), outputs)
 
 
 def _tensor(values: np.ndarray) -> torch.Tensor:

@@ -40,6 +40,7 @@ from metadagger.evaluation.tensorboard import (
     table_scalars,
     write_tensorboard,
 )
+from metadagger.imitation.gate_registry import check_gates_serve
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.priors import ZERO, HeadPrior, chosen_priors
 from metadagger.mapping.registry import get_kind
@@ -77,8 +78,11 @@ STAGES = ("pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnos
 def run_task(config: RunConfig, *, checked: bool = False) -> Task:
     """The task a run was configured with; ``checked``: its code passed the cheap checks
     (:func:`~metadagger.tasks.checks.check_task_code`), so that no wrong observation is ever
-    trained on and a mistake in it is one line before any work."""
+    trained on and a mistake in it is one line before any work. A benchmark gate that cannot serve
+    the task (a class distribution read on action vectors) is one line too."""
     task = make_task(config.task, **config.task_kwargs)
+    if config.benchmark is not None:
+        check_gates_serve(config.benchmark.gated(), discrete=task.is_discrete, task=config.task)
     if checked:
         check_task_code(task)
     return task
@@ -323,6 +327,7 @@ def stage_benchmark(
         changes["methods"] = tuple(methods)
     bench = dataclasses.replace(bench, **changes) if changes else bench
     task = run_task(config)
+    check_gates_serve(bench.gated(), discrete=task.is_discrete, task=config.task)
     pistar = current_pistar(layout, config, task)
     kinds = config.evaluate.methods if {"mdm", *PRIOR_METHODS, "disagree"} & set(bench.methods) else ()
     mdi = config.mdi_config if "mdi" in bench.methods else None

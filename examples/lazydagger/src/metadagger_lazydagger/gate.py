@@ -25,7 +25,8 @@ import torch
 from torch import Tensor
 
 from metadagger.errors import UserError
-from metadagger.imitation.gates import Gate, GateMemory, Labelled, SafeGate, Selection
+from metadagger.imitation.gate_view import LearnerView, Selection
+from metadagger.imitation.gates import Gate, SafeGate
 
 
 def _check_number(owner: str, value: object, low: float, high: float, *, high_included: bool, range_: str) -> None:
@@ -99,16 +100,8 @@ class LazyGate(Gate):
         """The quantile of the round's scores below which the expert hands back: ``low``, or half of ``quantile``."""
         return self.quantile / 2 if self.low is None else float(self.low)
 
-    def _select(
-        self,
-        features: Tensor,
-        learner_actions: Tensor,
-        labelled: Labelled,
-        generator: torch.Generator,
-        memory: GateMemory,
-    ) -> Selection:
-        safe = SafeGate(self.quantile, ridge=self.ridge)
-        plain = safe.choose(features, learner_actions, labelled, generator=generator, memory=memory)
+    def _select(self, view: LearnerView) -> Selection:
+        plain = SafeGate(self.quantile, ridge=self.ridge).choose(view)
         if plain.scores is None:  # no classifier to fit yet: the safe gate labels every state
             return plain
         scores = plain.scores.double()
