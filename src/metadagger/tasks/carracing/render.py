@@ -27,10 +27,6 @@ Rasterisation rules differ: OpenCV fills every pixel whose centre lies within ha
 polygon, pygame every screen pixel between truncated vertices (about half a screen pixel of
 growth on each side). Polygons are therefore shrunk by the difference before filling, so their
 areas, and hence the averaged colours along edges, match upstream's.
-
-One module, though over 500 lines: the world map, the camera transform, the polygon shrink and the
-car's fill are one rasterisation, held together by a single pixel convention (the ``-0.5`` above)
-that a split would leave for every reader to match up across files.
 """
 
 from __future__ import annotations
