@@ -5,7 +5,8 @@ A :class:`~metadagger.errors.UserError` becomes one ``error: ...`` line on stder
 process around the commands (usage errors, signals, exit codes) is :mod:`metadagger.cli.entry`;
 the ``bench`` commands are :mod:`metadagger.cli.bench_commands`, the ``results`` ones
 :mod:`metadagger.cli.results_commands`, the ``config`` ones :mod:`metadagger.cli.config_commands`, and
-``demo``, ``expert`` and ``check-task`` :mod:`metadagger.cli.task_commands`.
+``demo``, ``expert`` and ``check-task`` :mod:`metadagger.cli.task_commands`, and ``label``
+:mod:`metadagger.cli.label_command`.
 
 The command line runs on pinned CPU kernels (:func:`~metadagger.utils.kernels.pin_cpu_kernels`):
 :func:`metadagger.cli.entry.main` pins them first thing, and this module pins them before its one import of
@@ -28,6 +29,7 @@ pin_cpu_kernels()  # before the registry below loads torch, and before any comma
 
 from metadagger.cli.bench_commands import bench_app
 from metadagger.cli.config_commands import config_app
+from metadagger.cli.label_command import label_app
 from metadagger.cli.options import (
     ADDRESS,
     DEVICE,
@@ -58,6 +60,7 @@ app.add_typer(bench_app, name="bench")
 app.add_typer(results_app, name="results")
 app.add_typer(task_app)
 app.add_typer(config_app, name="config")
+app.add_typer(label_app)
 
 
 @app.callback()

@@ -7,6 +7,11 @@ the episodes with at least one label. The demonstration is round 0: one episode,
 of its steps. A row keeps its record (:func:`round_record` per round) under ``labels``; the run's
 ``benchmark/labels.jsonl`` holds one line per row and round (:func:`ledger_lines`), so a reader
 can audit a gate's choices without running it again. docs/benchmark.md lists the columns.
+
+Where a person is the expert (``metadagger label``, docs/label.md), each label is also a
+:func:`label_record`: the step it answers, the label, the seconds from the state's showing to the
+answer, who answered (:data:`PERSON` or :data:`SCRIPTED`) and whether it began a takeover (a
+switch of the person's attention to the learner's episode).
 """
 
 from __future__ import annotations
@@ -17,6 +22,10 @@ import numpy as np
 
 #: Fields of a line of ``benchmark/labels.jsonl``, in order.
 LEDGER_FIELDS = ("method", "setting", "demo_fraction", "seed", "round", "runs", "scores")
+#: Who answered a label: a person at the labelling page, or the task's scripted expert.
+PERSON, SCRIPTED = "person", "scripted"
+#: Fields of a line of a labelling session's ``labels.jsonl``.
+LABEL_FIELDS = ("seed", "round", "step", "label", "seconds", "who", "switch")
 
 
 def step_runs(asked: np.ndarray) -> list[list[int]]:
@@ -68,3 +77,49 @@ def ledger_lines(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
         for r in rows
         for record in r.get("labels", [])
     ]
+
+
+def label_record(
+    seed: int, round: int, step: int, label: int | list[float], seconds: float, who: str, switch: bool
+) -> dict[str, Any]:
+    """One label as a session's ``labels.jsonl`` keeps it (:data:`LABEL_FIELDS`); ``seconds`` to the millisecond.
+
+    Args:
+        seed: the env seed of the episode.
+        round: the DAgger round (1-based).
+        step: the labelled step of the round's rollout.
+        label: a class index, or the action vector.
+        seconds: from the state's showing to the answer (0 for the scripted expert).
+        who: :data:`PERSON` or :data:`SCRIPTED`.
+        switch: whether the step begins a takeover (the step before it was not asked).
+    """
+    if who not in (PERSON, SCRIPTED):
+        raise ValueError(f"who must be {PERSON!r} or {SCRIPTED!r}, got {who!r}")
+    return {
+        "seed": int(seed),
+        "round": int(round),
+        "step": int(step),
+        "label": label,
+        "seconds": round_seconds(seconds),
+        "who": who,
+        "switch": bool(switch),
+    }
+
+
+def round_seconds(seconds: float) -> float:
+    """Seconds as the ledger keeps them: to the millisecond."""
+    return float(f"{float(seconds):.3f}")
+
+
+def effort(records: Iterable[dict[str, Any]], round: int) -> dict[str, Any]:
+    """What rounds 1..``round`` of a session's label records cost the one who answered: ``labels``, ``seconds``
+    (their sum), ``switches`` (takeovers begun) and ``labelled_by`` (who answered: ``person``,
+    ``scripted``, or both joined by ``+``; ``-`` where no label was given)."""
+    mine = [r for r in records if r["round"] <= round]
+    who = sorted({r["who"] for r in mine})
+    return {
+        "labels": len(mine),
+        "seconds": round_seconds(sum(r["seconds"] for r in mine)),
+        "switches": sum(1 for r in mine if r["switch"]),
+        "labelled_by": "+".join(who) if who else "-",
+    }

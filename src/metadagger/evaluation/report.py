@@ -5,7 +5,8 @@ times, pi*, pairs and their split, mappers: :mod:`~metadagger.evaluation.report_
 :mod:`~metadagger.evaluation.report_mdm`), one-shot (Tables 3-5:
 :mod:`~metadagger.evaluation.report_oneshot`), MDI (Table 7, Fig. 5:
 :mod:`~metadagger.evaluation.report_mdi`) and success against expert queries
-(:mod:`~metadagger.evaluation.report_benchmark`); for a task family, each unseen seed's variation beside
+(:mod:`~metadagger.evaluation.report_benchmark`); the sessions a person labelled
+(:mod:`~metadagger.evaluation.report_label`); for a task family, each unseen seed's variation beside
 every method's outcome (:mod:`~metadagger.evaluation.report_family`). A figure that cannot be
 drawn is a warning on stderr and one line in its place: it never costs the report.
 """
@@ -18,6 +19,7 @@ from metadagger.errors import UserError
 from metadagger.evaluation.report_benchmark import benchmark_section
 from metadagger.evaluation.report_diagnostics import diagnostics_section
 from metadagger.evaluation.report_family import family_section
+from metadagger.evaluation.report_label import label_section
 from metadagger.evaluation.report_mdi import mdi_section
 from metadagger.evaluation.report_mdm import mdm_section
 from metadagger.evaluation.report_oneshot import oneshot_section
@@ -36,6 +38,7 @@ SECTIONS = (
     oneshot_section,
     mdi_section,
     benchmark_section,
+    label_section,
     family_section,
 )
 

@@ -259,6 +259,11 @@ class Round:
     """The gate's score at each of those steps, where the gate has one (float64); None otherwise."""
 
 
+Labeller = Callable[[int, Trajectory, np.ndarray], np.ndarray]
+"""Who answers a round's queries: ``labeller(round, rollout, asked)`` gives the labels of the rollout's
+steps ``asked`` (ascending int64 indices), in the layout of its ``expert_labels``."""
+
+
 def dagger_rounds(
     learner: SeedLearner,
     *,
@@ -272,6 +277,7 @@ def dagger_rounds(
     prior: Prior | None = None,
     reference: np.ndarray | None = None,
     origin: np.ndarray | None = None,
+    labeller: Labeller | None = None,
 ) -> Iterator[Round]:
     """Step 4: ``rounds`` DAgger rounds from head ``start``, whose rollout ``first_rollout`` round 1 labels.
 
@@ -295,6 +301,8 @@ def dagger_rounds(
             for the seed, or a constant head).
         origin: the head every refit starts from where ``fit.refit_from`` is ``origin`` (the seed's
             fresh head for DAgger from BC; MDI's saved initialisation).
+        labeller: who labels the chosen states (a person at a page: :mod:`metadagger.label`);
+            None: the task's scripted expert, whose labels the rollout carries.
     """
     if gate is not None and gate.reads_reference and reference is None:
         raise UserError(f"{type(gate).__name__} compares the current head with a reference head; pass reference=")
@@ -320,7 +328,9 @@ def dagger_rounds(
         if keep.any():
             labelled = Dataset(
                 obs=take_rows(trajectory.obs, keep),
-                labels=trajectory.expert_labels[keep],
+                labels=trajectory.expert_labels[keep]
+                if labeller is None
+                else labeller(index, trajectory, np.flatnonzero(keep)),
                 features=None if trajectory.features is None else trajectory.features[keep],
             )
             data = data.append(labelled)

@@ -14,6 +14,8 @@ MAPPER_FILE = "mapper.safetensors"
 """A mapper folder's trained mapper (written by :func:`metadagger.mapping.train.train_mapper`)."""
 CURVES_FILE = "curves.csv"
 """A mapper folder's learning curves."""
+SESSION_STAMP = "stamp.json"
+"""A labelling session's stamp (:class:`LabelSessionLayout`)."""
 
 
 @dataclass(frozen=True)
@@ -228,6 +230,47 @@ class RunLayout:
     def demo_dir(self) -> Path:
         """``metadagger demo``'s output."""
         return self.root / "demo"
+
+    # a person as the expert
+    @property
+    def label_dir(self) -> Path:
+        """``metadagger label``'s sessions, one folder each."""
+        return self.root / "label"
+
+    def label_session(self, expert: str, method: str, setting: str, seed: int) -> LabelSessionLayout:
+        """The session of gated method ``method`` at ``setting`` on ``seed``, answered by ``expert``
+        (``person`` or ``scripted``)."""
+        return LabelSessionLayout(self.label_dir / expert / f"{method}@{setting}" / str(seed))
+
+    def label_sessions(self) -> list[LabelSessionLayout]:
+        """Every session begun in the run folder (one that holds a stamp), in path order."""
+        return [LabelSessionLayout(p.parent) for p in sorted(self.label_dir.glob(f"*/*/*/{SESSION_STAMP}"))]
+
+
+@dataclass(frozen=True)
+class LabelSessionLayout:
+    """The files of one labelling session (``RUN/label/<expert>/<method>@<setting>/<seed>/``)."""
+
+    root: Path
+
+    @property
+    def stamp(self) -> Path:
+        """What the session is made from (written when it begins; a resume must match it)."""
+        return self.root / SESSION_STAMP
+
+    @property
+    def labels(self) -> Path:
+        """Every label given, one line each, appended as it arrives."""
+        return self.root / "labels.jsonl"
+
+    @property
+    def rows(self) -> Path:
+        """One benchmark row per finished round (the row the benchmark makes after that round)."""
+        return self.root / "rows.jsonl"
+
+    def head(self, round: int) -> Path:
+        """The head after round ``round``'s refit."""
+        return self.root / "heads" / f"{round}.safetensors"
 
 
 class ConfirmationLayout(RunLayout):
