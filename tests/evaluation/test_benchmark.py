@@ -12,11 +12,12 @@ import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
-from metadagger.evaluation import benchmark_figure as figure
-from metadagger.evaluation import benchmark_seed as bench
-from metadagger.evaluation.benchmark import FIELDS, BenchmarkConfig, method_keys, run_benchmark
-from metadagger.evaluation.methods import GateKey
-from metadagger.evaluation.report_benchmark import benchmark_section
+from metadagger.evaluation.benchmark import figure
+from metadagger.evaluation.benchmark import seed_chains as bench
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
+from metadagger.evaluation.benchmark.methods import GateKey
+from metadagger.evaluation.benchmark.protocol import FIELDS, method_keys, run_benchmark
+from metadagger.evaluation.report.benchmark import benchmark_section
 from metadagger.evaluation.rows import read_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.collect import collect
@@ -133,9 +134,9 @@ def test_queries_are_counted_exactly(toy_run, rows):
 
 def test_each_dagger_row_carries_the_coverage_gap_of_the_states_visited_so_far(toy_run, rows):
     """Plain DAgger's rows hold the gap of every state its rounds visited up to theirs
-    (evaluation/coverage.py), recomputed here from the seed's demonstration and rollouts; the summary
+    (evaluation/benchmark/coverage.py), recomputed here from the seed's demonstration and rollouts; the summary
     reads the last round's."""
-    from metadagger.evaluation.coverage import coverage_gap
+    from metadagger.evaluation.benchmark.coverage import coverage_gap
 
     table = {(r["method"], str(r["setting"]), r["seed"]): r for r in rows if r["demo_fraction"] == 1.0}
     seed = SEEDS[0]
@@ -695,7 +696,7 @@ def test_a_failing_figure_keeps_the_rows_and_the_summary(toy_run, rows, tmp_path
     shutil.copytree(toy_run.root, layout.root)
     for path in (layout.benchmark_table, layout.benchmark_summary, layout.benchmark_figure):
         path.unlink()
-    from metadagger.evaluation import benchmark
+    from metadagger.evaluation.benchmark import protocol as benchmark
 
     monkeypatch.setattr(benchmark, "plot_queries", lambda summary, path: 1 / 0)
     assert _run(layout) == rows  # every row from the log: nothing run again
@@ -708,7 +709,7 @@ def test_a_failing_figure_keeps_the_rows_and_the_summary(toy_run, rows, tmp_path
 
 
 def test_a_failing_figure_is_a_line_in_the_report_section(tmp_path, monkeypatch):
-    from metadagger.evaluation import report_benchmark
+    from metadagger.evaluation.report import benchmark as report_benchmark
 
     monkeypatch.setattr(report_benchmark, "plot_queries", lambda summary, path: 1 / 0)
     lines = _section(tmp_path, [_entry("dagger", "1", 0.5, 600), _entry("mdm-dm", "", 0.5, 100)])
@@ -754,9 +755,9 @@ def test_a_demonstration_share_is_its_first_steps():
 
 
 def test_a_method_added_as_docs_benchmark_md_says_runs_beside_the_others(toy_run, tmp_path, monkeypatch):
-    """'Adding a method': a BenchmarkMethod with its keys in evaluation/methods.py, its chain in
-    evaluation/benchmark.py's _CHAINS; here the expert's own demonstration as a row."""
-    from metadagger.evaluation import methods
+    """'Adding a method': a BenchmarkMethod with its keys in evaluation/benchmark/methods.py, its chain in
+    evaluation/benchmark/seed_chains.py's CHAINS; here the expert's own demonstration as a row."""
+    from metadagger.evaluation.benchmark import methods
 
     @dataclasses.dataclass(frozen=True)
     class ExpertKey(methods.MethodKey):
@@ -781,6 +782,6 @@ def test_a_method_added_as_docs_benchmark_md_says_runs_beside_the_others(toy_run
         (seed, demo.steps, demo.success) for seed, demo in zip(SEEDS, demos)
     ]
     assert all(r["takeovers"] == r["episodes_asked"] == 1 for r in expert)
-    from metadagger.evaluation.tables import method_label
+    from metadagger.evaluation.benchmark.labels import method_label
 
     assert method_label("expert") == "the expert"

@@ -11,8 +11,8 @@ import pytest
 from matplotlib.colors import to_hex
 from matplotlib.lines import Line2D
 
-from metadagger.evaluation import benchmark_figure
-from metadagger.evaluation.benchmark_figure import (
+from metadagger.evaluation.benchmark import figure as benchmark_figure
+from metadagger.evaluation.benchmark.figure import (
     MARKERS,
     ORACLE_FALLBACK,
     PALETTE,

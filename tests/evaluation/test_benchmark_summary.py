@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from metadagger.evaluation.benchmark_summary import AUC_POINTS, budget_reading, refit_check, success_at_budget
+from metadagger.evaluation.benchmark.summary import AUC_POINTS, budget_reading, refit_check, success_at_budget
 
 
 def _row(method: str, setting: str, seed: int, success: bool, queries: int, fraction: float = 1.0) -> dict:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from metadagger.evaluation.benchmark_summary import budget_reading, coverage_reading
-from metadagger.evaluation.coverage import coverage_gap, gap_against_gain
-from metadagger.evaluation.coverage_figure import drawn_comparisons, plot_coverage
+from metadagger.evaluation.benchmark.coverage import coverage_gap, gap_against_gain
+from metadagger.evaluation.benchmark.coverage_figure import drawn_comparisons, plot_coverage
+from metadagger.evaluation.benchmark.summary import budget_reading, coverage_reading
 
 
 def _plane(n: int, seed: int) -> torch.Tensor:

@@ -12,9 +12,9 @@ from toy_mappers import random_conditioned_mapper
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
+from metadagger.evaluation.benchmark.methods import MDI_METHODS
 from metadagger.evaluation.mdi import MDI_FIELDS, MDIConfig, evaluate_mdi, head_folder
-from metadagger.evaluation.methods import MDI_METHODS
-from metadagger.evaluation.report_mdi import FIGURE, mdi_section
+from metadagger.evaluation.report.mdi import FIGURE, mdi_section
 from metadagger.evaluation.rows import read_csv, write_csv
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.collect import collect

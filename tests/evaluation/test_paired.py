@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from metadagger.evaluation.benchmark import summarize_benchmark
+from metadagger.evaluation.benchmark.protocol import summarize_benchmark
 from metadagger.evaluation.paired import paired_comparison, verdict
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from metadagger.errors import UserError
-from metadagger.evaluation.report import build_report
-from metadagger.evaluation.report_mdm import FIGURE
+from metadagger.evaluation.report.build import build_report
+from metadagger.evaluation.report.mdm import FIGURE
 from metadagger.evaluation.rows import write_csv
 from metadagger.mapping.train import CURVE_COLUMNS
 from metadagger.runfolder.layout import RunLayout
@@ -238,7 +238,8 @@ def test_a_malformed_stage_times_file_is_one_line(run, content, reason):
 
 
 def test_a_figure_that_fails_costs_only_itself(run, capsys, monkeypatch):
-    from metadagger.evaluation import report_mdm, report_run
+    from metadagger.evaluation.report import mdm as report_mdm
+    from metadagger.evaluation.report import run as report_run
     from metadagger.utils.plotting import plt
 
     def broken(*args):

@@ -7,9 +7,9 @@ import pytest
 from toy_task import CorridorTask
 
 from metadagger.errors import UserError
-from metadagger.evaluation import benchmark_seed as bench
-from metadagger.evaluation.benchmark import BenchmarkConfig
-from metadagger.evaluation.methods import BCKey, MapperKey, RoundKey
+from metadagger.evaluation.benchmark import seed_chains as bench
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
+from metadagger.evaluation.benchmark.methods import BCKey, MapperKey, RoundKey
 from metadagger.evaluation.video import BAND, check_methods, compose, learner_view, seed_clips, write_video
 from metadagger.imitation.bc import BCConfig
 from metadagger.mapping.mappers import MapperFile

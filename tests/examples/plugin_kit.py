@@ -9,7 +9,8 @@ from typing import Any
 from toy_task import CorridorTask
 
 import metadagger.imitation.gate_registry as registry
-from metadagger.evaluation.benchmark import BenchmarkConfig, run_benchmark
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
+from metadagger.evaluation.benchmark.protocol import run_benchmark
 from metadagger.imitation.bc import BCConfig
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout

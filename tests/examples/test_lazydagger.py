@@ -22,10 +22,10 @@ from typer.testing import CliRunner
 import metadagger.imitation.gate_registry as registry
 from metadagger.cli.main import app
 from metadagger.errors import UserError
-from metadagger.evaluation.benchmark import BenchmarkConfig
-from metadagger.evaluation.ledger import step_runs
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.ledger import step_runs
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import method_label
 from metadagger.imitation.gate_view import Labelled, LearnerView
 from metadagger.imitation.gates import SafeGate
 

@@ -18,7 +18,7 @@ from plugin_kit import toy_benchmark
 
 import metadagger.imitation.gate_registry as registry
 from metadagger.errors import UserError
-from metadagger.evaluation.benchmark import BenchmarkConfig
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "benchmark.md"
 MARK = "<!-- plug-in example: tests/examples/test_plugin_from_docs.py installs this block as a package -->"
@@ -71,7 +71,7 @@ def test_the_docs_plug_in_runs_in_a_benchmark_beside_the_built_in_gates(unsure, 
 
 def test_the_docs_plug_in_is_refused_on_action_vectors_before_any_work(unsure, tmp_path):
     from metadagger.pipeline.run_config import RunConfig
-    from metadagger.pipeline.stages import run_task
+    from metadagger.pipeline.stage_inputs import run_task
 
     config = RunConfig(task="fetch", benchmark=BenchmarkConfig(methods=("bc", "dagger-unsure")))
     with pytest.raises(UserError) as refused:

@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 from corridor_session import SEED, command, session_args
 
-from metadagger.evaluation.ledger import PERSON, SCRIPTED
-from metadagger.evaluation.report_label import label_section
+from metadagger.evaluation.benchmark.ledger import PERSON, SCRIPTED
+from metadagger.evaluation.report.label import label_section
 from metadagger.label.session import plan_of_run, run_label
 from metadagger.pipeline.run_config import load_run
 from metadagger.utils.jsonl import read_lines

@@ -17,7 +17,7 @@ import pytest
 from corridor_session import SEED, command, session_args
 
 from metadagger.errors import UserError
-from metadagger.evaluation.ledger import PERSON, SCRIPTED
+from metadagger.evaluation.benchmark.ledger import PERSON, SCRIPTED
 from metadagger.label.desk import Desk
 from metadagger.label.forms import LabelForm
 from metadagger.label.session import plan_of_run, run_label

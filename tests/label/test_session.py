@@ -13,7 +13,7 @@ from corridor_session import GATE, SEED, SETTING
 from toy_task import CorridorTask
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.evaluation.ledger import LABEL_FIELDS, SCRIPTED, effort, label_record
+from metadagger.evaluation.benchmark.ledger import LABEL_FIELDS, SCRIPTED, effort, label_record
 from metadagger.evaluation.rows import read_csv
 from metadagger.label.forms import DISPLACEMENT, STEERING, LabelForm, Refused, Slider, default_form, label_form
 from metadagger.label.session import plan_of_run, run_label

@@ -8,8 +8,8 @@ from mapping_data import tiny_config
 from torch import nn
 
 from metadagger.errors import UserError
+from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.mdm import EvalConfig
-from metadagger.evaluation.tables import method_label
 from metadagger.mapping import registry
 from metadagger.mapping.config import MapperConfig
 from metadagger.mapping.mappers import load_mapper

@@ -20,7 +20,7 @@ from metadagger.mapping.tune import tune_mapper
 from metadagger.metal_dagger.pairs import pair_stamp
 from metadagger.metal_dagger.store import PairStore
 from metadagger.pipeline.run_config import init_run, load_run
-from metadagger.pipeline.stages import run_task
+from metadagger.pipeline.stage_inputs import run_task
 from metadagger.policies import make_policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout

@@ -17,7 +17,7 @@ import torch
 from toy_task import CorridorTask
 
 from metadagger.errors import CheckpointError, UserError
-from metadagger.evaluation.report_run import pistar_section
+from metadagger.evaluation.report.run import pistar_section
 from metadagger.imitation.bc import BCConfig, fit_bc
 from metadagger.imitation.collect import collect
 from metadagger.imitation.early_stop import CosineEarlyStop

@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 
 from metadagger.cli.main import app
 from metadagger.errors import UserError
-from metadagger.evaluation.methods import MDI_METHODS
-from metadagger.evaluation.report_mdi import FIGURE as MDI_FIGURE
+from metadagger.evaluation.benchmark.methods import MDI_METHODS
+from metadagger.evaluation.report.mdi import FIGURE as MDI_FIGURE
 from metadagger.evaluation.rows import read_csv
 from metadagger.mapping.registry import kind_names
 from metadagger.pipeline import stages

@@ -8,7 +8,7 @@ import yaml
 from test_stages import _refused
 
 from metadagger.errors import UserError
-from metadagger.evaluation.report import build_report
+from metadagger.evaluation.report.build import build_report
 from metadagger.pipeline.run_config import RunConfig, init_run, load_run, resolve_config
 from metadagger.pipeline.stage_runs import records_config
 from metadagger.runfolder.layout import RunLayout

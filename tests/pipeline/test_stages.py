@@ -327,7 +327,7 @@ def test_the_prior_method_chooses_its_strengths_on_the_validation_pairs_and_rows
 def test_the_confirmation_seeds_run_the_same_methods_into_their_own_folder_and_report(finished, tmp_path):
     """``benchmark.confirm_seeds``: the benchmark runs again on them into benchmark/confirm/, the
     report reads them at equal budgets; a seed of pi*'s or of both sets is refused before any work."""
-    from metadagger.evaluation.report_benchmark import benchmark_section
+    from metadagger.evaluation.report.benchmark import benchmark_section
 
     layout = _copy(finished, tmp_path / "run")
     _ok(["benchmark", "--out", layout.root, "--methods", "bc,dagger", "--set", "benchmark.confirm_seeds=[5003]"])

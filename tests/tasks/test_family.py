@@ -159,7 +159,7 @@ def test_a_custom_family_runs_the_pipeline_and_reports_each_seeds_variation(corr
 
 
 def test_a_plain_task_gets_no_family_section(tmp_path):
-    from metadagger.evaluation.report_family import family_section
+    from metadagger.evaluation.report.family import family_section
     from metadagger.evaluation.rows import write_csv
 
     layout = RunLayout(tmp_path)

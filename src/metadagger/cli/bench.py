@@ -75,7 +75,8 @@ def bench_pairs(
     from metadagger.imitation.lanes import check_lanes
     from metadagger.metal_dagger.pairs import collect_pairs
     from metadagger.metal_dagger.pistar import load_pistar
-    from metadagger.pipeline.stages import load_run, run_task
+    from metadagger.pipeline.run_config import load_run
+    from metadagger.pipeline.stage_inputs import run_task
     from metadagger.runfolder.driver import StageOptions
 
     run = Path(run)

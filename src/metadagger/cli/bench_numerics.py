@@ -43,7 +43,8 @@ def bench_numerics(run: str | Path, *, width: int = 32, states: int = 100_000, f
     from metadagger.imitation.lanes import MAX_LANES
     from metadagger.imitation.rollouts import rollout
     from metadagger.metal_dagger.pistar import load_pistar
-    from metadagger.pipeline.stages import load_run, run_task
+    from metadagger.pipeline.run_config import load_run
+    from metadagger.pipeline.stage_inputs import run_task
     from metadagger.runfolder.layout import RunLayout
     from metadagger.utils.progress import note
 

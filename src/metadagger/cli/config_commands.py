@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from metadagger.cli.options import PRESET, PRESETS_FILE, SET, TASK, user_errors
-from metadagger.evaluation.methods import benchmark_methods
+from metadagger.evaluation.benchmark.methods import benchmark_methods
 from metadagger.mapping.registry import kind_names
 
 config_app = typer.Typer(no_args_is_help=True, help="Inspect run configs.")

@@ -47,7 +47,7 @@ from metadagger.cli.options import (
 )
 from metadagger.cli.results_commands import results_app
 from metadagger.cli.task_commands import task_app
-from metadagger.evaluation.methods import benchmark_methods
+from metadagger.evaluation.benchmark.methods import benchmark_methods
 from metadagger.mapping.registry import kind_names, trained_names
 
 app = typer.Typer(
@@ -281,7 +281,7 @@ def benchmark(
     """Success against expert queries: DAgger, gated DAgger baselines and MetaL DAgger on unseen
     seeds (benchmark/queries.csv, summary.json, queries.png), then the run's report. Only the
     missing rows are run."""
-    from metadagger.evaluation.report import build_report
+    from metadagger.evaluation.report.build import build_report
     from metadagger.pipeline.stages import load_run, stage_benchmark
     from metadagger.runfolder.layout import RunLayout
     from metadagger.utils.yaml_config import parse_seeds
@@ -418,7 +418,7 @@ def video(
 @user_errors
 def report(out: Path = OUT) -> None:
     """Build report/report.md and its figures from the run's CSV/JSON artifacts alone."""
-    from metadagger.evaluation.report import build_report
+    from metadagger.evaluation.report.build import build_report
     from metadagger.runfolder.layout import RunLayout
 
     typer.echo(f"wrote {build_report(RunLayout(out))}")

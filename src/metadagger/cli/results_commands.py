@@ -73,7 +73,7 @@ def results_check_cmd(
 def results_status_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION) -> None:
     """Every canonical run: current, stale (and why, as `setting: run's -> today's`) or missing,
     the wall time it last took and the command that makes it again."""
-    from metadagger.evaluation.report_run import duration
+    from metadagger.evaluation.report.run import duration
     from metadagger.results.registry import load_registry
     from metadagger.results.staleness import registry_status
 

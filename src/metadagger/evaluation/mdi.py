@@ -39,7 +39,6 @@ import numpy as np
 import torch
 
 from metadagger.errors import UserError
-from metadagger.evaluation.methods import MDI_METHODS
 from metadagger.evaluation.rows import write_csv
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.early_stop import CosineEarlyStop, check_threshold
@@ -68,7 +67,9 @@ from metadagger.utils.io import save_tensors
 from metadagger.utils.kernels import kernel_stamp
 from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 
-#: The three methods of Table 6, in table order.
+#: The three methods of Table 6, in table order: DAgger from the mapper's head, from w_BC and from
+#: a fresh Xavier head; one name each, in ``eval/mdi.csv`` and in the benchmark alike.
+MDI_METHODS = ("dagger-mdi", "dagger-bc-init", "dagger-xavier")
 #: Prefix of the control methods: DAgger-MDI initialised by another mapper kind.
 CONTROL_PREFIX = "dagger-mdi-"
 #: Where the DAgger round's refit (step 8) starts; see :attr:`MDIConfig.dagger_init`.
@@ -159,7 +160,7 @@ class MDIConfig:
 
     @property
     def methods(self) -> tuple[str, ...]:
-        """Every method evaluated, in row order: :data:`.methods.MDI_METHODS`, then the controls."""
+        """Every method evaluated, in row order: :data:`MDI_METHODS`, then the controls."""
         return MDI_METHODS + tuple(CONTROL_PREFIX + kind for kind in self.controls)
 
 

@@ -16,8 +16,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from metadagger.errors import UserError
-from metadagger.evaluation.methods import MDM_PREFIX, MapperKey
-from metadagger.evaluation.tables import method_label
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.methods import MDM_PREFIX, MapperKey
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper

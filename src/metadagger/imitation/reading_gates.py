@@ -5,7 +5,7 @@ states, the disagreement gate a reference head.
   the states where the learner is wrong (:class:`OracleGate`).
 - :class:`DisagreementGate`: where a mapper's head for the seed and the current head act apart,
   MetaL DAgger's query rule; its benchmark methods (``disagree-<kind>``) are declared with the
-  methods that need a mapper (:mod:`metadagger.evaluation.methods`).
+  methods that need a mapper (:mod:`metadagger.evaluation.benchmark.methods`).
 
 Each declares what it reads (``reads_expert``, ``reads_reference``), and the DAgger loop hands it
 that in the round's :class:`~metadagger.imitation.gate_view.LearnerView`; the interface and the

@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from metadagger.evaluation.ledger import PERSON, label_record
+from metadagger.evaluation.benchmark.ledger import PERSON, label_record
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.label.forms import LabelForm, Refused
 from metadagger.label.store import LabelStore

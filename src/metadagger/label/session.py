@@ -20,10 +20,10 @@ import numpy as np
 import torch
 
 from metadagger.errors import UserError
-from metadagger.evaluation.benchmark import BenchmarkConfig
-from metadagger.evaluation.benchmark_seed import benchmark_row
-from metadagger.evaluation.ledger import PERSON, SCRIPTED, demonstration_record, label_record, round_record
-from metadagger.evaluation.methods import GateKey
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
+from metadagger.evaluation.benchmark.ledger import PERSON, SCRIPTED, demonstration_record, label_record, round_record
+from metadagger.evaluation.benchmark.methods import GateKey
+from metadagger.evaluation.benchmark.seed_chains import benchmark_row
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gate_registry import GATED_PREFIX, check_gates_serve, get_gate, make_gate
 from metadagger.imitation.rollouts import Trajectory, stack_labels
@@ -33,7 +33,7 @@ from metadagger.label.server import PageServer
 from metadagger.label.store import LabelStore
 from metadagger.metal_dagger.method import Labeller, SeedLearner, bc_head, dagger_rounds, demonstration, seeded
 from metadagger.pipeline.run_config import RunConfig
-from metadagger.pipeline.stages import current_pistar, run_task
+from metadagger.pipeline.stage_inputs import stage_inputs
 from metadagger.runfolder.layout import LabelSessionLayout, RunLayout
 from metadagger.runfolder.lock import run_lock
 from metadagger.runfolder.stamps import describe_changes, file_fingerprint, stamp_of
@@ -219,9 +219,8 @@ def plan_of_run(layout: RunLayout, config: RunConfig, *, seed: int, gate: str, s
             f"--seed {seed} was used for pi* or the pairs; label an unseen seed, e.g. one of benchmark.seeds"
         )
     get_gate(gate)  # an unknown name lists the known ones
-    task = run_task(config)
+    task = stage_inputs(layout, config).task
     check_gates_serve([GATED_PREFIX + gate], discrete=task.is_discrete, task=config.task)
-    current_pistar(layout, config, task)
     bench = config.benchmark if config.benchmark is not None else BenchmarkConfig()
     return LabelPlan(
         task=task,

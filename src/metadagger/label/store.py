@@ -7,13 +7,14 @@ from pathlib import Path
 from typing import Any
 
 from metadagger.errors import CheckpointError
-from metadagger.evaluation.ledger import LABEL_FIELDS
+from metadagger.evaluation.benchmark.ledger import LABEL_FIELDS
 from metadagger.label.forms import Refused
 from metadagger.utils.jsonl import append_line, dumps_line, read_lines
 
 
 class LabelStore:
-    """The labels of one session's ``labels.jsonl`` (:func:`~metadagger.evaluation.ledger.label_record` lines).
+    """The labels of one session's ``labels.jsonl``
+    (:func:`~metadagger.evaluation.benchmark.ledger.label_record` lines).
 
     A label is one line appended with flush and fsync before it counts (:mod:`metadagger.utils.jsonl`):
     a label the page was told is kept survives a kill, and a torn last line is no label.

@@ -10,8 +10,8 @@ from metadagger.errors import UserError
 from metadagger.evaluation.video import FIXED_METHODS, check_methods, compose, require_imageio, seed_clips, write_video
 from metadagger.metal_dagger.export import DEFAULT_AUTHOR, export_run
 from metadagger.pipeline.run_config import RunConfig
+from metadagger.pipeline.stage_inputs import run_task, stage_inputs
 from metadagger.pipeline.stage_runs import records_config
-from metadagger.pipeline.stages import check_mappers, current_pistar, run_task
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
@@ -31,9 +31,8 @@ def stage_export(
 ) -> dict:
     """The run's ``content`` episodes (demos, dagger, pairs-data) of ``seeds`` (default: the pair
     seeds) as the Minari dataset ``name``, by ``author`` (:mod:`metadagger.metal_dagger.export`)."""
-    task = run_task(config)
-    if content != "demos":
-        current_pistar(layout, config, task)
+    # the demonstrations need no pi*; the other contents are rolled out with it
+    task = run_task(config) if content == "demos" else stage_inputs(layout, config).task
     return export_run(
         task,
         layout,
@@ -63,11 +62,9 @@ def stage_video(
         raise UserError(f"--fps, --scale and --gif-stride must be >= 1, got {fps}, {scale} and {gif_stride}")
     require_imageio()
     check_methods(methods, layout)
-    task = run_task(config, checked=True)
-    pistar = current_pistar(layout, config, task)
-    check_mappers(layout, config, task, [m for m in methods if m not in FIXED_METHODS], pistar)
+    inputs = stage_inputs(layout, config, mappers=[m for m in methods if m not in FIXED_METHODS], checked=True)
     clips = seed_clips(
-        task,
+        inputs.task,
         layout,
         seed,
         methods,

@@ -22,7 +22,7 @@ from typing import Any, ClassVar, Sequence
 import yaml
 
 from metadagger.errors import UserError
-from metadagger.evaluation.benchmark import BenchmarkConfig
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
 from metadagger.evaluation.diagnose import DiagnoseConfig
 from metadagger.evaluation.mdi import MDIConfig
 from metadagger.evaluation.mdm import EvalConfig

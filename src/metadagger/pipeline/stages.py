@@ -2,9 +2,9 @@
 pistar -> pairs -> mappers -> evaluate (MDM) -> mdi -> benchmark -> report; diagnose and tune
 run on their own, as do export and video (:mod:`metadagger.pipeline.outputs`).
 
-Each stage reads the run's config and the previous stages' artifacts, checks that those are
-complete and made from today's config (their stamps, :mod:`metadagger.runfolder.stamps`), and skips the work
-whose artifacts exist. Run alone, a stage whose inputs changed refuses with one line naming what
+Each stage reads the run's config and declares, in one call, the previous stages' artifacts it
+reads (:func:`~metadagger.pipeline.stage_inputs.stage_inputs`: pi*, the pairs, some mappers),
+which are checked complete and made from today's config; it skips the work whose artifacts exist. Run alone, a stage whose inputs changed refuses with one line naming what
 changed; with ``rebuild`` (what ``reproduce`` passes) it redoes the stale work instead, so a
 changed input rebuilds exactly what depends on it. The mdi stage runs only for runs whose config
 has an ``mdi`` section (Fetch). With ``log: tensorboard`` each stage then rewrites its TensorBoard
@@ -24,13 +24,13 @@ from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 from metadagger.errors import UserError
-from metadagger.evaluation.benchmark import run_benchmark
+from metadagger.evaluation.benchmark.methods import PRIOR_METHODS
+from metadagger.evaluation.benchmark.protocol import run_benchmark
 from metadagger.evaluation.curves import plot_curves
 from metadagger.evaluation.diagnose import diagnose_mappers
 from metadagger.evaluation.mdi import evaluate_mdi
 from metadagger.evaluation.mdm import evaluate_run
-from metadagger.evaluation.methods import PRIOR_METHODS
-from metadagger.evaluation.report import build_report
+from metadagger.evaluation.report.build import build_report
 from metadagger.evaluation.tensorboard import (
     Scalar,
     benchmark_scalars,
@@ -40,32 +40,28 @@ from metadagger.evaluation.tensorboard import (
     table_scalars,
     write_tensorboard,
 )
+from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gate_registry import check_gates_serve
 from metadagger.mapping.mappers import load_mapper
 from metadagger.mapping.priors import ZERO, HeadPrior, chosen_priors
 from metadagger.mapping.registry import get_kind
 from metadagger.mapping.search_space import check_tunable
-from metadagger.mapping.train import MapperJob, mapper_stamp, train_mappers
+from metadagger.mapping.train import MapperJob, train_mappers
 from metadagger.mapping.tune import TuneResult, tune_mapper
-from metadagger.metal_dagger.pairs import OUTCOMES, collect_pairs, negligible_change_warning, pair_status
+from metadagger.metal_dagger.pairs import collect_pairs, negligible_change_warning
 from metadagger.metal_dagger.pistar import (
     check_pistar,
-    load_pistar,
-    pistar_changes,
     pistar_rates,
     train_pistar,
 )
-from metadagger.metal_dagger.store import PairSplit, PairStore, validation_size
+from metadagger.metal_dagger.store import PairStore
 from metadagger.pipeline.run_config import RunConfig, init_run, load_run, save_run
+from metadagger.pipeline.stage_inputs import StageInputs, run_task, stage_inputs
 from metadagger.pipeline.stage_runs import records_config
-from metadagger.policies import Policy
 from metadagger.runfolder.driver import StageOptions
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
-from metadagger.runfolder.stamps import describe_changes, file_fingerprint
-from metadagger.tasks import make_task
-from metadagger.tasks.base import Task
-from metadagger.tasks.checks import check_task_code
+from metadagger.runfolder.stamps import file_fingerprint
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.executors import default_workers
 from metadagger.utils.io import read_json
@@ -73,19 +69,6 @@ from metadagger.utils.kernels import kernel_stamp, pin_cpu_kernels
 from metadagger.utils.plotting import draw_figure
 
 STAGES = ("pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnose", "report")
-
-
-def run_task(config: RunConfig, *, checked: bool = False) -> Task:
-    """The task a run was configured with; ``checked``: its code passed the cheap checks
-    (:func:`~metadagger.tasks.checks.check_task_code`), so that no wrong observation is ever
-    trained on and a mistake in it is one line before any work. A benchmark gate that cannot serve
-    the task (a class distribution read on action vectors) is one line too."""
-    task = make_task(config.task, **config.task_kwargs)
-    if config.benchmark is not None:
-        check_gates_serve(config.benchmark.gated(), discrete=task.is_discrete, task=config.task)
-    if checked:
-        check_task_code(task)
-    return task
 
 
 def _log(layout: RunLayout, config: RunConfig, runs: Callable[[], Mapping[str, list[Scalar]]]) -> None:
@@ -101,7 +84,7 @@ def stage_pistar(layout: RunLayout, config: RunConfig, options: StageOptions = S
     # pi*'s rollouts use this machine's cores (a local pool) whatever executor the per-seed stages use
     workers = options.workers if options.executor == "local" and options.workers else default_workers()
     metrics = train_pistar(
-        run_task(config, checked=True),
+        run_task(config, checked=True),  # pi* reads no earlier stage
         config.pistar,
         layout,
         rebuild=options.rebuild,
@@ -112,71 +95,15 @@ def stage_pistar(layout: RunLayout, config: RunConfig, options: StageOptions = S
     return metrics
 
 
-def current_pistar(layout: RunLayout, config: RunConfig, task: Task) -> Policy:
-    """pi*, checked to exist, to load and to be made from this run's config."""
-    pistar = load_pistar(layout)  # a corrupt file is named even when no work is left
-    changes = pistar_changes(task, config.pistar, layout)
-    if changes:
-        raise UserError(
-            f"pi* in {layout.pistar_dir} was made from another config ({'; '.join(changes)}); "
-            f"run `metadagger reproduce` to rebuild it and what depends on it"
-        )
-    return pistar
-
-
 @records_config
 def stage_pairs(layout: RunLayout, config: RunConfig, options: StageOptions = StageOptions()) -> dict:
     """Collect the pairs of every seed not stored yet (with ``options.rebuild``, also the stale ones);
     refuses before any pair when pi* is below ``pistar.min_success`` on its unseen seeds."""
-    task = run_task(config, checked=True)
-    current_pistar(layout, config, task)
+    inputs = stage_inputs(layout, config, checked=True)
     check_pistar(read_json(layout.pistar_metrics, "pi*'s metrics"), config.pistar, layout)
-    summary = collect_pairs(task, layout, config.pairs, options)
+    summary = collect_pairs(inputs.task, layout, config.pairs, options)
     _log(layout, config, lambda: {"pairs": pairs_scalars(layout, config.pairs.seeds)})
     return summary
-
-
-def _current_split(layout: RunLayout, config: RunConfig, task: Task) -> PairSplit:
-    """The kept pairs of ``pairs.seeds``, split; every seed must have a pair made from today's pi*
-    and pair settings."""
-    missing, changes = pair_status(task, layout, config.pairs)
-    if missing:
-        PairStore(layout.pairs_dir).check_readable(
-            missing, fix=f"run `metadagger pairs --out {layout.root}`, which collects that pair again"
-        )
-        why = f"made from other inputs ({'; '.join(changes)})" if changes else "not collected"
-        raise UserError(
-            f"{len(missing)} of {len(config.pairs.seeds)} seeds of pairs.seeds have no current pair (e.g. "
-            f"{missing[0]}: {why}); "
-            f"run `metadagger pairs --out {layout.root}`"
-            + (" --rebuild" if changes else "")
-            + " or `metadagger reproduce` first"
-        )
-    store = PairStore(layout.pairs_dir)
-    kept = sum(1 for r in store.records() if r.get("kept") is True and r["seed"] in set(config.pairs.seeds))
-    if kept - validation_size(kept, config.pairs.val_fraction) < 2:
-        raise UserError(
-            f"only {kept} kept pairs (pairs.keep={config.pairs.keep}) in {layout.pairs_dir}, too few for a "
-            f"training set with pairs.val_fraction={config.pairs.val_fraction:g}: {_pair_outcomes(layout)}; "
-            "with few kept pairs, collect more pairs.seeds or relax pairs.keep; with none, make pi* stronger "
-            '(docs/custom_task.md, "Making pi* work on a new task")'
-        )
-    return store.load_split(
-        val_fraction=config.pairs.val_fraction, seed=config.split_seed, kept_only=True, seeds=config.pairs.seeds
-    )
-
-
-def _pair_outcomes(layout: RunLayout) -> str:
-    """The pairs' outcome counts and pi*'s success rates, as a clause of an error line."""
-    parts = []
-    if layout.pairs_summary.is_file():
-        summary = read_json(layout.pairs_summary, "the pairs' summary")
-        counts = ", ".join(f"{name} {summary['outcomes'].get(name, 0)}" for name in OUTCOMES)
-        parts.append(f"of {summary['seeds']} pair seeds: {counts}")
-    if layout.pistar_metrics.is_file():
-        metrics = read_json(layout.pistar_metrics, "pi*'s metrics")
-        parts.append(f"pi*: {pistar_rates(metrics)}")
-    return "; ".join(parts) or "no pairs summary yet"
 
 
 @records_config
@@ -188,11 +115,12 @@ def stage_mappers(
     kinds = config.mapper_kinds if kinds is None else tuple(kinds)
     for kind in kinds:
         get_kind(kind)  # unknown kinds fail before any work
-    task = run_task(config)
-    head = current_pistar(layout, config, task).head_vector()
-    split = _current_split(layout, config, task)
+    inputs = stage_inputs(layout, config, pairs=True)
+    head = inputs.pistar.head_vector()
     jobs = [
-        MapperJob(split=split, config=config.mapper_config(kind), out_dir=layout.mapper_dir(kind), pistar_head=head)
+        MapperJob(
+            split=inputs.split, config=config.mapper_config(kind), out_dir=layout.mapper_dir(kind), pistar_head=head
+        )
         for kind in kinds
     ]
     train_mappers(jobs, rebuild=options.rebuild, options=options)
@@ -220,11 +148,9 @@ def stage_tune(
     The study resumes from ``tune/<kind>.db`` (``options.rebuild`` starts a new one); ``apply``
     writes the best settings into the run's ``mappers`` section, for train-mapper and reproduce."""
     check_tunable(kind)  # before any work
-    task = run_task(config)
-    current_pistar(layout, config, task)
-    split = _current_split(layout, config, task)
+    inputs = stage_inputs(layout, config, pairs=True)
     result = tune_mapper(
-        split,
+        inputs.split,
         config.mapper_config(kind),
         study=layout.tune_study(kind),
         summary=layout.tune_summary(kind),
@@ -236,29 +162,6 @@ def stage_tune(
     if apply:
         save_run(layout.root, load_run(layout.root, [result.set_item]))  # validated like any --set
     return result
-
-
-def check_mappers(layout: RunLayout, config: RunConfig, task: Task, kinds: Sequence[str], pistar: Policy) -> None:
-    """Every mapper of ``kinds`` exists, loads, and was made from the run's current pairs and
-    settings (a mapper saved by hand, without a stamp, is taken as it is)."""
-    split = None
-    for kind in kinds:
-        path = layout.mapper(kind)
-        if not path.is_file():
-            raise UserError(
-                f"mapper {kind} not trained yet (no {path}); run `metadagger train-mapper --out {layout.root} --kind "
-                "all` first"
-            )
-        mapper = load_mapper(path)
-        if not mapper.stamp:
-            continue
-        split = split or _current_split(layout, config, task)
-        changes = describe_changes(mapper.stamp, mapper_stamp(split, config.mapper_config(kind), pistar.head_vector()))
-        if changes:
-            raise UserError(
-                f"mapper {kind} in {layout.mapper_dir(kind)} was made from other inputs ({'; '.join(changes)}); "
-                f"run `metadagger train-mapper --out {layout.root} --kind {kind} --rebuild` or `metadagger reproduce`"
-            )
 
 
 def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
@@ -279,11 +182,9 @@ def stage_evaluate(
     eval_config = (
         config.evaluate if seeds is None else dataclasses.replace(config.evaluate, seeds=_unseen(config, seeds))
     )
-    task = run_task(config)
-    pistar = current_pistar(layout, config, task)
-    check_mappers(layout, config, task, eval_config.methods, pistar)
+    inputs = stage_inputs(layout, config, mappers=eval_config.methods)
     rows = evaluate_run(
-        task, layout, eval_config, bc=config.pairs.bc, early_stop=config.pairs.early_stop, options=options
+        inputs.task, layout, eval_config, bc=config.pairs.bc, early_stop=config.pairs.early_stop, options=options
     )
     tables = ("mdm", "oneshot") if eval_config.oneshot else ("mdm",)
     _log(layout, config, lambda: {f"eval/{table}": table_scalars(layout.eval_table(table)) for table in tables})
@@ -300,10 +201,8 @@ def stage_mdi(
     if mdi is None:
         return []
     mdi = mdi if seeds is None else dataclasses.replace(mdi, seeds=_unseen(config, seeds))
-    task = run_task(config)
-    pistar = current_pistar(layout, config, task)
-    check_mappers(layout, config, task, tuple(mdi.kinds.values()), pistar)
-    rows = evaluate_mdi(task, layout, mdi, options, context_early_stop=config.pairs.early_stop)
+    inputs = stage_inputs(layout, config, mappers=tuple(mdi.kinds.values()))
+    rows = evaluate_mdi(inputs.task, layout, mdi, options, context_early_stop=config.pairs.early_stop)
     _log(layout, config, lambda: {"eval/mdi": table_scalars(layout.eval_table("mdi"))})
     return rows
 
@@ -326,17 +225,15 @@ def stage_benchmark(
     if methods is not None:
         changes["methods"] = tuple(methods)
     bench = dataclasses.replace(bench, **changes) if changes else bench
-    task = run_task(config)
-    check_gates_serve(bench.gated(), discrete=task.is_discrete, task=config.task)
-    pistar = current_pistar(layout, config, task)
     kinds = config.evaluate.methods if {"mdm", *PRIOR_METHODS, "disagree"} & set(bench.methods) else ()
     mdi = config.mdi_config if "mdi" in bench.methods else None
-    check_mappers(layout, config, task, tuple(kinds) + ((mdi.mapper,) if mdi else ()), pistar)
     with_priors = bool(set(PRIOR_METHODS) & set(bench.methods))
-    priors = _benchmark_priors(layout, config, task, tuple(kinds), options) if with_priors else None
+    inputs = stage_inputs(layout, config, pairs=with_priors, mappers=tuple(kinds) + ((mdi.mapper,) if mdi else ()))
+    check_gates_serve(bench.gated(), discrete=inputs.task.is_discrete, task=config.task)
+    priors = _benchmark_priors(layout, inputs, tuple(kinds), config.pairs.bc, options) if with_priors else None
     run = functools.partial(
         run_benchmark,
-        task,
+        inputs.task,
         rounds=config.pairs.dagger_rounds,
         bc=config.pairs.bc,
         dagger_bc=config.pairs.dagger_bc,
@@ -356,26 +253,25 @@ def stage_benchmark(
 
 
 def _benchmark_priors(
-    layout: RunLayout, config: RunConfig, task: Task, kinds: tuple[str, ...], options: StageOptions
+    layout: RunLayout, inputs: StageInputs, kinds: tuple[str, ...], bc: BCConfig, options: StageOptions
 ) -> dict[str, HeadPrior]:
     """The priors of the methods whose fits carry one (``PRIOR_METHODS``), toward each of ``kinds``'
     heads and zero: precision from the training pairs, strength chosen on the validation pairs
     (mapping/priors.py)."""
-    split = _current_split(layout, config, task)
-    inputs = {
+    stamp = {
         **kernel_stamp(),
-        **task_stamp(task),
+        **task_stamp(inputs.task),
         "pistar": file_fingerprint(layout.pistar),
         "mappers": {kind: file_fingerprint(layout.mapper(kind)) for kind in kinds},
     }
     return chosen_priors(
         {kind: load_mapper(layout.mapper(kind)) for kind in kinds} | {ZERO: None},
-        task,
+        inputs.task,
         str(layout.pistar),
-        split,
-        config.pairs.bc,
+        inputs.split,
+        bc,
         record=layout.benchmark_priors,
-        inputs=inputs,
+        inputs=stamp,
         progress=options.progress,
     )
 
@@ -384,23 +280,20 @@ def _benchmark_priors(
 def stage_diagnose(layout: RunLayout, config: RunConfig, *, options: StageOptions = StageOptions()) -> dict:
     """The mapping diagnostics of every kind and control of ``evaluate.methods`` on the run's
     validation pairs (:mod:`metadagger.evaluation.diagnose`)."""
-    task = run_task(config)
-    pistar = current_pistar(layout, config, task)
     kinds = tuple(config.evaluate.methods)
-    check_mappers(layout, config, task, kinds, pistar)
-    split = _current_split(layout, config, task)
+    inputs = stage_inputs(layout, config, pairs=True, mappers=kinds)
     learned = {kind: config.mapper_config(kind) for kind in kinds if get_kind(kind).learned}
     return diagnose_mappers(
-        task,
+        inputs.task,
         layout,
-        split,
+        inputs.split,
         {kind: load_mapper(layout.mapper(kind)) for kind in kinds},
         config.pairs,
         config.diagnose,
         scaling_configs=learned,
         split_seed=config.split_seed,
-        outputs=pistar.net.head.out_features,
-        discrete=pistar.discrete,
+        outputs=inputs.pistar.net.head.out_features,
+        discrete=inputs.pistar.discrete,
         options=options,
     )
 
@@ -483,7 +376,6 @@ __all__ = [
     "init_run",
     "load_run",
     "reproduce",
-    "run_task",
     "stage_benchmark",
     "stage_diagnose",
     "stage_evaluate",

@@ -25,12 +25,13 @@ import re
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from metadagger.evaluation.benchmark_figure import plot_queries
-from metadagger.evaluation.benchmark_summary import budget_reading
-from metadagger.evaluation.methods import BC_REFIT, MDI_METHODS, gated_methods, metal_twins, reference_methods
-from metadagger.evaluation.report_run import duration
+from metadagger.evaluation.benchmark.figure import plot_queries
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.methods import BC_REFIT, MDI_METHODS, gated_methods, metal_twins, reference_methods
+from metadagger.evaluation.benchmark.summary import budget_reading
+from metadagger.evaluation.report.run import duration
+from metadagger.evaluation.report.tables import markdown_table, pct
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import markdown_table, method_label, pct
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
 from metadagger.results.staleness import stale_summary
 

@@ -3,7 +3,7 @@
 Each run's benchmark summary reads every MetaL DAgger curve that reads a learned mapper against its
 references, on the same seeds and at the same spend: its constant twins (the same method with a
 control's head, or zero, in the mapper's place), BC refitted and the best gate; at each budget and
-by the area under the curve (:func:`~metadagger.evaluation.benchmark_summary.budget_reading`). A
+by the area under the curve (:func:`~metadagger.evaluation.benchmark.summary.budget_reading`). A
 curve beats its references at a reading when every one of those paired 95% intervals lies above 0
 there. For each run, on its unseen seeds and on its confirmation seeds where it has them, the block
 names every reading where a curve does, or says that none does and gives the closest: the reading
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from metadagger.evaluation.tables import method_label
+from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.results.tables import BlockContext, missing_run
 
 Curve = tuple[str, float]

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from metadagger.errors import UserError
-from metadagger.evaluation.coverage import VARIANCE_SHARE
+from metadagger.evaluation.benchmark.coverage import VARIANCE_SHARE
+from metadagger.evaluation.mdi import MDI_METHODS
 from metadagger.imitation.gate_registry import GATED_PREFIX, gate_declarations
 from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import control_names
@@ -42,10 +43,6 @@ PRIOR_METHODS = ("prior", "prior-dagger", "prior-gated")
 DISAGREE_GRID = (0.5, 0.8, 0.95)
 #: The control that refits w_BC as DAgger does, with no new label.
 BC_REFIT = "bc-refit"
-#: The MDI protocol's methods (paper Table 6, :mod:`metadagger.evaluation.mdi`): DAgger from the
-#: mapper's head, from w_BC and from a fresh Xavier head; one name each, in ``eval/mdi.csv`` and
-#: in the benchmark alike.
-MDI_METHODS = ("dagger-mdi", "dagger-bc-init", "dagger-xavier")
 #: The MDI protocol's two tests and their settings in the benchmark.
 MDI_SHOTS = {"oneshot": "one-shot", "twoshot": "two-shot"}
 #: The mapper kind of the MDI rows: whichever the run's ``mdi.mapper`` names.
@@ -202,7 +199,7 @@ class RoundKey(MethodKey):
         return f"{self.method}@demo{self.demo_fraction:g}"  # one chain makes every round's row
 
     def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
-        # its rows carry the coverage gap of the states visited so far (evaluation/coverage.py)
+        # its rows carry the coverage gap of the states visited so far (evaluation/benchmark/coverage.py)
         return {**super().own_stamp(inputs), "coverage_share": VARIANCE_SHARE}
 
 

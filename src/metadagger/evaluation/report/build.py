@@ -1,13 +1,13 @@
 """``report/report.md`` and its figures, built only from a run's CSV/JSON artifacts.
 
 Sections appear for the stages a run has finished, one module each: the run itself (stage wall
-times, pi*, pairs and their split, mappers: :mod:`~metadagger.evaluation.report_run`), MDM (Tables 1-2, Fig. 4:
-:mod:`~metadagger.evaluation.report_mdm`), one-shot (Tables 3-5:
-:mod:`~metadagger.evaluation.report_oneshot`), MDI (Table 7, Fig. 5:
-:mod:`~metadagger.evaluation.report_mdi`) and success against expert queries
-(:mod:`~metadagger.evaluation.report_benchmark`); the sessions a person labelled
-(:mod:`~metadagger.evaluation.report_label`); for a task family, each unseen seed's variation beside
-every method's outcome (:mod:`~metadagger.evaluation.report_family`). A figure that cannot be
+times, pi*, pairs and their split, mappers: :mod:`~metadagger.evaluation.report.run`), MDM (Tables 1-2, Fig. 4:
+:mod:`~metadagger.evaluation.report.mdm`), one-shot (Tables 3-5:
+:mod:`~metadagger.evaluation.report.oneshot`), MDI (Table 7, Fig. 5:
+:mod:`~metadagger.evaluation.report.mdi`) and success against expert queries
+(:mod:`~metadagger.evaluation.report.benchmark`); the sessions a person labelled
+(:mod:`~metadagger.evaluation.report.label`); for a task family, each unseen seed's variation beside
+every method's outcome (:mod:`~metadagger.evaluation.report.family`). A figure that cannot be
 drawn is a warning on stderr and one line in its place: it never costs the report.
 """
 
@@ -16,14 +16,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from metadagger.errors import UserError
-from metadagger.evaluation.report_benchmark import benchmark_section
-from metadagger.evaluation.report_diagnostics import diagnostics_section
-from metadagger.evaluation.report_family import family_section
-from metadagger.evaluation.report_label import label_section
-from metadagger.evaluation.report_mdi import mdi_section
-from metadagger.evaluation.report_mdm import mdm_section
-from metadagger.evaluation.report_oneshot import oneshot_section
-from metadagger.evaluation.report_run import mappers_section, pairs_section, pistar_section, run_section
+from metadagger.evaluation.report.benchmark import benchmark_section
+from metadagger.evaluation.report.diagnostics import diagnostics_section
+from metadagger.evaluation.report.family import family_section
+from metadagger.evaluation.report.label import label_section
+from metadagger.evaluation.report.mdi import mdi_section
+from metadagger.evaluation.report.mdm import mdm_section
+from metadagger.evaluation.report.oneshot import oneshot_section
+from metadagger.evaluation.report.run import mappers_section, pairs_section, pistar_section, run_section
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import check_writable, write_text
 from metadagger.utils.yaml_config import read_run_data

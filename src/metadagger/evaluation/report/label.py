@@ -9,8 +9,9 @@ gave them (a person, or the scripted expert). Built from each session's ``rows.j
 
 from __future__ import annotations
 
-from metadagger.evaluation.ledger import effort
-from metadagger.evaluation.tables import markdown_table, method_label
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.ledger import effort
+from metadagger.evaluation.report.tables import markdown_table
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.jsonl import read_lines
 

@@ -18,7 +18,7 @@ reference: the zero-query controls, BC refitted and the best gate at that budget
 learner's-mistakes rule) is a reference: tabled, never ranked. Each MetaL DAgger method that reads
 a learned mapper's head (MDM, the priors, the disagreement gate) is also read against its constant
 twins (the same method with a control's head, or zero, in the mapper's place:
-:func:`~metadagger.evaluation.methods.metal_twins`), BC refitted and the best gate, at each budget
+:func:`~metadagger.evaluation.benchmark.methods.metal_twins`), BC refitted and the best gate, at each budget
 and by the area under the curve.
 """
 
@@ -28,8 +28,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from metadagger.evaluation.coverage import VARIANCE_SHARE, gap_against_gain
-from metadagger.evaluation.methods import BC_REFIT, MDM_PREFIX, gated_methods, metal_twins, reference_methods
+from metadagger.evaluation.benchmark.coverage import VARIANCE_SHARE, gap_against_gain
+from metadagger.evaluation.benchmark.methods import BC_REFIT, MDM_PREFIX, gated_methods, metal_twins, reference_methods
 from metadagger.evaluation.paired import paired_comparison, paired_difference
 from metadagger.imitation.metrics import summarize, wilson_interval
 from metadagger.mapping.registry import control_names
@@ -268,7 +268,7 @@ def _metal_pairs(ran: list[Curve], best_gate: Curve | None) -> list[tuple[Curve,
 
 
 def coverage_reading(rows: list[dict[str, Any]], reading: dict[str, Any] | None) -> dict[str, Any] | None:
-    """Each seed's coverage gap (plain DAgger's last row's, :mod:`metadagger.evaluation.coverage`),
+    """Each seed's coverage gap (plain DAgger's last row's, :mod:`metadagger.evaluation.benchmark.coverage`),
     and for each MetaL DAgger curve and constant twin, the per-seed gain in the area under the
     curve and its rank correlation with the gap; None without gaps or a budget reading."""
     last = {seed: r for seed, r in _dagger_last(rows).items() if "coverage_gap" in r}

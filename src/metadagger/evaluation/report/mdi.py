@@ -5,9 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from metadagger.evaluation.methods import MDI_METHODS
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.methods import MDI_METHODS
+from metadagger.evaluation.report.tables import figure_lines, markdown_table, rate
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, rate
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.plotting import plt, save_figure
 

@@ -6,8 +6,9 @@ import statistics
 from pathlib import Path
 from typing import Any
 
+from metadagger.evaluation.benchmark.labels import method_label, method_order
+from metadagger.evaluation.report.tables import by_method, figure_lines, markdown_table, rate
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import by_method, figure_lines, markdown_table, method_label, method_order, rate
 from metadagger.imitation.metrics import summarize
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.plotting import plt, save_figure

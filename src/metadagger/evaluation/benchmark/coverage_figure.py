@@ -15,8 +15,9 @@ from typing import Any
 
 from matplotlib.figure import Figure
 
-from metadagger.evaluation.benchmark_figure import PALETTE
-from metadagger.evaluation.methods import (
+from metadagger.evaluation.benchmark.figure import PALETTE
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.methods import (
     DISAGREE_PREFIX,
     GATED_PRIOR,
     MDM_PREFIX,
@@ -24,7 +25,6 @@ from metadagger.evaluation.methods import (
     PRIOR_PREFIX,
     metal_family,
 )
-from metadagger.evaluation.tables import method_label
 from metadagger.mapping.priors import ZERO
 from metadagger.mapping.registry import get_kind
 from metadagger.utils.plotting import plt, save_figure

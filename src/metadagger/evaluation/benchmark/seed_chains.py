@@ -2,9 +2,9 @@
 
 Every row of a seed starts where the pairs start (:class:`_Start`): the demonstration (or its
 first share), w_BC fitted on it, w_BC's rollout. Each group of keys that one chain of rollouts
-makes (:attr:`~metadagger.evaluation.methods.MethodKey.chain`) is one call of the chain for its
+makes (:attr:`~metadagger.evaluation.benchmark.methods.MethodKey.chain`) is one call of the chain for its
 key type in :data:`CHAINS`; with ``benchmark.lanes`` above 1 the chains step in lockstep lanes.
-The stage around it (configs, stamps, resume, tables) is :mod:`metadagger.evaluation.benchmark`.
+The stage around it (configs, stamps, resume, tables) is :mod:`metadagger.evaluation.benchmark.protocol`.
 """
 
 from __future__ import annotations
@@ -13,15 +13,15 @@ import dataclasses
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from functools import partial
-from typing import TYPE_CHECKING, Any, Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import torch
 
-from metadagger.evaluation.coverage import coverage_gap
-from metadagger.evaluation.ledger import demonstration_record, round_record, tally
-from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
-from metadagger.evaluation.methods import (
+from metadagger.evaluation.benchmark.config import BenchmarkConfig
+from metadagger.evaluation.benchmark.coverage import coverage_gap
+from metadagger.evaluation.benchmark.ledger import demonstration_record, round_record, tally
+from metadagger.evaluation.benchmark.methods import (
     MDI_MAPPER,
     MDI_METHODS,
     BCKey,
@@ -36,6 +36,7 @@ from metadagger.evaluation.methods import (
     RoundKey,
     ShotKey,
 )
+from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.gate_registry import GATED_PREFIX, make_gate
 from metadagger.imitation.gates import Gate
@@ -59,16 +60,13 @@ from metadagger.metal_dagger.method import (
 )
 from metadagger.runfolder.driver import SeedJob
 
-if TYPE_CHECKING:
-    from metadagger.evaluation.benchmark import BenchmarkConfig
-
 
 @dataclass(frozen=True)
 class BenchmarkJob(SeedJob):
     """One seed's benchmark; its ``methods`` are the ids of its ``keys``."""
 
     keys: tuple[MethodKey, ...]
-    """The method keys this job runs (:mod:`metadagger.evaluation.methods`)."""
+    """The method keys this job runs (:mod:`metadagger.evaluation.benchmark.methods`)."""
     mappers: dict[str, MapperFile]
     """Mapper file of every mapper kind this job reads (``mdi``: the MDI protocol's)."""
     config: BenchmarkConfig

@@ -10,13 +10,14 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from metadagger.evaluation.benchmark_figure import plot_queries
-from metadagger.evaluation.benchmark_summary import refit_check
-from metadagger.evaluation.coverage_figure import has_twins, plot_coverage
-from metadagger.evaluation.methods import MDM_PREFIX, reference_methods
+from metadagger.evaluation.benchmark.coverage_figure import has_twins, plot_coverage
+from metadagger.evaluation.benchmark.figure import plot_queries
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.methods import MDM_PREFIX, reference_methods
+from metadagger.evaluation.benchmark.summary import refit_check
 from metadagger.evaluation.paired import verdict
+from metadagger.evaluation.report.tables import figure_lines, markdown_table, pct
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json
 

@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
+from metadagger.evaluation.benchmark.labels import method_label, method_order
 from metadagger.evaluation.mdm import ONESHOT_PREFIX
+from metadagger.evaluation.report.tables import by_method, markdown_table
 from metadagger.evaluation.rows import read_csv
-from metadagger.evaluation.tables import by_method, markdown_table, method_label, method_order
 from metadagger.runfolder.layout import RunLayout
 
 

@@ -9,9 +9,10 @@ import json
 import math
 from typing import Any
 
+from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.curves import plot_curves
+from metadagger.evaluation.report.tables import figure_lines, markdown_table, pct
 from metadagger.evaluation.rows import CURVE_COLUMNS, read_csv
-from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, pct
 from metadagger.mapping.registry import get_kind, kind_names
 from metadagger.metal_dagger.store import validation_size
 from metadagger.runfolder.layout import RunLayout

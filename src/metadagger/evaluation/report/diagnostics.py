@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import math
 
+from metadagger.evaluation.benchmark.labels import method_label, method_order
 from metadagger.evaluation.diagnose import plot_scaling
-from metadagger.evaluation.tables import figure_lines, markdown_table, method_label, method_order
+from metadagger.evaluation.report.tables import figure_lines, markdown_table
 from metadagger.mapping.registry import get_kind
 from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json

@@ -1,0 +1,116 @@
+"""The benchmark's section of a run's config: which methods run, on which unseen seeds, with which gate grids."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from metadagger.errors import UserError
+from metadagger.evaluation.benchmark.methods import (
+    BC_REFIT,
+    benchmark_methods,
+    check_methods,
+    gated_methods,
+    reference_methods,
+)
+from metadagger.imitation.gate_registry import built_in_grids, gate_of_method, get_gate, make_gate
+from metadagger.imitation.lanes import check_lanes
+from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
+
+
+@dataclass(frozen=True)
+class BenchmarkConfig:
+    """Which methods the benchmark runs, on which unseen seeds, with which gate grids."""
+
+    seeds: tuple[int, ...] = tuple(range(5000, 5020))
+    """Unseen seeds (never used for pi* or the pairs)."""
+    confirm_seeds: tuple[int, ...] = ()
+    """A second set of unseen seeds, fixed before any result is read, on which the same methods run
+    again into ``benchmark/confirm/``: a reading chosen on the first set is checked on these."""
+    methods: tuple[str, ...] = ("bc", "mdm", "dagger", BC_REFIT, *built_in_grids(every_task=True))
+    """Benchmark methods (``metadagger config methods`` lists every one, plug-ins' included): ``bc``,
+    ``mdm`` (every kind of ``evaluate.methods``), ``dagger``, ``bc-refit`` (w_BC refitted as DAgger
+    refits it, on the demonstration alone: a control), the gated methods ``dagger-<gate>``, and
+    ``mdi`` (the MDI protocol's methods; runs with an ``mdi`` section). The default holds every
+    built-in gate that serves every task: the uncertainty gates, which read a class distribution,
+    are named by the presets of tasks with classes."""
+    grids: dict = field(default_factory=built_in_grids)
+    """Each gated method's sweep (a gate left out sweeps its declared grid): the random share p;
+    the score quantile above which a state is labelled (about 1 - quantile of each round's
+    states); ThriftyDAgger's target rate of each of its two tests (their union labels at most
+    twice it); the conformal gate's miscoverage (about that share of the first round's states).
+    The defaults span label shares of about 50%, 20% and 5%, fixed before any benchmark ran (not
+    tuned on any seeds)."""
+    ensemble_heads: int = 5
+    """K, the bootstrap heads of the ensemble and ThriftyDAgger gates."""
+    novelty_k: int = 1
+    """k, the neighbour of the novelty and conformal gates."""
+    gate_options: dict = field(default_factory=dict, metadata=STAMPED_UNLESS_DEFAULT)
+    """Further fields of a gate by method, e.g. ``{dagger-lazy: {low: 0.5}}`` (a plug-in's options)."""
+    ceiling: bool = True
+    """Run the oracle rule (``dagger-oracle``) beside the methods: the learner's-mistakes rule, a reference
+    (gates can beat it; the key keeps its older name)."""
+    demo_fractions: tuple[float, ...] = (1.0,)
+    """Shares of the demonstration's steps that BC, the learned MDM kinds and the gated settings
+    start from, in (0, 1], 1 (the whole demonstration) among them; plain DAgger and MDI always
+    start from the whole one."""
+    lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
+    """Episodes of a seed stepped in lockstep, one trunk forward per step for all of them, at this
+    batch shape (:mod:`metadagger.imitation.lanes`); 1 rolls each episode out alone. The numbers
+    depend on it (a batch of one rounds the last bits otherwise), never on the workers."""
+
+    def __post_init__(self) -> None:
+        if not self.seeds:
+            raise UserError("benchmark.seeds must not be empty")
+        both = sorted(set(self.seeds) & set(self.confirm_seeds))
+        if both:
+            raise UserError(f"benchmark.confirm_seeds must be other seeds than benchmark.seeds, both hold {both[:5]}")
+        if not self.methods:
+            raise UserError(f"benchmark.methods must not be empty; allowed: {', '.join(benchmark_methods())}")
+        check_methods(self.methods, "benchmark.methods")
+        gated = gated_methods(references=True)
+        for name, what in (("grids", self.grids), ("gate_options", self.gate_options)):
+            bad = sorted(set(what) - set(gated))
+            if bad:
+                raise UserError(f"benchmark.{name} has unknown method(s) {bad}; allowed: {', '.join(gated)}")
+        for method in self.gated():
+            grid = self.grid(method)
+            if not grid:
+                raise UserError(
+                    f"benchmark.grids.{method} is empty; give its settings, e.g. {list(get_gate(gated[method]).grid)}"
+                )
+            for value in grid:
+                make_gate(gated[method], value, **self.options_of(method))  # range checks now, not hours later
+        if (
+            1.0 not in self.demo_fractions
+            or any(not 0.0 < f <= 1.0 for f in self.demo_fractions)
+            or len(set(self.demo_fractions)) != len(self.demo_fractions)
+        ):
+            raise UserError(
+                f"benchmark.demo_fractions must be distinct shares in (0, 1] with 1 among them, got "
+                f"{list(self.demo_fractions)}; e.g. [0.25, 0.5, 1.0]"
+            )
+        check_lanes("benchmark.lanes", self.lanes)
+        if self.ensemble_heads < 2 or self.novelty_k < 1:
+            raise UserError(
+                f"benchmark.ensemble_heads must be >= 2 and benchmark.novelty_k >= 1, got "
+                f"{self.ensemble_heads} and {self.novelty_k}"
+            )
+
+    def gated(self) -> list[str]:
+        """The gated methods this config runs, the oracle last where ``ceiling`` is on."""
+        gated = gated_methods(references=True)
+        chosen = [m for m in self.methods if m in gated]
+        return chosen + [m for m in reference_methods() if self.ceiling and m not in chosen]
+
+    def grid(self, method: str) -> list[float]:
+        """A gated method's sweep: ``grids``' entry, else its gate's declared grid."""
+        if method in self.grids:
+            return list(self.grids[method])
+        return list(gate_of_method(method).grid)
+
+    def options_of(self, method: str) -> dict[str, Any]:
+        """Keyword options of a gated method's gate: the shared options it declares, then ``gate_options``."""
+        declaration = gate_of_method(method)
+        shared = {name: getattr(self, option) for name, option in declaration.shared.items()}
+        return {**shared, **self.gate_options.get(method, {})}
