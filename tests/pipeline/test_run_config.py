@@ -196,3 +196,24 @@ def test_a_run_folder_of_another_patch_version_loads(run):
         run.config.read_text().replace(f"metadagger_version: {__version__}", f"metadagger_version: {major}.{minor}.99")
     )
     assert load_run(run.root).metadagger_version == f"{major}.{minor}.99"
+
+
+def test_a_registry_run_from_before_the_renames_is_one_line_that_says_what_to_do(tmp_path):
+    """The config of registry run ``fetch-family-quick`` as 0.2 made it (its pi* section still called
+    ``groundtruth``), in a run folder: every command that reads it says, in one line, to start a new
+    folder, and writes nothing."""
+    from pathlib import Path
+
+    old = Path(__file__).parent / "data" / "fetch-family-quick-0.2.0.yaml"
+    assert "groundtruth:" in old.read_text()
+    run = RunLayout(tmp_path / "old")
+    run.root.mkdir()
+    run.config.write_bytes(old.read_bytes())
+    expected = (
+        f"{run.config} was made by metadagger 0.2.0; this is {__version__}: start a new run folder "
+        "(metadagger reproduce --task fetch-family --preset quick --out NEW) or use metadagger 0.2.0"
+    )
+    for args in (["pairs", "--out", run.root], ["benchmark", "--out", run.root], ["report", "--out", run.root]):
+        assert _refused(args) == f"error: {expected}"
+    assert [p.name for p in run.root.iterdir()] == ["config.yaml"]
+    assert run.config.read_bytes() == old.read_bytes()

@@ -8,7 +8,7 @@ by the same builder as the presets; the config a stage runs with is written back
 
 ``config.yaml`` records the metadagger version that created the folder (``metadagger_version``, in
 no stamp); a folder made by another major.minor version, or before versions were recorded (0.2),
-is refused with one line (:func:`check_version`).
+is refused with one line (:func:`~metadagger.runfolder.made_by.check_version`).
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from metadagger.metal_dagger.pairs import PairConfig
 from metadagger.metal_dagger.pistar import PiStarConfig
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import run_lock
+from metadagger.runfolder.made_by import VERSION_KEY, check_version
 from metadagger.tasks import check_task
 from metadagger.utils.device import resolve_device
 from metadagger.utils.io import write_text
@@ -46,10 +47,6 @@ PRESETS = ("quick", "paper", "ci")
 """The packaged presets of every built-in task (``presets/<task>.yaml``)."""
 CHOSEN_AT_START = ("task", "preset", "device")
 """Config keys a run takes from ``--task``/``--preset``/``--device`` when it starts, never from ``--set``."""
-VERSION_KEY = "metadagger_version"
-"""The config key that records the metadagger version a run folder was made by."""
-FIRST_RECORDED = "0.2"
-"""The first version whose run folders record it: a ``config.yaml`` without it is older."""
 
 
 @dataclass(frozen=True)
@@ -304,24 +301,6 @@ def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
     data = read_run_data(path)
     check_version(path, data)
     return build(RunConfig, apply_overrides(data, overrides), where=str(path) + (" with --set" if overrides else ""))
-
-
-def check_version(path: str | Path, data: dict[str, Any]) -> None:
-    """Raise a :class:`UserError` unless the run config ``data`` (read from ``path``) was made by a
-    metadagger of this major.minor version; a folder of another one needs that version's code."""
-    recorded = data.get(VERSION_KEY)
-    if recorded is not None and _major_minor(str(recorded)) == _major_minor(__version__):
-        return
-    made_by = f"metadagger {recorded}" if recorded is not None else f"a metadagger version before {FIRST_RECORDED}"
-    task, preset = data.get("task", "T"), data.get("preset", "P")
-    raise UserError(
-        f"{path} was made by {made_by}; this is {__version__}: start a new run folder "
-        f"(metadagger reproduce --task {task} --preset {preset} --out NEW) or use {made_by}"
-    )
-
-
-def _major_minor(version: str) -> tuple[str, ...]:
-    return tuple(version.split(".")[:2])
 
 
 def save_run(run: str | Path, config: RunConfig) -> None:

@@ -4,11 +4,12 @@ run on their own, as do export and video (:mod:`metadagger.pipeline.outputs`).
 
 Each stage reads the run's config and declares, in one call, the previous stages' artifacts it
 reads (:func:`~metadagger.pipeline.stage_inputs.stage_inputs`: pi*, the pairs, some mappers),
-which are checked complete and made from today's config; it skips the work whose artifacts exist. Run alone, a stage whose inputs changed refuses with one line naming what
-changed; with ``rebuild`` (what ``reproduce`` passes) it redoes the stale work instead, so a
-changed input rebuilds exactly what depends on it. The mdi stage runs only for runs whose config
-has an ``mdi`` section (Fetch). With ``log: tensorboard`` each stage then rewrites its TensorBoard
-scalars from its artifacts (:mod:`metadagger.evaluation.tensorboard`).
+which are checked complete and made from today's config; it skips the work whose artifacts exist.
+Run alone, a stage whose inputs changed refuses with one line naming what changed; with
+``rebuild`` (what ``reproduce`` passes) it redoes the stale work instead, so a changed input
+rebuilds exactly what depends on it. The mdi stage runs only for runs whose config has an ``mdi``
+section (Fetch). With ``log: tensorboard`` each stage then rewrites its TensorBoard scalars from
+its artifacts (:mod:`metadagger.evaluation.tensorboard`).
 
 The entry points a Python program starts with (:func:`reproduce`, :func:`init_run`,
 :func:`load_run`) pin the CPU kernels first, as the command line does
