@@ -1,4 +1,4 @@
-"""metadagger's Gymnasium ids, used as the README and the docs use them."""
+"""metadagger's Gymnasium ids, used as the README and the docs use them (docs/carracing.md shows one)."""
 
 from __future__ import annotations
 
@@ -22,15 +22,15 @@ def _blocks_calling_gym_make() -> list[tuple[str, str]]:
 
 def test_every_doc_block_that_makes_a_metadagger_id_registers_the_ids_first():
     blocks = _blocks_calling_gym_make()
-    assert blocks, "the README shows gym.make on a metadagger id"
+    assert blocks, "docs/carracing.md shows gym.make on a metadagger id"
     for page, block in blocks:
         code = block.split("\n")
         first_make = next(i for i, line in enumerate(code) if MAKE.search(line))
         assert any("metadagger.register_envs()" in line for line in code[:first_make]), page
 
 
-def test_the_readme_block_runs_as_written_in_a_fresh_process():
-    [(page, block)] = [(p, b) for p, b in _blocks_calling_gym_make() if p == "README.md"]
+def test_the_carracing_page_block_runs_as_written_in_a_fresh_process():
+    [(page, block)] = [(p, b) for p, b in _blocks_calling_gym_make() if p == "carracing.md"]
     # a fresh interpreter: nothing registered by other tests
     done = subprocess.run([sys.executable, "-c", block + "\nprint(obs.shape)"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]

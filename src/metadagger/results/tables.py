@@ -137,17 +137,12 @@ def glance(context: BlockContext) -> str:
         oracle = f"{e['oracle']['setting']}: {_cell(e['oracle'])}" if e["oracle"] else "-"
         queries.append((name, _cell(e["dagger"]), _labelled(e["gate"]), oracle))
     note = (
-        "Seeds succeeded of the run's unseen seeds (95% Wilson interval) at mean expert queries per seed, the "
-        "demonstration's included, every method on the whole demonstration, one benchmark rollout per seed (on "
-        "the Fetch presets under the pairs' early stop, which counts a rollout it cuts as a failure). Best MetaL "
-        "DAgger: the best of the methods that read a learned mapper (MDM, the prior toward a mapper's head, its "
-        "DAgger, the disagreement gate) and DAgger-MDI. The controls: pi*'s head and mean-DA use no query; BC "
-        "refitted is w_BC refitted as DAgger refits it, on the demonstration alone ('-': the run has no such row). "
-        "Reference: the oracle, the learner's-mistakes rule, which labels exactly the states where the learner is "
-        "wrong, at its best share; not a ceiling (a gate can beat it). "
-        "A run marked 'stale' was made by a config or numerics other than what its command makes now; the lines "
-        "under the tables name what departed (docs/results.md). The best of each is chosen on these same seeds, "
-        "which favours it; paired comparisons are in each run's report."
+        "Seeds succeeded of the run's unseen seeds (95% Wilson interval) at mean expert queries per seed, "
+        "demonstration included, one rollout per seed. Best MetaL DAgger: the best method that reads a learned "
+        "mapper, or DAgger-MDI; pi*'s head and mean-DA use no query; BC refitted is w_BC refitted as DAgger refits "
+        "it, with no new label; the oracle labels the learner's mistakes (a reference, not a ceiling). Each best "
+        "is chosen on these seeds, which favours it: paired comparisons are in each run's report, what a 'stale' "
+        "run departs from in docs/results.md."
     )
     paper = "; ".join(f"{task}: {figures}" for task, figures in PAPER_FIGURES.items())
     return "\n".join(
