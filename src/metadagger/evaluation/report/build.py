@@ -25,7 +25,7 @@ from metadagger.evaluation.report.mdm import mdm_section
 from metadagger.evaluation.report.oneshot import oneshot_section
 from metadagger.evaluation.report.run import mappers_section, pairs_section, pistar_section, run_section
 from metadagger.runfolder.layout import RunLayout
-from metadagger.runfolder.made_by import check_version
+from metadagger.runfolder.made_by import VERSION_KEY, check_version
 from metadagger.utils.io import check_writable, write_text
 from metadagger.utils.yaml_config import read_run_data
 
@@ -48,15 +48,17 @@ def build_report(layout: RunLayout) -> Path:
     """Write the report (+ figures) from the run's artifacts; return its path.
 
     Raises:
-        UserError: the folder holds no run (no config), was made by another metadagger version, or
-            no stage has written anything yet.
+        UserError: the folder holds no run (no config), its config records another metadagger
+            version, or no stage has written anything yet.
     """
     if not layout.config.is_file():
         raise UserError(
             f"nothing has been run in {layout.root} (no config.yaml there); "
             "pass the --out of a run started with `metadagger pistar` or `metadagger reproduce`"
         )
-    check_version(layout.config, read_run_data(layout.config))  # an older folder's artifacts read otherwise
+    config = read_run_data(layout.config)
+    if VERSION_KEY in config:  # a folder of another version holds artifacts this code reads otherwise
+        check_version(layout.config, config)
     check_writable(layout.report_dir)  # before any figure is drawn
     parts = [line for section in SECTIONS for line in section(layout)]
     if not parts:
