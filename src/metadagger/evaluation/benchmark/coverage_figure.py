@@ -77,7 +77,7 @@ def _kind_label(method: str) -> str:
 
 
 def draw_coverage(coverage: dict[str, Any]) -> Figure:
-    """The figure of a summary's ``coverage`` reading (``coverage_reading`` in benchmark_summary.py)."""
+    """The figure of a summary's ``coverage`` reading (``coverage_reading`` in summary.py)."""
     families = drawn_comparisons(coverage)
     if not families:
         raise ValueError("no MetaL DAgger method with a learned mapper kind and a constant twin ran")

@@ -24,7 +24,7 @@ from metadagger.utils.plotting import interval_errors, plt, save_figure
 
 #: The reference query rule: the learner is labelled exactly where it is wrong.
 ORACLE = "dagger-oracle"
-#: How the oracle is named when :func:`~metadagger.evaluation.report.tables.method_label` does not know it.
+#: How the oracle is named when :func:`~metadagger.evaluation.benchmark.labels.method_label` does not know it.
 ORACLE_FALLBACK = "oracle: labels exactly where the learner is wrong"
 #: The oracle's own colour and marker, which no method gets.
 ORACLE_COLOR, ORACLE_MARKER = "black", "*"
