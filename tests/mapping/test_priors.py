@@ -13,6 +13,7 @@ from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig
 from metadagger.mapping.mappers import Mapper
 from metadagger.mapping.priors import (
+    LIMIT,
     STRENGTHS,
     VARIANCE_FLOOR,
     ZERO,
@@ -94,16 +95,18 @@ def test_the_strength_is_chosen_on_the_validation_pairs_alone(toy_run, monkeypat
     at_mean = _split(torch.zeros(len(VAL_SEEDS), size), size)
     prior = build_prior(at_mean, None)
     [(strong, choice)] = choose_strengths({ZERO: (prior, None)}, task, pistar, at_mean, FIT).values()
-    assert strong.strength == max(STRENGTHS) == choice.strength and strong.precision is prior.precision
-    assert list(choice.distances) == list(STRENGTHS)
-    assert choice.distances[max(STRENGTHS)] < choice.distances[0.0]
+    # w_DA is the mean itself: the grid's limit, the mean head with no fit, is kept, at distance 0
+    assert strong.limit and choice.strength == LIMIT and strong.precision is prior.precision
+    assert list(choice.distances) == [*STRENGTHS, LIMIT] and choice.distances[LIMIT] == 0.0
+    assert choice.distances[max(STRENGTHS)] < choice.distances[0.0] and not choice.edge
     own = []
     for seed in VAL_SEEDS:
         with SeedLearner(task, pistar, seed, head_init_seed=FIT.head_init_seed(seed)) as learner:
             own.append(torch.from_numpy(bc_head(learner, demonstration(learner).to_dataset(), seeded(FIT, seed))))
     at_own = dataclasses.replace(at_mean, w_da_val=torch.stack(own))
     [(weak, choice)] = choose_strengths({ZERO: (prior, None)}, task, pistar, at_own, FIT).values()
-    assert weak.strength <= 1e-4 and choice.distances[weak.strength] < choice.distances[max(STRENGTHS)]
+    assert weak.strength <= 1e-4 and not weak.limit
+    assert choice.distances[weak.strength] < min(choice.distances[max(STRENGTHS)], choice.distances[LIMIT])
     seen = []
     original = SeedLearner.__init__
 
@@ -142,10 +145,46 @@ def test_a_choice_is_read_back_while_its_inputs_hold_and_made_again_when_one_cha
 
     first = chosen(split, {"pistar": "a"})
     again = chosen(split, {"pistar": "a"})
-    assert len(calls) == 1 and again[ZERO].strength == first[ZERO].strength == max(STRENGTHS)
+    assert len(calls) == 1 and again[ZERO].limit and first[ZERO].limit  # w_DA at the mean: the limit
     assert torch.equal(again[ZERO].precision, first[ZERO].precision)
     chosen(split, {"pistar": "b"})
     other = dataclasses.replace(split, w_da_val=split.w_da_val + 1.0)
     chosen(other, {"pistar": "b"})
     chosen(other, {"pistar": "b"}, {ZERO: None, "pistar-head": Mapper.pistar_head(torch.zeros(size))})
     assert len(calls) == 4
+
+
+def test_the_grid_grows_past_its_largest_finite_strength_while_that_one_is_kept(toy_run):
+    """Validation w_DA set at the fit's own head under the largest finite strength: that strength
+    is kept, so the grid grows tenfold past it and the choice is made again, one rule for every
+    mean; and a prior at its limit is the mean head itself, with no step taken."""
+    import metadagger.mapping.priors as priors_module
+    from metadagger.imitation.head_fits import fit_heads
+
+    task, pistar = CorridorTask(), str(toy_run.pistar)
+    size = load_policy(pistar).head_vector().numel()
+    probe = _split(torch.zeros(len(VAL_SEEDS), size), size)
+    prior = build_prior(probe, None)
+    [(_, first)] = choose_strengths({ZERO: (prior, None)}, task, pistar, probe, FIT, strengths=(0.0, 1e-3)).values()
+    # targets: each seed's own fit at the grid's top finite strength (1e-3), which is then nearest
+    targets = []
+    for seed in VAL_SEEDS:
+        with SeedLearner(task, pistar, seed, head_init_seed=FIT.head_init_seed(seed)) as learner:
+            request = dataclasses.replace(
+                priors_module.head_fit(
+                    learner.policy, demonstration(learner).to_dataset(), seeded(FIT, seed), learner.cache, called="t"
+                ),
+                prior=dataclasses.replace(prior, strength=1e-3).prior(torch.zeros(size)),
+            )
+            [fitted] = fit_heads([request], out_dim=int(learner.policy.net.head.out_features), discrete=True)
+            targets.append(fitted.head)
+    at_top = dataclasses.replace(probe, w_da_val=torch.stack(targets))
+    [(kept, choice)] = choose_strengths(
+        {ZERO: (prior, None)}, task, pistar, at_top, FIT, strengths=(0.0, 1e-3)
+    ).values()
+    assert 1e-2 in choice.distances  # grown past 1e-3, which was the best of the first grid
+    assert choice.distances[1e-3] == 0.0 and kept.strength == 1e-3 and not choice.edge
+    assert list(first.distances) == [0.0, 1e-3, LIMIT]
+    pinned = dataclasses.replace(request, prior=dataclasses.replace(prior, limit=True).prior(torch.ones(size)))
+    [limit] = fit_heads([pinned], out_dim=int(learner.policy.net.head.out_features), discrete=True)
+    assert torch.equal(limit.head, torch.ones(size)) and limit.losses == []

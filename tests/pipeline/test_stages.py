@@ -303,7 +303,7 @@ def test_pairs_summary_records_how_far_dagger_moved_the_heads(finished):
 def test_the_prior_method_chooses_its_strengths_on_the_validation_pairs_and_rows_each_mean(finished, tmp_path):
     """``benchmark --methods bc,prior``: a prior toward each evaluated mapper kind and zero, its
     strength chosen on the validation pairs and written to benchmark/priors.json, one row per mean."""
-    from metadagger.mapping.priors import STRENGTHS
+    from metadagger.mapping.priors import LIMIT, STRENGTHS
     from metadagger.pipeline.run_config import load_run
 
     layout = _copy(finished, tmp_path / "run")
@@ -314,7 +314,9 @@ def test_the_prior_method_chooses_its_strengths_on_the_validation_pairs_and_rows
     priors = record["chosen"]
     assert set(priors) == {*kinds, "zero"}
     for choice in priors.values():
-        assert choice["strength"] in STRENGTHS and len(choice["distances"]) == len(STRENGTHS)
+        grid = [float(k) for k in choice["distances"] if k != LIMIT]
+        assert choice["strength"] in [*grid, LIMIT] and grid[: len(STRENGTHS)] == list(STRENGTHS)
+        assert LIMIT in choice["distances"] and isinstance(choice["edge"], bool)
     rows = read_csv(layout.benchmark_table)
     assert {r["method"] for r in rows} >= {"bc", *(f"prior-{kind}" for kind in kinds), "prior-zero"}
     # another call (DAgger with the priors) reads the choice back instead of making it again

@@ -42,6 +42,8 @@ class Prior:
     """Flat float32, laid out as the head (weight rows, then bias)."""
     weight: torch.Tensor
     """Flat float32, >= 0: the strength times each coordinate's precision."""
+    pinned: bool = False
+    """At the prior's limit (an infinite strength): the fit takes no step and returns the mean."""
 
 
 @dataclass(frozen=True)
@@ -162,6 +164,9 @@ def fit_heads(fits: Sequence[HeadFit], *, out_dim: int, discrete: bool) -> list[
     out: list[FittedHead | None] = [None] * len(fits)
     groups: dict[tuple[float, float, int, bool], list[int]] = {}
     for i, fit in enumerate(fits):
+        if fit.prior is not None and fit.prior.pinned:  # the limit of the prior: the mean itself
+            out[i] = FittedHead(head=fit.prior.mean.to(torch.float32).clone(), losses=[])
+            continue
         groups.setdefault((fit.lr, fit.weight_decay, fit.batch_size, fit.prior is not None), []).append(i)
     for (lr, weight_decay, batch_size, _), members in groups.items():
         heads = _fit_group([fits[i] for i in members], lr, weight_decay, batch_size, out_dim, discrete)

@@ -10,10 +10,15 @@ as far as the seed's own data leaves the head undecided. A :class:`HeadPrior` ha
 - a **precision** per coordinate: the inverse of the variance of the training pairs' w_DA around
   their means (the mapper's predictions for them), floored at :data:`VARIANCE_FLOOR` times its
   mean over the coordinates;
-- a **strength** ``lam``, chosen from the fixed grid :data:`STRENGTHS` on the validation pairs
-  alone (:func:`choose_strengths`): each validation seed's demonstration is fitted, as the pairs
-  fitted it, once per strength, and the strength whose heads land nearest the seeds' w_DA (mean
-  squared distance) is kept, a tie going to the weaker.
+- a **strength** ``lam``, chosen on the validation pairs alone (:func:`choose_strengths`) from a
+  grid that runs from plain BC (0) through the fixed :data:`STRENGTHS` to the prior's limit, the
+  mean head itself (:data:`LIMIT`, an infinite strength: no fit at all). Each validation seed's
+  demonstration is fitted, as the pairs fitted it, once per finite strength, and the strength whose
+  heads land nearest the seeds' w_DA (mean squared distance) is kept, a tie going to the weaker.
+  While the largest finite strength is kept, the grid grows past it tenfold at a time (at most
+  :data:`EXTENSIONS` times), so that the choice does not sit at the grid's edge unseen; one rule
+  for every mean. Adam moves a weight by about the learning rate a step, so a fit from the fresh
+  head pulled however hard stops short of a far mean: the limit is what reaches it.
 
 The fit's loss is then the data's plus ``(lam / 2) * sum_j p_j (w_j - m_j)^2``
 (:class:`~metadagger.imitation.head_fits.Prior`; docs/method.md, "A prior for the head"). The
@@ -43,8 +48,12 @@ from metadagger.utils.io import read_json, write_json
 
 #: The mean of a prior without a mapper: the zero head.
 ZERO = "zero"
-#: The strengths ``lam`` a prior is chosen from, weakest first; fixed in advance (0: no prior).
+#: The finite strengths ``lam`` a prior is first chosen from, weakest first; fixed in advance (0: no prior).
 STRENGTHS = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+#: The grid's last point, after every finite strength: the mean head itself (no fit), as records name it.
+LIMIT = "limit"
+#: How many times the grid grows tenfold past its largest finite strength while that one is kept.
+EXTENSIONS = 4
 #: The floor of a coordinate's variance, as a share of the variances' mean over the coordinates.
 VARIANCE_FLOOR = 1e-2
 
@@ -57,10 +66,18 @@ class HeadPrior:
     mean: str
     precision: torch.Tensor
     strength: float = 0.0
+    limit: bool = False
+    """At the grid's limit: the head is the mean itself, whatever the data (``strength`` unused)."""
 
     def prior(self, mean_head: torch.Tensor) -> Prior:
         """The kernel's prior for a seed whose mean head is ``mean_head`` (:func:`mean_head`)."""
-        return Prior(mean=mean_head.to(torch.float32), weight=(self.strength * self.precision).to(torch.float32))
+        weight = (self.strength * self.precision).to(torch.float32)
+        return Prior(mean=mean_head.to(torch.float32), weight=weight, pinned=self.limit)
+
+    @property
+    def setting(self) -> float | str:
+        """The strength as records write it: a number, or :data:`LIMIT`."""
+        return LIMIT if self.limit else self.strength
 
 
 def mean_head(mapper: Mapper | None, w_bc: torch.Tensor, context: torch.Tensor | None = None) -> torch.Tensor:
@@ -98,14 +115,36 @@ def build_prior(split: PairSplit, mapper: Mapper | None) -> HeadPrior:
 
 @dataclass(frozen=True)
 class StrengthChoice:
-    """The strength :func:`choose_strengths` kept, and each strength's mean squared distance to w_DA."""
+    """The strength :func:`choose_strengths` kept (a number, or :data:`LIMIT`), each strength's mean
+    squared distance to w_DA, and whether the kept one is the grid's largest finite strength."""
 
-    strength: float
-    distances: dict[float, float]
+    strength: float | str
+    distances: dict[float | str, float]
+    edge: bool = False
+    """The kept strength is the largest finite one even after :data:`EXTENSIONS` extensions."""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON data for a stamp or a report."""
-        return {"strength": self.strength, "distances": {f"{k:g}": v for k, v in self.distances.items()}}
+        return {
+            "strength": self.strength,
+            "distances": {_name(k): v for k, v in self.distances.items()},
+            "edge": self.edge,
+        }
+
+
+def _name(strength: float | str) -> str:
+    return strength if isinstance(strength, str) else f"{strength:g}"
+
+
+@dataclass(frozen=True)
+class _ValidationSeed:
+    """One validation seed's plain fit (its demonstration, as the pairs fitted it), target and means."""
+
+    base: Any
+    target: torch.Tensor
+    means: list[torch.Tensor]
+    out_dim: int
+    discrete: bool
 
 
 def choose_strengths(
@@ -120,13 +159,15 @@ def choose_strengths(
     """Each prior (with the mapper of its mean, None for zero) at the strength whose fits of the
     validation seeds' demonstrations land nearest their w_DA, and the distances of every strength.
 
-    Each validation seed's demonstration is made once and fitted as the pairs fitted it (``fit``,
-    seeded by the seed, from the seed's fresh head), once per prior and strength, all of them
-    batched in one kernel call; no seed outside the validation split is read.
+    The grid is ``strengths``, then :data:`LIMIT` (the mean head itself); while a prior keeps its
+    grid's largest finite strength, that grid grows tenfold past it (:data:`EXTENSIONS` times at
+    most). Each validation seed's demonstration is made once and fitted as the pairs fitted it
+    (``fit``, seeded by the seed, from the seed's fresh head), once per prior and strength, batched
+    in one kernel call; no seed outside the validation split is read.
     """
     if not split.val_seeds:
         raise UserError("choosing a prior's strength needs validation pairs; keep some (pairs' split)")
-    totals = {mean: np.zeros(len(strengths)) for mean in priors}
+    seeds = []
     for row, seed in enumerate(split.val_seeds):
         context = None if split.context_val is None else split.context_val[row]
         with SeedLearner(task, pistar, seed, head_init_seed=fit.head_init_seed(seed)) as learner:
@@ -134,24 +175,67 @@ def choose_strengths(
             base = head_fit(
                 learner.policy, data, seeded(fit, seed), learner.cache, called=f"the prior fit of pair seed {seed}"
             )
+            out_dim, discrete = int(learner.policy.net.head.out_features), learner.policy.discrete
         means = [mean_head(mapper, split.w_bc_val[row], context) for _, mapper in priors.values()]
+        seeds.append(_ValidationSeed(base, split.w_da_val[row].to(torch.float32), means, out_dim, discrete))
+    distances = _distances(priors, seeds, strengths)
+    for mean, (prior, _) in priors.items():
+        limit = sum(float((v.means[list(priors).index(mean)] - v.target).double().square().mean()) for v in seeds)
+        distances[mean][LIMIT] = limit / len(seeds)
+    chosen = {}
+    for mean, (prior, mapper) in priors.items():
+        grid = [float(lam) for lam in strengths]
+        for _ in range(EXTENSIONS):
+            if _best(distances[mean]) != grid[-1] or grid[-1] == 0.0:
+                break
+            grid.append(grid[-1] * 10)
+            distances[mean].update(_distances({mean: (prior, mapper)}, seeds, grid[-1:], among=list(priors))[mean])
+        best = _best(distances[mean])
+        kept = dataclasses.replace(prior, strength=0.0 if best == LIMIT else float(best), limit=best == LIMIT)
+        ordered = {k: distances[mean][k] for k in [*grid, LIMIT]}
+        chosen[mean] = (kept, StrengthChoice(best, ordered, edge=best == grid[-1] and grid[-1] > 0.0))
+    return chosen
+
+
+def _best(distances: Mapping[float | str, float]) -> float | str:
+    """The strength of the least distance, a tie going to the weaker (the limit is the strongest)."""
+    order = {k: i for i, k in enumerate(sorted((k for k in distances if k != LIMIT), key=float))}
+    order[LIMIT] = len(order)
+    return min(distances, key=lambda k: (distances[k], order[k]))
+
+
+def _distances(
+    priors: Mapping[str, tuple[HeadPrior, Mapper | None]],
+    seeds: list[_ValidationSeed],
+    strengths: Sequence[float],
+    *,
+    among: list[str] | None = None,
+) -> dict[str, dict[float | str, float]]:
+    """Each prior's mean squared distance to w_DA over ``seeds`` at each of ``strengths`` (finite),
+    its fits batched; ``among``: the means ``seeds`` hold, in order (default: ``priors``')."""
+    names = list(priors) if among is None else among
+    totals = {mean: np.zeros(len(strengths)) for mean in priors}
+    for v in seeds:
         requests = [
-            dataclasses.replace(base, prior=dataclasses.replace(prior, strength=lam).prior(mean))
-            for (prior, _), mean in zip(priors.values(), means)
+            dataclasses.replace(
+                v.base, prior=dataclasses.replace(prior, strength=lam).prior(v.means[names.index(mean)])
+            )
+            for mean, (prior, _) in priors.items()
             for lam in strengths
         ]
-        heads = iter(
-            fit_heads(requests, out_dim=int(learner.policy.net.head.out_features), discrete=learner.policy.discrete)
-        )
-        target = split.w_da_val[row].to(torch.float32)
+        heads = iter(fit_heads(requests, out_dim=v.out_dim, discrete=v.discrete))
         for mean in priors:
-            totals[mean] += [float((next(heads).head - target).double().square().mean()) for _ in strengths]
-    chosen = {}
-    for mean, (prior, _) in priors.items():
-        distances = {float(lam): float(total / len(split.val_seeds)) for lam, total in zip(strengths, totals[mean])}
-        best = float(min(strengths, key=lambda lam: (distances[float(lam)], lam)))
-        chosen[mean] = (dataclasses.replace(prior, strength=best), StrengthChoice(best, distances))
-    return chosen
+            totals[mean] += [float((next(heads).head - v.target).double().square().mean()) for _ in strengths]
+    return {
+        mean: {float(lam): float(total / len(seeds)) for lam, total in zip(strengths, totals[mean])} for mean in priors
+    }
+
+
+def _kept(prior: HeadPrior, strength: float | str) -> HeadPrior:
+    """``prior`` at a recorded strength: a number, or :data:`LIMIT`."""
+    if strength == LIMIT:
+        return dataclasses.replace(prior, strength=0.0, limit=True)
+    return dataclasses.replace(prior, strength=float(strength))
 
 
 def split_fingerprint(split: PairSplit) -> str:
@@ -190,15 +274,14 @@ def chosen_priors(
         **inputs,
         "split": split_fingerprint(split),
         "fit": stamp_of(fit),
-        "strengths": list(STRENGTHS),
+        "strengths": [*STRENGTHS, LIMIT],
+        "extensions": EXTENSIONS,
         "variance_floor": VARIANCE_FLOOR,
     }
     built = {mean: build_prior(split, mapper) for mean, mapper in means.items()}
     made = read_json(record, "the priors' strengths") if record.is_file() else None
     if made is not None and made.get("stamp") == stamp and set(means) <= set(made.get("chosen", {})):
-        return {
-            mean: dataclasses.replace(p, strength=float(made["chosen"][mean]["strength"])) for mean, p in built.items()
-        }
+        return {mean: _kept(p, made["chosen"][mean]["strength"]) for mean, p in built.items()}
     if progress:
         print(f"priors: choosing strengths on {len(split.val_seeds)} validation pairs", file=sys.stderr, flush=True)
     chosen = choose_strengths({mean: (built[mean], mapper) for mean, mapper in means.items()}, task, pistar, split, fit)
@@ -207,6 +290,8 @@ def chosen_priors(
 
 
 __all__ = [
+    "EXTENSIONS",
+    "LIMIT",
     "STRENGTHS",
     "VARIANCE_FLOOR",
     "ZERO",

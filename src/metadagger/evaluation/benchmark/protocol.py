@@ -134,7 +134,7 @@ def benchmark_stamps(
 def prior_stamp(prior: HeadPrior) -> dict[str, Any]:
     """What a prior's rows are made from beyond its mean's mapper: its strength and precision."""
     precision = prior.precision.to(torch.float32).contiguous().numpy()
-    return {"strength": prior.strength, "precision_sha256": hashlib.sha256(precision.tobytes()).hexdigest()}
+    return {"strength": prior.setting, "precision_sha256": hashlib.sha256(precision.tobytes()).hexdigest()}
 
 
 def _mapper_path(layout: RunLayout, kind: str, mdi_mapper: str | None) -> Path:
