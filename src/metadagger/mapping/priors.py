@@ -38,7 +38,7 @@ import torch
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, head_fit
-from metadagger.imitation.head_fits import Prior, fit_heads
+from metadagger.imitation.head_fits import HeadFit, Prior, fit_heads
 from metadagger.mapping.mappers import Mapper
 from metadagger.metal_dagger.method import SeedLearner, demonstration, seeded
 from metadagger.metal_dagger.store import PairSplit
@@ -140,9 +140,10 @@ def _name(strength: float | str) -> str:
 class _ValidationSeed:
     """One validation seed's plain fit (its demonstration, as the pairs fitted it), target and means."""
 
-    base: Any
+    base: HeadFit
     target: torch.Tensor
-    means: list[torch.Tensor]
+    means: dict[str, torch.Tensor]
+    """Each prior's mean head for the seed, by the prior's mean."""
     out_dim: int
     discrete: bool
 
@@ -176,12 +177,13 @@ def choose_strengths(
                 learner.policy, data, seeded(fit, seed), learner.cache, called=f"the prior fit of pair seed {seed}"
             )
             out_dim, discrete = int(learner.policy.net.head.out_features), learner.policy.discrete
-        means = [mean_head(mapper, split.w_bc_val[row], context) for _, mapper in priors.values()]
+        means = {mean: mean_head(mapper, split.w_bc_val[row], context) for mean, (_, mapper) in priors.items()}
         seeds.append(_ValidationSeed(base, split.w_da_val[row].to(torch.float32), means, out_dim, discrete))
     distances = _distances(priors, seeds, strengths)
-    for mean, (prior, _) in priors.items():
-        limit = sum(float((v.means[list(priors).index(mean)] - v.target).double().square().mean()) for v in seeds)
-        distances[mean][LIMIT] = limit / len(seeds)
+    for mean in priors:  # the limit: the mean head itself, no fit
+        distances[mean][LIMIT] = sum(float((v.means[mean] - v.target).double().square().mean()) for v in seeds) / len(
+            seeds
+        )
     chosen = {}
     for mean, (prior, mapper) in priors.items():
         grid = [float(lam) for lam in strengths]
@@ -189,9 +191,9 @@ def choose_strengths(
             if _best(distances[mean]) != grid[-1] or grid[-1] == 0.0:
                 break
             grid.append(grid[-1] * 10)
-            distances[mean].update(_distances({mean: (prior, mapper)}, seeds, grid[-1:], among=list(priors))[mean])
+            distances[mean].update(_distances({mean: (prior, mapper)}, seeds, grid[-1:])[mean])
         best = _best(distances[mean])
-        kept = dataclasses.replace(prior, strength=0.0 if best == LIMIT else float(best), limit=best == LIMIT)
+        kept = _kept(prior, best)
         ordered = {k: distances[mean][k] for k in [*grid, LIMIT]}
         chosen[mean] = (kept, StrengthChoice(best, ordered, edge=best == grid[-1] and grid[-1] > 0.0))
     return chosen
@@ -208,18 +210,13 @@ def _distances(
     priors: Mapping[str, tuple[HeadPrior, Mapper | None]],
     seeds: list[_ValidationSeed],
     strengths: Sequence[float],
-    *,
-    among: list[str] | None = None,
 ) -> dict[str, dict[float | str, float]]:
     """Each prior's mean squared distance to w_DA over ``seeds`` at each of ``strengths`` (finite),
-    its fits batched; ``among``: the means ``seeds`` hold, in order (default: ``priors``')."""
-    names = list(priors) if among is None else among
+    its fits batched."""
     totals = {mean: np.zeros(len(strengths)) for mean in priors}
     for v in seeds:
         requests = [
-            dataclasses.replace(
-                v.base, prior=dataclasses.replace(prior, strength=lam).prior(v.means[names.index(mean)])
-            )
+            dataclasses.replace(v.base, prior=dataclasses.replace(prior, strength=lam).prior(v.means[mean]))
             for mean, (prior, _) in priors.items()
             for lam in strengths
         ]
