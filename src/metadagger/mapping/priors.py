@@ -181,9 +181,8 @@ def choose_strengths(
         seeds.append(_ValidationSeed(base, split.w_da_val[row].to(torch.float32), means, out_dim, discrete))
     distances = _distances(priors, seeds, strengths)
     for mean in priors:  # the limit: the mean head itself, no fit
-        distances[mean][LIMIT] = sum(float((v.means[mean] - v.target).double().square().mean()) for v in seeds) / len(
-            seeds
-        )
+        gaps = [float((v.means[mean] - v.target).double().square().mean()) for v in seeds]
+        distances[mean][LIMIT] = sum(gaps) / len(gaps)
     chosen = {}
     for mean, (prior, mapper) in priors.items():
         grid = [float(lam) for lam in strengths]
