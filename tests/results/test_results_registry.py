@@ -325,9 +325,8 @@ def test_a_changed_preset_marks_exactly_the_runs_whose_canonical_command_it_chan
     shutil.copytree(REPO / "results", tmp_path / "results")
     differing = build(tmp_path, check=True, files=pages)
     assert {block.split(" ")[1] for block in differing} >= {"runs"}
-    assert all(
-        any(name in block for name in marked) or block.split(" ")[1] in ("glance", "runs") for block in differing
-    )
+    every_run = [block for block in differing if len(block.split(" ")) == 2]  # a block naming no run shows them all
+    assert all(any(name in block for name in marked) or block in every_run for block in differing)
     build(tmp_path, files=pages[1:])
     row = next(line for line in pages[1].read_text().splitlines() if line.startswith(f"| `{target.name}` |"))
     assert "| stale: benchmark.lanes: " in row and " -> 7 |" in row

@@ -21,6 +21,7 @@ from typing import Callable, Sequence
 
 from metadagger.errors import UserError
 from metadagger.results import tables
+from metadagger.results.claims import claim
 from metadagger.results.registry import REGISTRY, load_registry
 from metadagger.results.staleness import registry_staleness
 from metadagger.results.tables import BlockContext
@@ -36,7 +37,8 @@ BLOCK = re.compile(
 FENCE = re.compile(r"^```.*?^```", re.S | re.M)
 
 
-#: Block kinds by name (:mod:`metadagger.results.tables`, :mod:`metadagger.results.verdict`).
+#: Block kinds by name (:mod:`metadagger.results.tables`, :mod:`metadagger.results.verdict`,
+#: :mod:`metadagger.results.claims`).
 BLOCKS: dict[str, Callable[..., str]] = {
     "glance": tables.glance,
     "runs": tables.runs_table,
@@ -46,6 +48,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "budgets": tables.budgets_table,
     "manifest": tables.manifest_line,
     "verdict": verdict,
+    "claim": claim,
 }
 
 #: The column at which generated prose is wrapped (tables, headings and images are never wrapped).
@@ -67,7 +70,10 @@ def wrap_prose(text: str, width: int = WRAP) -> str:
             continue
         marker = LIST_ITEM.match(line)
         indent = " " * len(marker.group(1)) if marker else ""
-        out += textwrap.wrap(line, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
+        wrapped = textwrap.wrap(line, width, subsequent_indent=indent, break_long_words=False, break_on_hyphens=False)
+        if marker and len(wrapped) > 1 and wrapped[0] == marker.group(1).strip():  # a first word too long to follow it
+            wrapped[:2] = [f"{wrapped[0]} {wrapped[1].lstrip()}"]
+        out += wrapped
     return "\n".join(out)
 
 

@@ -11,6 +11,7 @@
 - ``budgets [RUNS]``: the runs read at equal budgets and by the area under the curve.
 - ``verdict RUNS``: whether a MetaL DAgger method beats every one of its references
   (:mod:`metadagger.results.verdict`).
+- ``claim KIND RUNS``: one of the findings' claims, a line per run (:mod:`metadagger.results.claims`).
 - ``manifest RUN``: what made RUN: commit, CPU and kernels, wall time, what ran beside.
 
 A block about a run the registry does not hold yet says so, with the command that makes it.
@@ -37,6 +38,15 @@ from metadagger.results.staleness import stale_summary
 
 #: The controls, by benchmark method: zero-query heads every mapper must beat.
 CONTROLS = ("mdm-pistar-head", "mdm-mean-da")
+
+#: The references by the short names the findings' lines use.
+SHORT_NAMES = {CONTROLS[0]: "pi*'s head", CONTROLS[1]: "mean-DA", BC_REFIT: "BC refitted", "dagger": "DAgger"}
+
+
+def short_label(method: str) -> str:
+    """A method's name in a findings line: a reference's short name, else its label."""
+    return SHORT_NAMES.get(method, method_label(method))
+
 
 #: The paper's own figures for the at-a-glance table (Tables 1 and 7 of the paper), by task; the
 #: paper reports neither queries nor task families.
@@ -182,7 +192,7 @@ def runs_table(context: BlockContext) -> str:
     note = (
         "Each run is `metadagger reproduce --task TASK --preset PRESET --out runs/RUN` with the arguments shown. "
         "Wall time as measured, on the CPU named, with the other work the run's manifest names running beside it "
-        "on the same cores (docs/findings.md gives each run's); on an idle machine a run takes less. Status: "
+        "on the same cores (docs/results.md, 'What made each run'); on an idle machine a run takes less. Status: "
         "current, or stale with what departed (`setting: run's -> today's`): a stale run's numbers are those of "
         "the config and code that made it, kept and marked until its command is run again and `metadagger results "
         "add` takes the new folder (`metadagger results status` lists them)."
@@ -197,6 +207,18 @@ def _status(context: BlockContext, name: str) -> str:
         return "-"
     reasons = context.stale.get(name)
     return f"stale: {stale_summary(reasons)}" if reasons else "current"
+
+
+def run_names(names: str = "") -> list[str]:
+    """The canonical runs ``names`` (comma-separated; each must be one), or every one, the paper presets first."""
+    runs = [canonical_run(name) for name in names.split(",")] if names else list(CANONICAL_RUNS)
+    return [run.name for run in sorted(runs, key=lambda r: r.preset != "paper")]
+
+
+def run_item(context: BlockContext, found: RegistryRun) -> str:
+    """A run at the head of a list item: its name linked to its full report, marked where stale."""
+    stale = " (stale)" if context.stale.get(found.name) else ""
+    return f"[`{found.name}`]({context.link(found.path('report/report.md'))}){stale}"
 
 
 def _run_cell(context: BlockContext, name: str) -> str:
@@ -300,19 +322,19 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
     each one's ``benchmark/queries.csv``: at each budget and by the area under the curve, the best
     method (the oracle and the controls aside), its paired difference from the best gate there, and
     the oracle's success beside it."""
-    runs = [canonical_run(name) for name in names.split(",")] if names else list(CANONICAL_RUNS)
+    runs = run_names(names)
     rows = []
-    for run in sorted(runs, key=lambda r: r.preset != "paper"):
-        found = context.runs.get(run.name)
+    for name in runs:
+        found = context.runs.get(name)
         reading = None
         if found is not None and found.path("benchmark/queries.csv").is_file():
             reading = budget_reading(read_csv(found.path("benchmark/queries.csv")))
         if reading is None:
-            rows.append((f"`{run.name}`", "not run yet" if found is None else "no DAgger rows", "", "", "", ""))
+            rows.append((f"`{name}`", "not run yet" if found is None else "no DAgger rows", "", "", "", ""))
             continue
-        name = _run_cell(context, run.name)
-        rows += [(name, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
-        rows.append((name, "area", *_by_area(reading)))
+        cell = _run_cell(context, name)
+        rows += [(cell, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
+        rows.append((cell, "area", *_by_area(reading)))
     note = (
         "Every method read at the same spend on each unseen seed: the demonstration's queries plus a share of plain "
         "DAgger's final queries beyond them ([benchmark](benchmark.md), 'Equal budgets'); by area: the mean success "
@@ -322,7 +344,7 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
         "has it."
     )
     header = ("run", "budget", "best method", "success", "minus the best gate", "oracle")
-    return "\n".join([note, "", *markdown_table(header, rows), *_stale_names(context, [r.name for r in runs])])
+    return "\n".join([note, "", *markdown_table(header, rows), *_stale_names(context, runs)])
 
 
 def _at_budget(budget: dict[str, Any]) -> tuple[str, str, str, str]:
@@ -336,7 +358,7 @@ def _at_budget(budget: dict[str, Any]) -> tuple[str, str, str, str]:
     return (
         _curve(best),
         pct(best["success_rate"]),
-        _points(against[0]) if against else "=",
+        difference_points(against[0]) if against else "=",
         pct(max(e["success_rate"] for e in oracle)) if oracle else "-",
     )
 
@@ -359,7 +381,7 @@ def _by_area(reading: dict[str, Any]) -> tuple[str, str, str, str]:
     return (
         _curve(best),
         f"{area[(best['method'], float(best['demo_fraction']))]:.2f}",
-        _points(against[0]) if against else "=",
+        difference_points(against[0]) if against else "=",
         f"{max(oracle):.2f}" if oracle else "-",
     )
 
@@ -369,7 +391,8 @@ def _curve(entry: dict[str, Any]) -> str:
     return method_label(entry["method"]) + ("" if share == 1.0 else f" ({share:.0%} of the demonstration)")
 
 
-def _points(comparison: dict[str, Any]) -> str:
+def difference_points(comparison: dict[str, Any]) -> str:
+    """A paired difference in points with its 95% interval: ``+5 points (-3 to +13)``."""
     return (
         f"{100 * comparison['difference']:+.0f} points ({100 * comparison['ci_low']:+.0f} to "
         f"{100 * comparison['ci_high']:+.0f})"

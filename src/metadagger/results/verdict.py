@@ -1,6 +1,6 @@
 """The ``verdict`` block: does a MetaL DAgger method beat every one of its references at equal queries?
 
-Each run's benchmark summary reads every MetaL DAgger curve that reads a learned mapper against its
+Each run's benchmark rows (``queries.csv``) read every MetaL DAgger curve that reads a learned mapper against its
 references, on the same seeds and at the same spend: its constant twins (the same method with a
 control's head, or zero, in the mapper's place), BC refitted and the best gate; at each budget and
 by the area under the curve (:func:`~metadagger.evaluation.benchmark.summary.budget_reading`). A
@@ -15,24 +15,28 @@ from __future__ import annotations
 from typing import Any
 
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.results.tables import BlockContext, missing_run
+from metadagger.evaluation.benchmark.summary import budget_reading
+from metadagger.evaluation.rows import read_csv
+from metadagger.results.tables import BlockContext, missing_run, run_item, run_names, short_label
 
 Curve = tuple[str, float]
 
 
-def verdict(context: BlockContext, names: str) -> str:
-    """One item per run of ``names`` (comma-separated) and seed set: where a MetaL DAgger method
-    beats all its references, or that none does and the closest."""
+def verdict(context: BlockContext, names: str = "") -> str:
+    """One item per run of ``names`` (comma-separated; default every canonical run, the paper presets
+    first) and seed set: where a MetaL DAgger method beats all its references, or that none does
+    and the closest."""
     lines = []
-    for name in names.split(","):
+    for name in run_names(names):
         found = context.runs.get(name)
         if found is None:
             lines.append(f"- `{name}`: {missing_run(name)}")
             continue
-        sets = [("unseen seeds", "benchmark/summary.json"), ("confirmation seeds", "benchmark/confirm/summary.json")]
+        sets = [("unseen seeds", "benchmark/queries.csv"), ("confirmation seeds", "benchmark/confirm/queries.csv")]
         for seeds, path in sets:
             if found.path(path).is_file():
-                lines.append(f"- `{name}`, {_judged(found.json(path).get('budgets'), seeds)}")
+                reading = budget_reading(read_csv(found.path(path)))
+                lines.append(f"- {run_item(context, found)}, {_judged(reading, seeds)}")
     return "\n".join(lines)
 
 
@@ -52,10 +56,8 @@ def _judged(reading: dict[str, Any] | None, seeds: str) -> str:
     if above:
         return f"{head}: above every one of its references: " + "; ".join(_reading(k, groups[k]) for k in above) + "."
     closest = max(groups, key=lambda key: min(c["ci_low"] for c in groups[key]))
-    return (
-        f"{head}: no MetaL DAgger method is above all of its references at any budget or by area. "
-        f"Closest: {_reading(closest, groups[closest])}."
-    )
+    closest_reading = _reading(closest, groups[closest])
+    return f"{head}: none above all its references at any budget or by area; closest: {closest_reading}."
 
 
 def _reading(key: tuple[Curve, str], comparisons: list[dict[str, Any]]) -> str:
@@ -72,5 +74,5 @@ def _reading(key: tuple[Curve, str], comparisons: list[dict[str, Any]]) -> str:
 
 def _against(comparison: dict[str, Any]) -> str:
     fraction = float(comparison["against_demo_fraction"])
-    label = method_label(comparison["against"])
+    label = short_label(comparison["against"])
     return label if fraction == 1.0 else f"{label} ({fraction:.0%} of the demonstration)"

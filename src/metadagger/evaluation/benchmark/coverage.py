@@ -68,4 +68,14 @@ def gap_against_gain(gaps: Sequence[float], gains: Sequence[float]) -> dict[str,
     return {"seeds": seeds, "rho": float(rho), "p_value": float(p_value)}
 
 
+def rank_interval(rho: float | None, seeds: int, *, level: float = 0.95) -> tuple[float, float] | None:
+    """The ``level`` interval of Spearman's rho over ``seeds`` seeds: Fisher's z with Bonett and
+    Wright's variance, (1 + rho^2 / 2) / (seeds - 3); None without a rho or with fewer than 4 seeds."""
+    if rho is None or seeds < 4:
+        return None
+    z = math.atanh(min(max(rho, -0.999999), 0.999999))
+    half = stats.norm.ppf(0.5 + level / 2) * math.sqrt((1 + rho**2 / 2) / (seeds - 3))
+    return math.tanh(z - half), math.tanh(z + half)
+
+
 __all__ = ["VARIANCE_SHARE", "coverage_gap", "gap_against_gain"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from metadagger.evaluation.benchmark.coverage import rank_interval
 from metadagger.evaluation.benchmark.coverage_figure import has_twins, plot_coverage
 from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
@@ -320,6 +321,7 @@ def _coverage(layout: RunLayout, coverage: dict[str, Any] | None) -> list[str]:
             method_label(c["against"]),
             str(c["seeds"]),
             "-" if c["rho"] is None else f"{c['rho']:+.2f}",
+            _rank_interval_cell(c),
             "-" if c["p_value"] is None else f"{c['p_value']:.3f}",
         )
         for c in coverage["methods"]
@@ -342,9 +344,15 @@ def _coverage(layout: RunLayout, coverage: dict[str, Any] | None) -> list[str]:
             lambda path: plot_coverage(coverage, path),
         ),
         "",
-        *markdown_table(("method", "against", "seeds", "Spearman's rho", "p-value"), cells),
+        *markdown_table(("method", "against", "seeds", "Spearman's rho", "95% interval", "p-value"), cells),
         "",
     ]
+
+
+def _rank_interval_cell(comparison: dict[str, Any]) -> str:
+    """A rank correlation's 95% interval (Fisher's z), or - where there is none."""
+    interval = rank_interval(comparison["rho"], comparison["seeds"])
+    return "-" if interval is None else f"{interval[0]:+.2f} to {interval[1]:+.2f}"
 
 
 def _pair_key(comparison: dict[str, Any]) -> tuple[str, float, str, float]:

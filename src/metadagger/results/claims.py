@@ -1,0 +1,198 @@
+"""The ``claim`` blocks: the findings' claims, one line per run, each with the numbers that decide it.
+
+``<!-- results: claim KIND RUNS -->`` writes, for each run of ``RUNS`` (comma-separated), one list
+item: the run (linked to its full report in the registry, marked where stale), the two or three
+paired comparisons the claim ``KIND`` rests on (difference in points with its 95% interval), and
+what they show, worded from the intervals alone:
+
+- ``mappers``: the best MDM mapper (zero queries) against pi*'s head, mean-DA and BC refitted.
+- ``refits``: BC refitted and DAgger, each after its last round, against BC: does a refit keep
+  what BC had?
+- ``labels``: DAgger after its last round against BC refitted: what DAgger's labels add over its
+  refits' training alone.
+- ``oracle``: the learner's-mistakes rule (the oracle, a reference) against the best gate.
+- ``coverage``: whether the seeds' coverage gap predicts a MetaL method's gain over its constant
+  twin (Spearman's rho with its 95% interval, each comparison).
+
+The runs without the rows a claim reads (or not in the registry yet) are named in one line.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from metadagger.evaluation.benchmark.coverage import rank_interval
+from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.methods import BC_REFIT, MDM_PREFIX, gated_methods, reference_methods
+from metadagger.evaluation.benchmark.summary import refit_check
+from metadagger.evaluation.paired import verdict
+from metadagger.evaluation.rows import read_csv
+from metadagger.results.registry import RegistryRun
+from metadagger.results.tables import (
+    CONTROLS,
+    SHORT_NAMES,
+    BlockContext,
+    difference_points,
+    run_item,
+    run_names,
+    short_label,
+)
+
+#: What a claim reads of one run: its line's text, or None where the run lacks the rows it needs.
+Reader = Callable[[RegistryRun], "str | None"]
+
+#: What each verdict of a comparison says, by claim.
+SAYS = {
+    "refits": {"better": "above BC", "worse": "loses what BC had", "no difference shown": "not shown below BC"},
+    "labels": {
+        "better": "the labels add to the training",
+        "worse": "below BC refitted",
+        "no difference shown": "the labels not shown to add",
+    },
+    "oracle": {
+        "better": "the rule above the best gate",
+        "worse": "the best gate above the rule",
+        "no difference shown": "neither shown better",
+    },
+}
+
+
+def claim(context: BlockContext, kind: str, names: str = "") -> str:
+    """One list item per run of ``names`` (comma-separated; default every canonical run, the paper
+    presets first) with the numbers that decide claim ``kind``; then one line naming the runs
+    without the rows it reads."""
+    if kind not in CLAIMS:
+        raise ValueError(f"claim {kind!r} is not one of {', '.join(CLAIMS)}")
+    lines, without = [], []
+    for name in run_names(names):
+        found = context.runs.get(name)
+        text = CLAIMS[kind](found) if found and found.path("benchmark/summary.json").is_file() else None
+        if text is None:
+            without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))
+            continue
+        lines.append(f"- {run_item(context, found)}: {text}")
+    if without:
+        lines += ["", f"*Without the rows this claim reads: {', '.join(without)}.*"]
+    return "\n".join(lines)
+
+
+def _whole(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [e for e in entries if float(e.get("demo_fraction", 1.0)) == 1.0]
+
+
+def _count(entry: dict[str, Any], *, queries: bool = True) -> str:
+    """successes/seeds, at mean queries per seed."""
+    count = f"{entry['successes']}/{entry['seeds']}"
+    return count + (f" at {entry['mean_queries']:,.0f} queries" if queries else "")
+
+
+def _named(entry: dict[str, Any]) -> str:
+    setting = f" {entry['setting']}" if entry["setting"] else ""
+    return f"{method_label(entry['method'])}{setting}"
+
+
+def _found(summary: dict[str, Any], entry: dict[str, Any], against: str) -> dict[str, Any] | None:
+    """The summary's paired comparison of ``entry`` with reference method ``against``, if made."""
+    for c in summary.get("comparisons", []):
+        if (c["method"], c["setting"], float(c["demo_fraction"])) == (
+            entry["method"],
+            entry["setting"],
+            float(entry.get("demo_fraction", 1.0)),
+        ) and c["against"] == against:
+            return c
+    return None
+
+
+def _mappers(found: RegistryRun) -> str | None:
+    summary = found.json("benchmark/summary.json")
+    mapped = [
+        e for e in _whole(summary["entries"]) if e["method"].startswith(MDM_PREFIX) and e["method"] not in CONTROLS
+    ]
+    if not mapped:
+        return None
+    best = min(mapped, key=lambda e: (-e["success_rate"], e["method"]))
+    made = {a: c for a in (*CONTROLS, BC_REFIT) if (c := _found(summary, best, a)) is not None}
+    parts = [f"against {SHORT_NAMES[a]} {difference_points(c)}" for a, c in made.items()]
+    missed = [SHORT_NAMES[a] for a, c in made.items() if verdict(c) != "better"]
+    says = "better than every one" if not missed else f"not shown better than {', '.join(missed)}"
+    return (
+        f"best mapper {method_label(best['method'])} {_count(best, queries=False)}, " + "; ".join(parts) + f": {says}."
+    )
+
+
+def _refits(found: RegistryRun) -> str | None:
+    if not found.path("benchmark/queries.csv").is_file():
+        return None
+    checks = refit_check(read_csv(found.path("benchmark/queries.csv")))
+    if not checks:
+        return None
+    parts = [
+        f"{SHORT_NAMES[c['method']]} after {c['setting']} rounds {difference_points(c)} against BC, "
+        f"{SAYS['refits'][verdict(c)]}"
+        for c in checks
+    ]
+    return "; ".join(parts) + "."
+
+
+def _last_dagger(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
+    dagger = [e for e in _whole(entries) if e["method"] == "dagger"]
+    return max(dagger, key=lambda e: int(e["setting"])) if dagger else None
+
+
+def _labels(found: RegistryRun) -> str | None:
+    summary = found.json("benchmark/summary.json")
+    dagger = _last_dagger(summary["entries"])
+    refit = [e for e in _whole(summary["entries"]) if e["method"] == BC_REFIT]
+    c = _found(summary, dagger, BC_REFIT) if dagger else None
+    if c is None or not refit:
+        return None
+    return (
+        f"DAgger after {dagger['setting']} rounds {_count(dagger)}, BC refitted {_count(refit[0])}: "
+        f"{difference_points(c)}, {SAYS['labels'][verdict(c)]}."
+    )
+
+
+def _oracle(found: RegistryRun) -> str | None:
+    summary = found.json("benchmark/summary.json")
+    entries = _whole(summary["entries"])
+    gates = [r for r in summary.get("references", []) if r["method"] in gated_methods()]
+    oracle = [e for e in entries if e["method"] in reference_methods()]
+    if not gates or not oracle:
+        return None
+    rule = max(oracle, key=lambda e: (e["success_rate"], -e["mean_queries"]))
+    gate = next(e for e in entries if (e["method"], e["setting"]) == (gates[0]["method"], gates[0]["setting"]))
+    c = _found(summary, rule, gate["method"])
+    if c is None:
+        return None
+    return (
+        f"the rule at {rule['setting']} {_count(rule)}, the best gate ({_named(gate)}) {_count(gate)}: "
+        f"{difference_points(c)}, {SAYS['oracle'][verdict(c)]}."
+    )
+
+
+def _coverage(found: RegistryRun) -> str | None:
+    coverage = found.json("benchmark/summary.json").get("coverage")
+    ranked = [c for c in (coverage or {}).get("methods", []) if c["rho"] is not None]
+    if not ranked:
+        return None
+    parts, above = [], []
+    for c in ranked:
+        low, high = rank_interval(c["rho"], c["seeds"]) or (float("nan"), float("nan"))
+        pair = f"{method_label(c['method'])} against {short_label(c['against'])}"
+        parts.append(f"{pair} {c['rho']:+.2f} ({low:+.2f} to {high:+.2f})")
+        if low > 0:
+            above.append(pair)
+    says = f"the gap predicts the gain for {', '.join(above)}" if above else "no interval lies above 0"
+    return (
+        f"over {ranked[0]['seeds']} seeds, Spearman's rho of the gap with the gain: " + "; ".join(parts) + f": {says}."
+    )
+
+
+#: The claims by kind.
+CLAIMS: dict[str, Reader] = {
+    "mappers": _mappers,
+    "refits": _refits,
+    "labels": _labels,
+    "oracle": _oracle,
+    "coverage": _coverage,
+}

@@ -1,0 +1,131 @@
+"""The findings' claim blocks: each line's numbers come from the run's rows, and its words from their intervals."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+from rows_kit import registry_context, rows
+
+from metadagger.evaluation.benchmark.coverage import rank_interval
+from metadagger.results.blocks import wrap_prose
+from metadagger.results.claims import claim
+from metadagger.results.tables import BlockContext
+
+REPOSITORY = Path(__file__).resolve().parents[2]
+NAME = "carracing-paper"
+
+
+@pytest.fixture
+def run_rows() -> list[dict]:
+    return [
+        *rows("bc", "", 10, 500),
+        *rows("bc-refit", "3", 10, 500),
+        *rows("dagger", "3", 20, 3000),
+        *rows("mdm-ridge", "", 18, 500),
+        *rows("mdm-mean-da", "", 17, 500),
+        *rows("mdm-pistar-head", "", 2, 500),
+        *rows("dagger-safe", "0.5", 14, 1200),
+        *rows("dagger-oracle", "0.5", 4, 2000),
+    ]
+
+
+def _line(context: BlockContext, kind: str) -> str:
+    lines = claim(context, kind, "carracing-paper").splitlines()
+    assert len(lines) == 1, lines
+    return lines[0]
+
+
+def test_the_mapper_line_names_its_paired_intervals_and_what_they_show(tmp_path, run_rows):
+    line = _line(registry_context(tmp_path, NAME, run_rows, stale=True), "mappers")
+    assert line.startswith("- [`carracing-paper`](../results/carracing-paper/report/report.md) (stale): ")
+    assert "best mapper MDM Ridge 18/20" in line
+    assert "against pi*'s head +80 points (+" in line  # 18 against 2 of 20
+    assert "against mean-DA +5 points (" in line and "against BC refitted +40 points (+" in line
+    assert line.endswith("not shown better than mean-DA.")
+
+
+def test_refits_and_labels_read_against_bc_and_bc_refitted(tmp_path, run_rows):
+    context = registry_context(tmp_path, NAME, run_rows)
+    refits = _line(context, "refits")
+    assert "BC refitted after 3 rounds +0 points (+0 to +0) against BC, not shown below BC" in refits
+    assert "DAgger after 3 rounds +50 points (+" in refits and refits.endswith("above BC.")
+    labels = _line(context, "labels")
+    assert "DAgger after 3 rounds 20/20 at 3,000 queries, BC refitted 10/20 at 500 queries: +50 points" in labels
+    assert labels.endswith("the labels add to the training.")
+
+
+def test_a_refit_that_loses_what_bc_had_is_said_so(tmp_path, run_rows):
+    made = [r for r in run_rows if r["method"] != "dagger"] + rows("dagger", "3", 0, 3000)
+    line = _line(registry_context(tmp_path, NAME, made), "refits")
+    assert "; DAgger after 3 rounds -50 points (-" in line and line.endswith(") against BC, loses what BC had.")
+
+
+def test_the_oracle_is_read_against_the_best_gate(tmp_path, run_rows):
+    line = _line(registry_context(tmp_path, NAME, run_rows), "oracle")
+    assert "the rule at 0.5 4/20 at 2,000 queries, the best gate (DAgger, SafeDAgger gate 0.5) 14/20 at 1,200" in line
+    assert line.endswith("the best gate above the rule.")
+
+
+def test_runs_without_the_rows_a_claim_reads_are_named_in_one_line(tmp_path, run_rows):
+    made = [r for r in run_rows if r["method"] not in ("bc-refit", "dagger-oracle")]
+    context = registry_context(tmp_path, NAME, made)
+    for kind in ("labels", "oracle"):
+        assert claim(context, kind, "carracing-paper") == "\n*Without the rows this claim reads: `carracing-paper`.*"
+    text = claim(context, "refits", "carracing-paper,fetch-paper")
+    assert text.endswith("*Without the rows this claim reads: `fetch-paper` (not in the registry yet).*")
+    with pytest.raises(ValueError, match="claim 'ceiling' is not one of mappers, refits"):
+        claim(context, "ceiling", "carracing-paper")
+
+
+def test_the_rank_correlation_interval_holds_rho_and_narrows_with_seeds():
+    low, high = rank_interval(0.5, 20)
+    assert -1 < low < 0.5 < high < 1
+    wide, narrow = rank_interval(0.5, 10), rank_interval(0.5, 100)
+    assert wide[0] < low < narrow[0] and narrow[1] < high < wide[1]
+    assert rank_interval(-0.3, 20) == pytest.approx(tuple(-x for x in reversed(rank_interval(0.3, 20))))
+    assert rank_interval(None, 20) is None and rank_interval(0.9, 3) is None
+    # Fisher's z with Bonett and Wright's variance, by hand
+    half = 1.959963984540054 * math.sqrt((1 + 0.5**2 / 2) / 17)
+    assert low == pytest.approx(math.tanh(math.atanh(0.5) - half))
+
+
+def test_a_list_item_whose_first_word_is_longer_than_the_line_keeps_it_beside_its_marker():
+    link = "[`carracing-family-paper-per-seed-init`](../results/carracing-family-paper-per-seed-init/report.md)"
+    wrapped = wrap_prose(f"- {link} (stale): one two three four five six seven eight nine ten eleven twelve.")
+    first, *rest = wrapped.splitlines()
+    assert first == f"- {link}" and all(line.startswith("  ") for line in rest)
+
+
+def test_the_findings_page_and_the_readme_stay_short():
+    findings = (REPOSITORY / "docs" / "findings.md").read_text().splitlines()
+    readme = (REPOSITORY / "README.md").read_text().splitlines()
+    assert len(findings) <= 250 and len(readme) <= 180
+    long = [
+        (name, i + 1)
+        for name, lines in (("findings", findings), ("README", readme))
+        for i, line in enumerate(lines)
+        if len(line) > 200
+    ]
+    assert not long, long
+
+
+def test_the_coverage_line_gives_each_rank_correlation_with_its_interval(tmp_path):
+    dagger = rows("dagger", "3", 20, 3000)
+    for i, row in enumerate(dagger):
+        row["coverage_gap"] = i / 20  # the later seeds, the larger gaps
+    ridge = rows("mdm-ridge", "", 20, 500)
+    for i, row in enumerate(ridge):
+        row["success"] = i >= 10  # the mapper solves the seeds with the larger gaps only
+    made = [
+        *rows("bc", "", 0, 500),
+        *dagger,
+        *ridge,
+        *rows("mdm-mean-da", "", 0, 500),
+        *rows("mdm-pistar-head", "", 0, 500),
+    ]
+    line = _line(registry_context(tmp_path, NAME, made), "coverage")
+    rho = "+0.87 (+0.64 to +0.95)"  # the gains are 0 on the first ten seeds, 1 on the last ten
+    assert f"over 20 seeds, Spearman's rho of the gap with the gain: MDM Ridge against mean-DA {rho}" in line
+    assert line.endswith("the gap predicts the gain for MDM Ridge against mean-DA, MDM Ridge against pi*'s head.")
