@@ -13,7 +13,9 @@ is refused with one line (:func:`~metadagger.runfolder.made_by.check_version`).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -151,6 +153,18 @@ class RunConfig:
         return {"max_episode_steps": self.max_episode_steps}
 
 
+@functools.lru_cache(maxsize=None)
+def _packaged_presets(task: str) -> Any:
+    """The ``presets`` of ``task``'s packaged YAML file, read once (callers get a copy)."""
+    try:
+        text = resources.files("metadagger.pipeline.presets").joinpath(f"{task}.yaml").read_text()
+    except FileNotFoundError:
+        raise UserError(
+            f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)"
+        ) from None
+    return yaml.safe_load(text).get("presets")
+
+
 def load_preset(task: str, preset: str, presets_file: str | Path | None = None) -> dict[str, Any]:
     """The raw mapping of one preset: from the task's packaged YAML file, or from ``presets_file``
     (a YAML file of the same layout, ``presets: {name: {section: ...}}``, any preset names)."""
@@ -161,14 +175,8 @@ def load_preset(task: str, preset: str, presets_file: str | Path | None = None) 
                 f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}, "
                 "or pass --presets FILE with presets of your own (see docs/custom_task.md)"
             )
-        try:
-            text = resources.files("metadagger.pipeline.presets").joinpath(f"{task}.yaml").read_text()
-        except FileNotFoundError:
-            raise UserError(
-                f"task {task!r} has no packaged presets: pass --presets FILE (see docs/custom_task.md)"
-            ) from None
         where = f"metadagger/pipeline/presets/{task}.yaml"
-        presets = yaml.safe_load(text).get("presets")
+        presets = copy.deepcopy(_packaged_presets(task))
     else:
         where = str(presets_file)
         presets = read_yaml_mapping(

@@ -73,8 +73,9 @@ def _made_with(run: RegistryRun) -> dict[str, Any]:
 
 
 def _as_data(config: RunConfig) -> dict[str, Any]:
-    """A config as its ``config.yaml`` holds it."""
-    return yaml.safe_load(dump_yaml(config))
+    """A config as its ``config.yaml`` holds it (read back with libyaml's parser where PyYAML has it:
+    the same safe constructor and resolver, several times faster on a paper preset's seed lists)."""
+    return yaml.load(dump_yaml(config), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
 
 
 def _settings(data: Mapping[str, Any]) -> dict[str, Any]:

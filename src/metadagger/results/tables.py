@@ -20,6 +20,7 @@ A block about a run the registry does not hold yet says so, with the command tha
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import os
 import re
@@ -317,6 +318,22 @@ def figure(context: BlockContext, names: str, path: str, alt: str) -> str:
     return missing_run(names.split(",")[0])
 
 
+#: Equal-budget readings by the SHA-256 of the rows they were read from.
+_READINGS: dict[str, dict[str, Any] | None] = {}
+
+
+def rows_reading(path: Path) -> dict[str, Any] | None:
+    """The equal-budget reading of the benchmark rows in ``path`` (``queries.csv``); None without the
+    file or without DAgger rows. The same bytes are read once per process (the verdict and the
+    budgets table both read every run's, and a copy of the registry reads as the registry)."""
+    if not path.is_file():
+        return None
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if digest not in _READINGS:
+        _READINGS[digest] = budget_reading(read_csv(path))
+    return _READINGS[digest]
+
+
 def budgets_table(context: BlockContext, names: str = "") -> str:
     """The canonical runs ``names`` (comma-separated; default every one) read at equal budgets, from
     each one's ``benchmark/queries.csv``: at each budget and by the area under the curve, the best
@@ -326,9 +343,7 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
     rows = []
     for name in runs:
         found = context.runs.get(name)
-        reading = None
-        if found is not None and found.path("benchmark/queries.csv").is_file():
-            reading = budget_reading(read_csv(found.path("benchmark/queries.csv")))
+        reading = rows_reading(found.path("benchmark/queries.csv")) if found is not None else None
         if reading is None:
             rows.append((f"`{name}`", "not run yet" if found is None else "no DAgger rows", "", "", "", ""))
             continue

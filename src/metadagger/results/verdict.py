@@ -15,9 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.evaluation.benchmark.summary import budget_reading
-from metadagger.evaluation.rows import read_csv
-from metadagger.results.tables import BlockContext, missing_run, run_item, run_names, short_label
+from metadagger.results.tables import BlockContext, missing_run, rows_reading, run_item, run_names, short_label
 
 Curve = tuple[str, float]
 
@@ -35,8 +33,7 @@ def verdict(context: BlockContext, names: str = "") -> str:
         sets = [("unseen seeds", "benchmark/queries.csv"), ("confirmation seeds", "benchmark/confirm/queries.csv")]
         for seeds, path in sets:
             if found.path(path).is_file():
-                reading = budget_reading(read_csv(found.path(path)))
-                lines.append(f"- {run_item(context, found)}, {_judged(reading, seeds)}")
+                lines.append(f"- {run_item(context, found)}, {_judged(rows_reading(found.path(path)), seeds)}")
     return "\n".join(lines)
 
 
