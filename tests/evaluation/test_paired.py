@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from metadagger.evaluation.benchmark.protocol import summarize_benchmark
-from metadagger.evaluation.paired import paired_comparison, verdict
+from metadagger.evaluation.paired import paired_comparison, smallest_shown_difference, verdict
 
 
 def test_counts_difference_exact_test_and_probability_of_improvement():
@@ -81,3 +81,16 @@ def test_the_summary_compares_every_method_with_each_control_and_the_best_gate()
     dm = pairs[("mdm-dm", "", "mdm-mean-da", "")]
     assert (dm["only_a"], dm["only_b"], dm["difference"]) == (1, 0, 0.25)
     assert pairs[("bc", "", "dagger-random", "0.05")]["difference"] == -0.75
+
+
+@pytest.mark.parametrize("seeds", [5, 20, 50])
+def test_the_smallest_shown_difference_is_the_least_one_way_discordance_the_verdict_calls_better(seeds):
+    floor = smallest_shown_difference(seeds)
+    k = round(floor * seeds)
+
+    def one_way(solved: int) -> dict:
+        a = [True] * solved + [False] * (seeds - solved)
+        return paired_comparison(a, [False] * seeds, [1.0] * seeds, [0.0] * seeds)
+
+    assert verdict(one_way(k)) == "better" and verdict(one_way(k - 1)) == "no difference shown"
+    assert smallest_shown_difference(40) == pytest.approx(0.1)  # the seeds a 10-point difference needs at the least

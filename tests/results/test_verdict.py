@@ -8,6 +8,7 @@ from metadagger.results.tables import BlockContext
 from metadagger.results.verdict import verdict
 
 NAME = "carracing-family-paper"
+SHOWS = "(a difference shows from 20 points)"  # 4 of 20 seeds one way: smallest_shown_difference(20)
 
 
 def _benchmark(ridge: int, mean_da: int) -> list[dict]:
@@ -28,17 +29,17 @@ def test_a_method_above_every_reference_is_named_with_its_intervals(tmp_path):
     unseen, confirmation = verdict(context, NAME).splitlines()
     link = f"- [`{NAME}`](../results/{NAME}/report/report.md)"
     assert unseen.startswith(
-        f"{link}, 20 unseen seeds: above every one of its references: MDM Ridge at demonstration +5%"
+        f"{link}, 20 unseen seeds {SHOWS}: above every one of its references: MDM Ridge at demonstration +5%"
     )
     for reference in ("mean-DA", "pi*'s head", "BC refitted", "DAgger, SafeDAgger gate"):
         assert f"against {reference} +100 points (+100 to +100)" in unseen
-    assert confirmation.startswith(f"{link}, 20 confirmation seeds: none above all its references")
+    assert confirmation.startswith(f"{link}, 20 confirmation seeds {SHOWS}: none above all its references")
     assert "closest: MDM Ridge" in confirmation and "against mean-DA +0 points (+0 to +0)" in confirmation
 
 
 def test_a_stale_run_is_judged_from_its_rows_and_marked(tmp_path):
     line = verdict(registry_context(tmp_path, NAME, _benchmark(10, 10), stale=True), NAME)
-    assert line.startswith(f"- [`{NAME}`](../results/{NAME}/report/report.md) (stale), 20 unseen seeds: none above")
+    assert line.startswith(f"- [`{NAME}`](../results/{NAME}/report/report.md) (stale), 20 unseen seeds {SHOWS}: none")
 
 
 def test_a_run_not_in_the_registry_says_how_to_add_it(tmp_path):

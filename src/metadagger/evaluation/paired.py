@@ -15,6 +15,7 @@ A says nothing better than B unless the interval of ``difference`` lies above 0.
 
 from __future__ import annotations
 
+import functools
 from typing import Any, Sequence
 
 import numpy as np
@@ -82,6 +83,18 @@ def paired_comparison(
         "p_value": float(stats.binomtest(only_a, discordant, 0.5).pvalue) if discordant else 1.0,
         "p_improvement": float(np.mean((ra > rb) + 0.5 * (ra == rb))),
     }
+
+
+@functools.lru_cache(maxsize=None)
+def smallest_shown_difference(seeds: int) -> float | None:
+    """The smallest difference in success (a share) that :func:`verdict` can call better on ``seeds``
+    paired seeds: k seeds solved by one method only and every other seed alike, for the least k
+    whose interval lies above 0; None where not even every seed would show."""
+    for k in range(1, seeds + 1):
+        a = np.r_[np.ones(k), np.zeros(seeds - k)]
+        if _interval(a, np.zeros(seeds))[0] > 0:
+            return k / seeds
+    return None
 
 
 def verdict(comparison: dict[str, Any]) -> str:

@@ -15,6 +15,7 @@ from __future__ import annotations
 from typing import Any
 
 from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.paired import smallest_shown_difference
 from metadagger.results.tables import BlockContext, missing_run, rows_reading, run_item, run_names, short_label
 
 Curve = tuple[str, float]
@@ -46,7 +47,9 @@ def _judged(reading: dict[str, Any] | None, seeds: str) -> str:
     for where, comparisons in readings:
         for c in comparisons:
             groups.setdefault(((c["method"], float(c["demo_fraction"])), where), []).append(c)
-    head = f"{len(reading['seeds'])} {seeds}"
+    floor = smallest_shown_difference(len(reading["seeds"]))
+    shows = "no difference can show" if floor is None else f"a difference shows from {100 * floor:.0f} points"
+    head = f"{len(reading['seeds'])} {seeds} ({shows})"
     if not groups:
         return f"{head}: no method that reads a learned mapper ran."
     above = [key for key, comparisons in groups.items() if all(c["ci_low"] > 0 for c in comparisons)]

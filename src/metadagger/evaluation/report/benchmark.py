@@ -16,7 +16,7 @@ from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.benchmark.methods import MDM_PREFIX, reference_methods
 from metadagger.evaluation.benchmark.summary import refit_check
-from metadagger.evaluation.paired import verdict
+from metadagger.evaluation.paired import smallest_shown_difference, verdict
 from metadagger.evaluation.report.tables import figure_lines, markdown_table, pct
 from metadagger.evaluation.rows import read_csv
 from metadagger.runfolder.layout import RunLayout
@@ -197,6 +197,17 @@ def _curve_label(entry: dict[str, Any], side: str = "method") -> str:
     return label if share == 1.0 else f"{label}, {share:.0%} of the demonstration"
 
 
+def _floor(seeds: int) -> str:
+    """What these seeds can show: the smallest difference a paired interval can put above 0."""
+    floor = smallest_shown_difference(seeds)
+    if floor is None:
+        return f"On {seeds} seeds no paired interval can lie above 0."
+    return (
+        f"On {seeds} seeds a paired interval lies above 0 only from a difference of {100 * floor:.0f} points "
+        "(that many seeds solved by one method only, the others alike): a smaller one cannot show here."
+    )
+
+
 def _budgets(reading: dict[str, Any] | None, where: str = "") -> list[str]:
     """Every method at equal budgets and by its area under the curve, and the best at each, paired;
     ``where`` names the seeds in the headings (the confirmation seeds')."""
@@ -227,7 +238,7 @@ def _budgets(reading: dict[str, Any] | None, where: str = "") -> list[str]:
         "brackets). A method is read at its last row within the budget (by queries), else at BC's outcome if "
         "the demonstration fits, else as a failure. The area under the curve is the mean of that success over "
         f"{reading['auc_points']} log-spaced budgets from the demonstration's queries to DAgger's final queries "
-        "(docs/benchmark.md, 'Equal budgets').",
+        f"(docs/benchmark.md, 'Equal budgets'). {_floor(len(reading['seeds']))}",
         "",
         *markdown_table(header, cells),
         "",
