@@ -189,3 +189,22 @@ def test_bench_reproduce_times_the_preset_and_its_overrides_side_by_side():
     assert set(preset["stages"]) >= {"pistar", "pairs", "benchmark"} and preset["peak_memory_mb"] > 100
     # the lanes move the benchmark's last bits, nothing before it
     assert preset["sha256"][TABLES[0]] == laned["sha256"][TABLES[0]]
+
+
+def test_bench_step_takes_a_laned_step_apart_without_touching_the_run(carracing_ci_run, tmp_path):
+    from metadagger.cli.bench_lanes import bench_step
+
+    run = tmp_path / "run"
+    shutil.copytree(carracing_ci_run, run)
+    before = (run / "benchmark" / "rows.jsonl").read_bytes()
+    result = bench_step(run, width=4, overrides=("benchmark.methods=[bc, dagger]",))
+    assert (run / "benchmark" / "rows.jsonl").read_bytes() == before
+    assert (result["seed"], result["width"]) == (5000, 4) and result["env_steps"] > 0 and result["trunk_forwards"] > 0
+    seconds = result["seconds"]
+    parts = seconds["env_step"] + seconds["expert_labels"] + seconds["trunk_forward"] + result["rest_of_the_step"]
+    assert parts == pytest.approx(seconds["lanes_step"]) and min(seconds.values()) > 0
+    assert result["step_over_env"] == pytest.approx(seconds["lanes_step"] / seconds["env_step"])
+    assert result["step_over_env"] > 1
+    assert result["per_env_step_ms"]["env_step"] == pytest.approx(1000 * seconds["env_step"] / result["env_steps"])
+    with pytest.raises(UserError, match="bench step needs --lanes from 1 to 256"):
+        bench_step(run, width=0)

@@ -173,3 +173,39 @@ def test_a_laned_episode_keeps_its_features_and_no_image_unless_asked():
     np.testing.assert_array_equal(FeatureCache(policy).features_of(data).numpy(), kept.features)
     with pytest.raises(RuntimeError, match="not kept"):
         FeatureCache(policy).features(bare.obs)
+
+
+def test_few_live_lanes_step_in_a_smaller_batch_only_where_it_gives_the_widths_bits():
+    """With 16 lanes, a step with few live lanes runs the trunk on 8 rows where that shape gives
+    every row the width's bits; the episodes are those of the full width, bit for bit."""
+    task = CorridorTask(discrete=True)
+    net = make_policy(task, seed=3).net
+    requests = [EpisodeRequest(seed, head, keep_images=True) for seed, head in zip(SEEDS, _heads(task, len(SEEDS)))]
+    with Lanes(task, net, width=16) as lanes:
+        assert lanes.shapes[-1] == 16 and all(s % 8 == 0 for s in lanes.shapes)
+        cut = lanes.run(requests)
+        lanes.shapes = [16]  # every step at the width, each lane in its own row
+        whole = lanes.run(requests)
+    for a, b in zip(cut, whole):
+        _same(a, b)
+
+
+def test_a_trunk_whose_rows_depend_on_their_place_keeps_the_width_and_each_lanes_row():
+    """A trunk that computes a tail of the batch otherwise (here: the last row scaled) fails the
+    check: every step then runs at the width, each lane in its own row."""
+    task = CorridorTask(discrete=True)
+    net = make_policy(task, seed=3).net
+    plain = net.trunk
+
+    class TailOtherwise(torch.nn.Module):
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            out = plain(x).clone()
+            out[-1] *= 1.0000001
+            return out
+
+    net.trunk = TailOtherwise()
+    with Lanes(task, net, width=16) as lanes:
+        assert lanes.shapes == [16]
+    net.trunk = plain
+    with Lanes(task, net, width=7) as lanes:
+        assert lanes.shapes == [7]  # no shape of 8 rows below the width

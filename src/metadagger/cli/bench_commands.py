@@ -139,6 +139,22 @@ def bench_lanes_cmd(
     )
 
 
+@bench_app.command("step")
+@user_errors
+def bench_step_cmd(
+    out: Path = OUT,
+    seed: Optional[int] = typer.Option(None, "--seed", help="The benchmark seed to time (default: the run's first)."),
+    lanes: Optional[int] = typer.Option(None, "--lanes", help="The lane width (default: the run's benchmark.lanes)."),
+    overrides: list[str] = SET,
+    json_out: Path = typer.Option(Path("runs/bench/step.json"), "--json", help="JSON file to write."),
+) -> None:
+    """Where a laned benchmark step's time goes: the env's own step, the expert's labels, pi*'s
+    trunk and the rest, per env step, and a step's time over the env's own."""
+    from metadagger.cli.bench_lanes import bench_step
+
+    _measure_and_write(json_out, "--json", lambda: bench_step(out, seed=seed, width=lanes, overrides=tuple(overrides)))
+
+
 @bench_app.command("reproduce")
 @user_errors
 def bench_reproduce_cmd(

@@ -5,7 +5,9 @@ them: every step it stacks the live lanes' observations into one batch of exactl
 (the idle rows zero), runs pi*'s trunk on it once, applies each lane's own head to its row, and
 steps each lane's env. At a fixed batch shape a row's output does not depend on the other rows
 (tests/imitation/test_lanes.py checks it), so an episode is the same whichever episodes share its
-steps, and whichever lane it runs in; it depends on the width, which the config fixes.
+steps, and whichever lane it runs in; it depends on the width, which the config fixes. When few
+lanes are live the batch is cut to a smaller shape, but only to one checked, when the lanes are
+made, to give every row the width's very bits (:data:`SHAPE_STEP`): the numbers stay the width's.
 
 The trunk features computed to act are kept with the trajectory (:attr:`Trajectory.features`),
 so the fits, gates and contexts that read the episode later need no second trunk pass.
@@ -44,6 +46,10 @@ T = TypeVar("T")
 
 #: The most lanes a config may ask for.
 MAX_LANES = 256
+
+#: A step's trunk forward runs on the live lanes' rows alone, padded to a multiple of this many
+#: rows where that shape gives the width's bits (:meth:`Lanes._exact_shapes`), else to the width.
+SHAPE_STEP = 8
 
 #: Bumped by every change to what a laned run (lanes above 1) computes: stamped beside the width
 #: (:func:`lanes_stamp`), so that laned artifacts made before the change are stale.
@@ -136,6 +142,35 @@ class Lanes:
         self._batch = np.zeros((width, *net.arch["obs_shape"]), dtype=np.uint8)
         #: trunk forwards so far (one per step of the live lanes)
         self.forwards = 0
+        #: the batch shapes a step's trunk forward may take, smallest first (:meth:`_exact_shapes`)
+        self.shapes = self._exact_shapes()
+
+    def _features(self, images: np.ndarray) -> torch.Tensor:
+        """pi*'s trunk on a batch of images, on the compute device; the features on the CPU."""
+        return self._trunk(self.net.preprocess(torch.from_numpy(images).to(self._device))).cpu()
+
+    def _exact_shapes(self) -> list[int]:
+        """The batch shapes, below the width, at which the trunk gives each row the very bits it gives
+        it in a batch of ``width`` rows, then the width. Checked once, on a probe batch of random
+        images and on the same batch reversed: a shape is kept when its rows, in either order, are
+        the width's rows. None is kept unless the width's own rows keep their bits when reversed (a
+        kernel that computes a tail of the batch otherwise gives a row in the tail other bits, and
+        then an episode's bits depend on its lane, so its lane must stay its row)."""
+        candidates = range(SHAPE_STEP, self.width, SHAPE_STEP)
+        if not candidates:
+            return [self.width]
+        probe = np.random.default_rng(0).integers(0, 256, size=self._batch.shape, dtype=np.uint8)
+        with torch.inference_mode():
+            full = self._features(probe)
+            if not torch.equal(self._features(probe[::-1].copy()), full.flip(0)):
+                return [self.width]
+            exact = [
+                s
+                for s in candidates
+                if torch.equal(self._features(probe[:s]), full[:s])
+                and torch.equal(self._features(probe[:s][::-1].copy()), full[:s].flip(0))
+            ]
+        return [*exact, self.width]
 
     def free(self) -> list[int]:
         """The idle lanes, in order."""
@@ -158,18 +193,22 @@ class Lanes:
         live = [i for i, lane in enumerate(self._lanes) if lane is not None]
         if not live:
             return []
-        self._batch[:] = 0
-        for i in live:
-            self._batch[i] = self._lanes[i].episode.obs
+        # the live lanes' images in the smallest exact shape that holds them: each lane in its own row
+        # at the width (its bits may depend on its row), else in the first rows
+        shape = next(shape for shape in self.shapes if shape >= len(live))
+        rows = live if shape == self.width else list(range(len(live)))
+        batch = self._batch[:shape]
+        batch[:] = 0
+        for row, i in zip(rows, live):
+            batch[row] = self._lanes[i].episode.obs
         with torch.inference_mode():
-            images = torch.from_numpy(self._batch).to(self._device)
-            features = self._trunk(self.net.preprocess(images)).cpu()
+            features = self._features(batch)
             self.forwards += 1
-            actions = {i: self._act(self._lanes[i], features[i : i + 1]) for i in live}
+            actions = {i: self._act(self._lanes[i], features[row : row + 1]) for row, i in zip(rows, live)}
         ended = []
-        for i in live:
+        for row, i in zip(rows, live):
             lane = self._lanes[i]
-            lane.features.append(features[i].clone())
+            lane.features.append(features[row].clone())
             if lane.episode.step(actions[i]):
                 trajectory = lane.episode.trajectory()
                 ended.append((i, replace(trajectory, features=torch.stack(lane.features).numpy())))

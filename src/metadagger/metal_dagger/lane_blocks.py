@@ -35,8 +35,8 @@ def in_blocks(work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], width:
     run by :func:`run_block`, each returning its jobs' results; else as they are.
 
     A seed's results do not depend on which seeds share its block (an episode does not depend on
-    its lane-mates, and each seed has a learner of its own), so blocks may be cut from whatever
-    jobs are left to do.
+    its lane-mates, nor, at a width that is a multiple of 4, on its lane: docs/performance.md; and
+    each seed has a learner of its own), so blocks may be cut from whatever jobs are left to do.
     """
     if width == 1:
         return work, list(jobs)
