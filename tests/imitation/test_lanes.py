@@ -209,3 +209,29 @@ def test_a_trunk_whose_rows_depend_on_their_place_keeps_the_width_and_each_lanes
     net.trunk = plain
     with Lanes(task, net, width=7) as lanes:
         assert lanes.shapes == [7]  # no shape of 8 rows below the width
+
+
+@pytest.mark.parametrize("task_name", ["carracing", "carracing-family", "fetch", "fetch-family"])
+def test_every_packaged_width_gives_a_row_the_same_bits_in_any_place(task_name):
+    """At every lane width a packaged preset sets, the task's trunk gives an image the same bits in
+    any row of the batch (here: the batch reversed), so an episode never depends on its lane; at a
+    width of 10 or 15 the pinned kernels compute the last rows otherwise (docs/performance.md)."""
+    from metadagger.pipeline.run_config import PRESETS, resolve_config
+    from metadagger.tasks import make_task
+
+    if task_name.startswith("fetch"):
+        pytest.importorskip("mujoco", reason="the fetch extra is not installed")
+    task = make_task(task_name)
+    net = make_policy(task, seed=0).net
+    widths = set()
+    for preset in PRESETS:
+        config = resolve_config(task_name, preset)
+        stages = (config.pistar, config.pairs, config.evaluate, config.mdi, config.benchmark)
+        widths |= {stage.lanes for stage in stages if stage is not None}
+    for width in sorted(widths - {1}):
+        lanes = Lanes(task, net, width=width)
+        probe = np.random.default_rng(width).integers(0, 256, size=lanes._batch.shape, dtype=np.uint8)
+        with torch.inference_mode():
+            rows = lanes._features(probe)
+            reversed_rows = lanes._features(probe[::-1].copy())
+        assert torch.equal(reversed_rows, rows.flip(0)), f"{task_name}: width {width}"
