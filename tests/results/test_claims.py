@@ -43,7 +43,7 @@ def test_the_mapper_line_names_its_paired_intervals_and_what_they_show(tmp_path,
     assert "best mapper MDM Ridge 18/20" in line
     assert "against pi*'s head +80 points (+" in line  # 18 against 2 of 20
     assert "against mean-DA +5 points (" in line and "against BC refitted +40 points (+" in line
-    assert line.endswith("not shown better than mean-DA.")
+    assert line.endswith(": better than pi*'s head, BC refitted; not shown better than mean-DA.")
 
 
 def test_refits_and_labels_read_against_bc_and_bc_refitted(tmp_path, run_rows):

@@ -114,7 +114,10 @@ def _mappers(found: RegistryRun) -> str | None:
     made = {a: c for a in (*CONTROLS, BC_REFIT) if (c := _found(summary, best, a)) is not None}
     parts = [f"against {SHORT_NAMES[a]} {difference_points(c)}" for a, c in made.items()]
     missed = [SHORT_NAMES[a] for a, c in made.items() if verdict(c) != "better"]
+    beaten = [SHORT_NAMES[a] for a, c in made.items() if verdict(c) == "better"]
     says = "better than every one" if not missed else f"not shown better than {', '.join(missed)}"
+    if beaten and missed:
+        says = f"better than {', '.join(beaten)}; {says}"
     return (
         f"best mapper {method_label(best['method'])} {_count(best, queries=False)}, " + "; ".join(parts) + f": {says}."
     )
