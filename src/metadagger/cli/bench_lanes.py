@@ -30,7 +30,8 @@ def bench_lanes(
     two widths would mean the same numbers; different widths round the trunk's last bits
     differently, so they need not agree). The run's own rows are untouched.
     """
-    run, seed, _ = _checked(run, seed, widths, overrides, "bench lanes")
+    _check_widths(widths, "bench lanes")
+    run, seed, _ = _checked(run, seed, overrides, "bench lanes")
     timings = {str(width): _in_child("lanes_child", run, seed, width, overrides) for width in widths}
     first = timings[str(widths[0])]
     return {
@@ -53,8 +54,9 @@ def bench_step(
     (its physics and rendering: the floor on a CPU), the expert's labels of every state, pi*'s trunk
     forwards and the rest (stacking the batch, the heads' actions, recording); the head-only fits
     between rollouts beside it. ``step_over_env`` is a laned step's time over the env's own."""
-    run, seed, config = _checked(run, seed, () if width is None else (width,), overrides, "bench step")
+    run, seed, config = _checked(run, seed, overrides, "bench step")
     width = config.benchmark.lanes if width is None else width
+    _check_widths((width,), "bench step")
     parts = _in_child("step_child", run, seed, width, overrides)
     seconds = parts["seconds"]
     inside = seconds["lanes_step"]
@@ -73,20 +75,23 @@ def bench_step(
     }
 
 
-def _checked(
-    run: str | Path, seed: int | None, widths: Sequence[int], overrides: Sequence[str], command: str
-) -> tuple[Path, int, Any]:
-    """The run folder, the seed to time and the run's config; a bad run, seed, width or override is
-    one error before any work."""
+def _check_widths(widths: Sequence[int], command: str) -> None:
+    """One error line, before any work, unless ``widths`` is a non-empty list of lane widths."""
     from metadagger.imitation.lanes import MAX_LANES
+
+    if not widths or any(not 1 <= w <= MAX_LANES for w in widths):
+        raise UserError(f"{command} needs --lanes from 1 to {MAX_LANES}, got {list(widths)}")
+
+
+def _checked(run: str | Path, seed: int | None, overrides: Sequence[str], command: str) -> tuple[Path, int, Any]:
+    """The run folder, the seed to time and the run's config; a bad run, seed or override is one
+    error before any work."""
     from metadagger.pipeline.stages import load_run
 
     run = Path(run)
     config = load_run(run, overrides)
     if config.benchmark is None:
         raise UserError(f"run {run} has no benchmark section; {command} times one of its benchmark seeds")
-    if any(not 1 <= w <= MAX_LANES for w in widths) or (command == "bench lanes" and not widths):
-        raise UserError(f"{command} needs --lanes from 1 to {MAX_LANES}, got {list(widths)}")
     seed = config.benchmark.seeds[0] if seed is None else seed
     dataclasses.replace(config.benchmark, seeds=(seed,))  # a bad seed or override is named before any work
     layout = RunLayout(run)

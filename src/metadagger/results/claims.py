@@ -32,10 +32,13 @@ from metadagger.results.tables import (
     CONTROLS,
     SHORT_NAMES,
     BlockContext,
+    best_entry,
     difference_points,
+    last_dagger,
     run_item,
     run_names,
     short_label,
+    whole_entries,
 )
 
 #: What a claim reads of one run: its line's text, or None where the run lacks the rows it needs.
@@ -76,10 +79,6 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
     return "\n".join(lines)
 
 
-def _whole(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    return [e for e in entries if float(e.get("demo_fraction", 1.0)) == 1.0]
-
-
 def _count(entry: dict[str, Any], *, queries: bool = True) -> str:
     """successes/seeds, at mean queries per seed."""
     count = f"{entry['successes']}/{entry['seeds']}"
@@ -106,7 +105,9 @@ def _found(summary: dict[str, Any], entry: dict[str, Any], against: str) -> dict
 def _mappers(found: RegistryRun) -> str | None:
     summary = found.json("benchmark/summary.json")
     mapped = [
-        e for e in _whole(summary["entries"]) if e["method"].startswith(MDM_PREFIX) and e["method"] not in CONTROLS
+        e
+        for e in whole_entries(summary["entries"])
+        if e["method"].startswith(MDM_PREFIX) and e["method"] not in CONTROLS
     ]
     if not mapped:
         return None
@@ -137,15 +138,10 @@ def _refits(found: RegistryRun) -> str | None:
     return "; ".join(parts) + "."
 
 
-def _last_dagger(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
-    dagger = [e for e in _whole(entries) if e["method"] == "dagger"]
-    return max(dagger, key=lambda e: int(e["setting"])) if dagger else None
-
-
 def _labels(found: RegistryRun) -> str | None:
     summary = found.json("benchmark/summary.json")
-    dagger = _last_dagger(summary["entries"])
-    refit = [e for e in _whole(summary["entries"]) if e["method"] == BC_REFIT]
+    dagger = last_dagger(whole_entries(summary["entries"]))
+    refit = [e for e in whole_entries(summary["entries"]) if e["method"] == BC_REFIT]
     c = _found(summary, dagger, BC_REFIT) if dagger else None
     if c is None or not refit:
         return None
@@ -157,12 +153,12 @@ def _labels(found: RegistryRun) -> str | None:
 
 def _oracle(found: RegistryRun) -> str | None:
     summary = found.json("benchmark/summary.json")
-    entries = _whole(summary["entries"])
+    entries = whole_entries(summary["entries"])
     gates = [r for r in summary.get("references", []) if r["method"] in gated_methods()]
     oracle = [e for e in entries if e["method"] in reference_methods()]
     if not gates or not oracle:
         return None
-    rule = max(oracle, key=lambda e: (e["success_rate"], -e["mean_queries"]))
+    rule = best_entry(oracle)
     gate = next(e for e in entries if (e["method"], e["setting"]) == (gates[0]["method"], gates[0]["setting"]))
     c = _found(summary, rule, gate["method"])
     if c is None:

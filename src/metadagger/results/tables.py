@@ -102,9 +102,20 @@ def _ci(low: float, high: float) -> str:
     return f"{100 * low:.0f}-{100 * high:.0f}%"
 
 
-def _best(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
+def best_entry(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The highest success, then the fewest queries; None for none."""
     return min(entries, key=lambda e: (-e["success_rate"], e["mean_queries"])) if entries else None
+
+
+def whole_entries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """A benchmark summary's entries on the whole demonstration."""
+    return [e for e in entries if float(e.get("demo_fraction", 1.0)) == 1.0]
+
+
+def last_dagger(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """Plain DAgger's entry after its last round, of ``entries``; None where it did not run."""
+    dagger = [e for e in entries if e["method"] == "dagger"]
+    return max(dagger, key=lambda e: int(e["setting"])) if dagger else None
 
 
 def _labelled(entry: dict[str, Any] | None) -> str:
@@ -116,17 +127,16 @@ def _labelled(entry: dict[str, Any] | None) -> str:
 
 def _glance_entries(found: RegistryRun) -> dict[str, Any]:
     """A run's benchmark entries on the whole demonstration, sorted into the glance's columns."""
-    entries = [e for e in found.json("benchmark/summary.json")["entries"] if float(e.get("demo_fraction", 1.0)) == 1.0]
+    entries = whole_entries(found.json("benchmark/summary.json")["entries"])
     by_method = {e["method"]: e for e in entries}
-    dagger = [e for e in entries if e["method"] == "dagger"]
     return {
-        "metal": _best([e for e in entries if metal_twins(e["method"]) or e["method"] == MDI_METHODS[0]]),
+        "metal": best_entry([e for e in entries if metal_twins(e["method"]) or e["method"] == MDI_METHODS[0]]),
         "pistar": by_method.get(CONTROLS[0]),
         "mean-da": by_method.get(CONTROLS[1]),
         "refit": by_method.get(BC_REFIT),
-        "dagger": max(dagger, key=lambda e: int(e["setting"])) if dagger else None,
-        "gate": _best([e for e in entries if e["method"] in gated_methods()]),
-        "oracle": _best([e for e in entries if e["method"] in reference_methods()]),
+        "dagger": last_dagger(entries),
+        "gate": best_entry([e for e in entries if e["method"] in gated_methods()]),
+        "oracle": best_entry([e for e in entries if e["method"] in reference_methods()]),
         "seeds": max((e["seeds"] for e in entries), default=0),
     }
 
