@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metadagger.tasks.carracing import render as cr_render
-from metadagger.tasks.carracing.render import STATE_SIZE, StateRenderer, miters, text_patch
+from metadagger.tasks.carracing import indicators
+from metadagger.tasks.carracing.indicators import text_patch
+from metadagger.tasks.carracing.render import STATE_SIZE, StateRenderer, miters
 
 
 def rectangle(w: float, h: float, clockwise: bool = False) -> np.ndarray:
@@ -45,15 +46,15 @@ def test_text_patch_is_a_cached_readonly_corner():
 
 def test_bar_patch_covers_its_area():
     # pygame fills x 125..150 and y 760..780 inclusive: 26 x 21 screen pixels
-    r, c, pixels = cr_render._bar_patch(125, 150, 760, 780, (255, 255, 255))
+    r, c, pixels = indicators._bar_patch(125, 150, 760, 780, (255, 255, 255))
     covered = pixels[..., 0].astype(float).sum() / 255
     assert covered == pytest.approx(26 * 21 * (96 / 1000) * (96 / 800), abs=0.5 * pixels[..., 0].size / 255 + 1e-9)
     assert c == 12 and r == int((760 - 700) * 96 / 800)
 
 
 def test_bar_patch_outside_the_strip_is_none():
-    assert cr_render._bar_patch(125, 150, 600, 650, (255, 255, 255)) is None
-    assert cr_render._bar_patch(1100, 1200, 720, 760, (255, 0, 0)) is None
+    assert indicators._bar_patch(125, 150, 600, 650, (255, 255, 255)) is None
+    assert indicators._bar_patch(1100, 1200, 720, 760, (255, 0, 0)) is None
 
 
 def test_renderer_rejects_bad_supersample_and_render_before_reset():
