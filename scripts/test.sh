@@ -9,4 +9,6 @@ bash scripts/setup.sh test,fetch,ray,minari,tensorboard,tune,video,label
 .venv/bin/ruff format --check --quiet . || { echo "ruff format: the files above need formatting; run .venv/bin/ruff format ." >&2; exit 1; }
 .venv/bin/ruff check --quiet .
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
-exec .venv/bin/python -m pytest -m "not slow" "$@"
+# Two test processes (pytest-xdist), each module's tests in one of them so that a module's
+# fixtures are made once: most tests run one process at a time, and this keeps both cores busy.
+exec .venv/bin/python -m pytest -m "not slow" -n 2 --dist loadfile "$@"
