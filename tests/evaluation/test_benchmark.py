@@ -407,7 +407,7 @@ def test_dagger_with_a_prior_refits_every_round_with_it(toy_run, tmp_path):
         CONFIG,
         methods=("bc", "prior", "prior-dagger", "prior-gated", "dagger-random"),
         grids={"dagger-random": [0.0, 1.0]},
-        ceiling=False,
+        oracle=False,
         demo_fractions=(1.0,),
     )
     rows = _run(layout, config, priors=priors)
@@ -774,7 +774,7 @@ def test_a_method_added_as_docs_benchmark_md_says_runs_beside_the_others(toy_run
     monkeypatch.setitem(bench.CHAINS, ExpertKey, expert_row)
     layout = RunLayout(tmp_path / "run")
     shutil.copytree(toy_run.root, layout.root)
-    config = dataclasses.replace(CONFIG, methods=("bc", "expert"), ceiling=False, demo_fractions=(1.0,))
+    config = dataclasses.replace(CONFIG, methods=("bc", "expert"), oracle=False, demo_fractions=(1.0,))
     rows = _run(layout, config, executor="inline")  # a method added in this process: the workers would not know it
     expert = [r for r in rows if r["method"] == "expert"]
     demos = collect(CorridorTask(), SEEDS, policy=None)

@@ -247,7 +247,7 @@ def test_the_benchmark_runs_the_installed_gate_end_to_end(lazy, toy_run):
         methods=("bc", "dagger", "dagger-lazy"),
         grids={"dagger-lazy": [0.5, 0.8]},
         gate_options={"dagger-lazy": {"low": 0.2}},
-        ceiling=False,
+        oracle=False,
     )
     rows = toy_benchmark(toy_run, config)  # in a worker process: it finds the gate on its own
     lazy_rows = [r for r in rows if r["method"] == "dagger-lazy"]

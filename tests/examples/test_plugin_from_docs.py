@@ -58,7 +58,7 @@ def test_the_docs_plug_in_runs_in_a_benchmark_beside_the_built_in_gates(unsure, 
         seeds=(300, 301),
         methods=("bc", "dagger", "dagger-unsure", "dagger-least-confidence"),
         grids={"dagger-unsure": [0.9], "dagger-least-confidence": [0.5]},
-        ceiling=False,
+        oracle=False,
     )
     rows = toy_benchmark(toy_run, config)  # in a worker process: it finds the gate on its own
     by_method = {m: [r for r in rows if r["method"] == m] for m in config.methods}

@@ -33,7 +33,7 @@ presets:
       seeds: [300]
       methods: [dagger-safe]
       grids: {dagger-safe: [0.5]}
-      ceiling: false
+      oracle: false
 """
 
 

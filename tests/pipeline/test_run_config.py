@@ -217,3 +217,17 @@ def test_a_registry_run_from_before_the_renames_is_one_line_that_says_what_to_do
         assert _refused(args) == f"error: {expected}"
     assert [p.name for p in run.root.iterdir()] == ["config.yaml"]
     assert run.config.read_bytes() == old.read_bytes()
+
+
+def test_a_run_folder_of_this_version_written_before_a_key_was_renamed_reads_it_by_its_name_now(run):
+    """``benchmark.ceiling`` is ``benchmark.oracle`` now: a folder that says ``ceiling: false`` resumes
+    with the oracle rule off; a preset or ``--set`` that uses the old name is refused naming the new."""
+    data = yaml.safe_load(run.config.read_text())
+    data["benchmark"] = {**(data.get("benchmark") or {}), "ceiling": False}
+    data["benchmark"].pop("oracle", None)
+    run.config.write_text(yaml.safe_dump(data, sort_keys=False))
+    config = load_run(run.root)
+    assert config.benchmark.oracle is False
+    assert "dagger-oracle" not in config.benchmark.gated()
+    message = _refused(["pairs", "--out", run.root, "--set", "benchmark.ceiling=true"])
+    assert "unknown field(s) ceiling (ceiling is now oracle)" in message

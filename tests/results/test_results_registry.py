@@ -423,3 +423,22 @@ def test_a_config_of_an_older_shape_departs_by_its_sections_and_a_setting_added_
         f"old_{section}: a section no longer read",
         f"{section}: a section new since",
     ]
+
+
+def test_a_key_renamed_since_the_run_was_made_departs_from_nothing_but_its_value_still_does(tmp_path):
+    import yaml
+
+    from metadagger.pipeline.run_config import resolve_config
+    from metadagger.results.staleness import run_staleness
+    from metadagger.utils.yaml_config import dump_yaml
+
+    data = yaml.safe_load(dump_yaml(resolve_config("carracing", "quick")))
+    data["benchmark"]["ceiling"] = data["benchmark"].pop("oracle")  # its name before the rename
+    data["groundtruth"] = data.pop("pistar")
+    run = tmp_path / "carracing-quick"
+    run.mkdir()
+    (run / "config.yaml").write_text(yaml.safe_dump(data))
+    assert run_staleness(RegistryRun(run, CURRENT)) == []
+    data["benchmark"]["ceiling"] = False  # the preset runs the oracle rule
+    (run / "config.yaml").write_text(yaml.safe_dump(data))
+    assert run_staleness(RegistryRun(run, CURRENT)) == ["benchmark.oracle: false -> true"]

@@ -40,7 +40,7 @@ from metadagger.tasks import check_task
 from metadagger.utils.device import resolve_device
 from metadagger.utils.io import write_text
 from metadagger.utils.kernels import pin_cpu_kernels
-from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict
+from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict, with_current_names
 from metadagger.version import __version__
 
 LOGS = ("none", "tensorboard")
@@ -308,6 +308,7 @@ def load_run(run: str | Path, overrides: Sequence[str] = ()) -> RunConfig:
         )
     data = read_run_data(path)
     check_version(path, data)
+    data = with_current_names(RunConfig, data)  # a folder of this version written before a key's rename
     return build(RunConfig, apply_overrides(data, overrides), where=str(path) + (" with --set" if overrides else ""))
 
 

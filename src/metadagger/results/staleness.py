@@ -21,7 +21,7 @@ from metadagger.pipeline.run_config import VERSION_KEY, RunConfig, resolve_confi
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
 from metadagger.runfolder.stamps import describe_changes
 from metadagger.utils.kernels import NUMERICS
-from metadagger.utils.yaml_config import build, dump_yaml, read_run_data
+from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, with_current_names
 
 #: Config keys that change no number: the package version that wrote the file, and logging.
 IGNORED_KEYS = (VERSION_KEY, "log")
@@ -59,9 +59,10 @@ def stale_summary(reasons: list[str], most: int = 4) -> str:
 
 def _made_with(run: RegistryRun) -> dict[str, Any]:
     """The config a registry run was made with, every setting it leaves out at its default (a
-    setting added since with a default keeps its numbers). Where today's code no longer reads the
-    file whole (a section renamed since), the sections it still reads so, the others as written."""
-    data = read_run_data(run.path("config.yaml"))
+    setting added since with a default keeps its numbers; a key renamed since is read by its name
+    now, so a rename alone departs from nothing). Where today's code no longer reads the file
+    whole, the sections it still reads so, the others as written."""
+    data = with_current_names(RunConfig, read_run_data(run.path("config.yaml")))
     known = {f.name for f in dataclasses.fields(RunConfig)}
     where = f"{run.name}'s config.yaml"
     try:

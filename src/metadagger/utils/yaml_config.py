@@ -148,6 +148,28 @@ def build(cls: type[T], data: typing.Mapping[str, Any], *, where: str = "") -> T
         raise UserError(f"{where}: {exc}") from None
 
 
+def with_current_names(cls: type, data: typing.Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` for dataclass ``cls`` with every key an older version used (a class's ``RENAMED``)
+    under its name now, at every depth: what a run folder's config written before a rename means
+    today. A key whose new name is also given stays, for :func:`build` to refuse."""
+    renamed = getattr(cls, "RENAMED", {})
+    hints = typing.get_type_hints(cls)
+    current: dict[str, Any] = {}
+    for key, value in data.items():
+        name = renamed[key] if key in renamed and renamed[key] not in data else key
+        nested = _dataclass_of(hints.get(name))
+        current[name] = with_current_names(nested, value) if nested and isinstance(value, typing.Mapping) else value
+    return current
+
+
+def _dataclass_of(hint: Any) -> type | None:
+    """The dataclass a field's type ``hint`` holds (itself, or the one of an optional), else None."""
+    for candidate in (hint, *typing.get_args(hint)):
+        if isinstance(candidate, type) and dataclasses.is_dataclass(candidate):
+            return candidate
+    return None
+
+
 def _over_default(field: dataclasses.Field, value: Any) -> Any:
     """``value``, a mapping of fields, laid over ``field``'s default dataclass; any other value as it is."""
     if not isinstance(value, typing.Mapping):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark.methods import (
@@ -21,6 +21,9 @@ from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 @dataclass(frozen=True)
 class BenchmarkConfig:
     """Which methods the benchmark runs, on which unseen seeds, with which gate grids."""
+
+    RENAMED: ClassVar[dict[str, str]] = {"ceiling": "oracle"}
+    """Keys of an older version's configs, by their names now (an error names the new one)."""
 
     seeds: tuple[int, ...] = tuple(range(5000, 5020))
     """Unseen seeds (never used for pi* or the pairs)."""
@@ -47,9 +50,9 @@ class BenchmarkConfig:
     """k, the neighbour of the novelty and conformal gates."""
     gate_options: dict = field(default_factory=dict, metadata=STAMPED_UNLESS_DEFAULT)
     """Further fields of a gate by method, e.g. ``{dagger-lazy: {low: 0.5}}`` (a plug-in's options)."""
-    ceiling: bool = True
-    """Run the oracle rule (``dagger-oracle``) beside the methods: the learner's-mistakes rule, a reference
-    (gates can beat it; the key keeps its older name)."""
+    oracle: bool = True
+    """Run the oracle rule (``dagger-oracle``) beside the methods: the learner's-mistakes rule, a
+    reference that gates can beat, not a ceiling."""
     demo_fractions: tuple[float, ...] = (1.0,)
     """Shares of the demonstration's steps that BC, the learned MDM kinds and the gated settings
     start from, in (0, 1], 1 (the whole demonstration) among them; plain DAgger and MDI always
@@ -98,10 +101,10 @@ class BenchmarkConfig:
             )
 
     def gated(self) -> list[str]:
-        """The gated methods this config runs, the oracle last where ``ceiling`` is on."""
+        """The gated methods this config runs, the oracle last where ``oracle`` is on."""
         gated = gated_methods(references=True)
         chosen = [m for m in self.methods if m in gated]
-        return chosen + [m for m in reference_methods() if self.ceiling and m not in chosen]
+        return chosen + [m for m in reference_methods() if self.oracle and m not in chosen]
 
     def grid(self, method: str) -> list[float]:
         """A gated method's sweep: ``grids``' entry, else its gate's declared grid."""

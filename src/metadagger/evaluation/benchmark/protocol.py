@@ -14,7 +14,7 @@ a query. Per seed, with rows ``(method, setting, demo_fraction, seed)``:
 - ``dagger-<gate>`` for every gate (:mod:`metadagger.imitation.gate_registry`, plug-ins included):
   the same R rounds, labelling only the states the gate selects; one row per setting of the
   gate's grid, after round R. ``dagger-oracle`` is a reference, not a method: it labels exactly
-  the states where the learner is wrong (``benchmark.ceiling``).
+  the states where the learner is wrong (``benchmark.oracle``).
 - ``dagger-mdi``, ``dagger-bc-init``, ``dagger-xavier`` (runs with an ``mdi`` section): Table 6's
   one-shot and two-shot tests (settings ``one-shot``, ``two-shot``).
 
