@@ -157,15 +157,18 @@ def test_bench_lanes_times_one_benchmark_seed_at_each_width_without_touching_the
     run = tmp_path / "run"
     shutil.copytree(carracing_ci_run, run)
     before = (run / "benchmark" / "rows.jsonl").read_bytes()
-    result = bench_lanes(run, widths=(1, 4))
+    result = bench_lanes(run, widths=(1, 4), repeats=2)
     assert (run / "benchmark" / "rows.jsonl").read_bytes() == before
-    assert result["seed"] == 5000 and set(result["widths"]) == {"1", "4"}
+    assert result["seed"] == 5000 and set(result["widths"]) == {"1", "4"} and result["repeats"] == 2
     for timing in result["widths"].values():
         assert timing["wall_seconds"] > 0 and timing["worker_cpu_seconds"] > 0 and timing["worker_peak_rss_mb"] > 50
-        assert len(timing["rows_sha256"]) == 64
+        assert len(timing["rows_sha256"]) == 64 and timing["same_rows"] and len(timing["each"]) == 2
+        assert timing["worker_peak_rss_mb"] == max(r["worker_peak_rss_mb"] for r in timing["each"])
     assert result["speedup_wall"]["1"] == 1.0 and result["speedup_wall"]["4"] > 0
     with pytest.raises(UserError, match="--lanes from 1 to 256"):
         bench_lanes(run, widths=(0,))
+    with pytest.raises(UserError, match="--repeats of at least 1, got 0"):
+        bench_lanes(run, widths=(1,), repeats=0)
 
 
 def test_bench_reproduce_names_a_bad_request_before_any_work():

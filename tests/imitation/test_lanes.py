@@ -175,6 +175,20 @@ def test_a_laned_episode_keeps_its_features_and_no_image_unless_asked():
         FeatureCache(policy).features(bare.obs)
 
 
+class _LongCorridor(CorridorTask):
+    max_episode_steps = 600  # longer than a lane's first buffer of features
+
+
+def test_a_long_laned_episode_keeps_every_steps_features():
+    task = _LongCorridor(discrete=True)
+    policy = make_policy(task, seed=3)
+    with Lanes(task, policy.net, width=2) as lanes:
+        long, short = lanes.run([EpisodeRequest(1, None, keep_images=True), EpisodeRequest(2, None, max_steps=5)])
+    assert long.steps == 600 and long.features.shape == (600, policy.net.feature_dim) and len(short.features) == 5
+    np.testing.assert_array_equal(FeatureCache(policy).features_of(long.to_dataset()).numpy(), long.features)
+    assert long.features.base is None  # its own array, not a view of the lane's buffer
+
+
 def test_few_live_lanes_step_in_a_smaller_batch_only_where_it_gives_the_widths_bits():
     """With 16 lanes, a step with few live lanes runs the trunk on 8 rows where that shape gives
     every row the width's bits; the episodes are those of the full width, bit for bit."""

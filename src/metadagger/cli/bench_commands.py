@@ -128,6 +128,7 @@ def bench_lanes_cmd(
     out: Path = OUT,
     seed: Optional[int] = typer.Option(None, "--seed", help="The benchmark seed to time (default: the run's first)."),
     lanes: list[int] = typer.Option([1, 32], "--lanes", help="Lane widths to time, side by side; repeatable."),
+    repeats: int = typer.Option(1, "--repeats", help="Times each width is measured, the widths taking turns."),
     overrides: list[str] = SET,
     json_out: Path = typer.Option(Path("runs/bench/lanes.json"), "--json", help="JSON file to write."),
 ) -> None:
@@ -135,7 +136,9 @@ def bench_lanes_cmd(
     from metadagger.cli.bench_lanes import bench_lanes
 
     _measure_and_write(
-        json_out, "--json", lambda: bench_lanes(out, seed=seed, widths=tuple(lanes), overrides=tuple(overrides))
+        json_out,
+        "--json",
+        lambda: bench_lanes(out, seed=seed, widths=tuple(lanes), overrides=tuple(overrides), repeats=repeats),
     )
 
 

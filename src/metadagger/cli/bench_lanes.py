@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -20,7 +21,12 @@ from metadagger.runfolder.layout import RunLayout
 
 
 def bench_lanes(
-    run: str | Path, *, seed: int | None = None, widths: Sequence[int] = (1, 32), overrides: Sequence[str] = ()
+    run: str | Path,
+    *,
+    seed: int | None = None,
+    widths: Sequence[int] = (1, 32),
+    overrides: Sequence[str] = (),
+    repeats: int = 1,
 ) -> dict:
     """Time one benchmark seed of ``run`` (its config, with ``overrides``) at each lane width, side by side.
 
@@ -28,20 +34,42 @@ def bench_lanes(
     a scratch copy of the run that shares its pi*, pairs and mappers, with one worker: wall seconds, the
     worker's CPU seconds and peak resident memory, and a digest of the rows (the same digest for
     two widths would mean the same numbers; different widths round the trunk's last bits
-    differently, so they need not agree). The run's own rows are untouched.
+    differently, so they need not agree). With ``repeats`` above 1 the widths take turns that many
+    times: each width's seconds are the median and its peak memory the largest (a peak depends on
+    how the heap happened to fill), every repeat listed. The run's own rows are untouched.
     """
     _check_widths(widths, "bench lanes")
+    if repeats < 1:
+        raise UserError(f"bench lanes needs --repeats of at least 1, got {repeats}")
     run, seed, _ = _checked(run, seed, overrides, "bench lanes")
-    timings = {str(width): _in_child("lanes_child", run, seed, width, overrides) for width in widths}
+    measured: dict[str, list[dict[str, Any]]] = {str(width): [] for width in widths}
+    for _ in range(repeats):
+        for width in widths:
+            measured[str(width)].append(_in_child("lanes_child", run, seed, width, overrides))
+    timings = {width: _over_repeats(each) for width, each in measured.items()}
     first = timings[str(widths[0])]
     return {
         "run": str(run),
         "seed": seed,
         "overrides": list(overrides),
+        "repeats": repeats,
         "widths": timings,
         "speedup_wall": {k: first["wall_seconds"] / v["wall_seconds"] for k, v in timings.items()},
         "speedup_cpu": {k: first["worker_cpu_seconds"] / v["worker_cpu_seconds"] for k, v in timings.items()},
         "machine": machine_block(),
+    }
+
+
+def _over_repeats(each: list[dict[str, Any]]) -> dict[str, Any]:
+    """One width's repeats in one entry: median seconds, the largest peak memory, the rows' digest
+    (``same_rows``: whether every repeat made the same rows) and every repeat as measured."""
+    return {
+        "wall_seconds": statistics.median(r["wall_seconds"] for r in each),
+        "worker_cpu_seconds": statistics.median(r["worker_cpu_seconds"] for r in each),
+        "worker_peak_rss_mb": max(r["worker_peak_rss_mb"] for r in each),
+        "rows_sha256": each[0]["rows_sha256"],
+        "same_rows": len({r["rows_sha256"] for r in each}) == 1,
+        "each": each,
     }
 
 

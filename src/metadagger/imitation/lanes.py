@@ -98,10 +98,31 @@ class EpisodeRequest:
     trajectory's ``obs`` is a stand-in, :func:`~metadagger.imitation.data.unkept_images`)."""
 
 
+class _FeatureRows:
+    """The trunk features an episode acted on, one row a step, in one float32 buffer that doubles
+    when full. One buffer, not a tensor a step: thousands of small allocations that outlive each
+    step's large transient ones would keep the process's heap from shrinking."""
+
+    def __init__(self, feature_dim: int) -> None:
+        self._rows = np.empty((256, feature_dim), dtype=np.float32)
+        self._count = 0
+
+    def append(self, row: torch.Tensor) -> None:
+        """Add one step's features (a 1-D tensor of ``feature_dim`` floats), copied."""
+        if self._count == len(self._rows):
+            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
+        self._rows[self._count] = row.numpy()
+        self._count += 1
+
+    def array(self) -> np.ndarray:
+        """Every row so far, (steps, feature_dim), in a new array of its own."""
+        return self._rows[: self._count].copy()
+
+
 class _Lane:
     """One live episode: its recorder, its head's weight and bias, the features it acted on."""
 
-    def __init__(self, env: Any, request: EpisodeRequest, out_dim: int) -> None:
+    def __init__(self, env: Any, request: EpisodeRequest, out_dim: int, feature_dim: int) -> None:
         self.request = request
         stop = None if request.early_stop is None else CosineEarlyStop(threshold=request.early_stop)
         self.episode = EpisodeRecorder(
@@ -113,7 +134,7 @@ class _Lane:
             head = torch.from_numpy(np.ascontiguousarray(request.head, dtype=np.float32))
             n_weight = head.numel() - out_dim
             self.weight, self.bias = head[:n_weight].view(out_dim, -1), head[n_weight:]
-        self.features: list[torch.Tensor] = []
+        self.features = _FeatureRows(feature_dim)
 
 
 class Lanes:
@@ -186,7 +207,7 @@ class Lanes:
             raise RuntimeError(f"lane {index} is still live")
         if self._envs[index] is None:
             self._envs[index] = self._task.make_env()
-        self._lanes[index] = _Lane(self._envs[index], request, self.out_dim)
+        self._lanes[index] = _Lane(self._envs[index], request, self.out_dim, self.net.feature_dim)
 
     def step(self) -> list[tuple[int, Trajectory]]:
         """One step of every live lane; returns the episodes that ended, ``(lane, trajectory)``, by lane."""
@@ -208,10 +229,10 @@ class Lanes:
         ended = []
         for row, i in zip(rows, live):
             lane = self._lanes[i]
-            lane.features.append(features[row].clone())
+            lane.features.append(features[row])
             if lane.episode.step(actions[i]):
                 trajectory = lane.episode.trajectory()
-                ended.append((i, replace(trajectory, features=torch.stack(lane.features).numpy())))
+                ended.append((i, replace(trajectory, features=lane.features.array())))
                 self._lanes[i] = None
         return ended
 
