@@ -327,9 +327,9 @@ def test_the_prior_method_chooses_its_strengths_on_the_validation_pairs_and_rows
 
 
 def test_the_confirmation_seeds_run_the_same_methods_into_their_own_folder_and_report(finished, tmp_path):
-    """``benchmark.confirm_seeds``: the benchmark runs again on them into benchmark/confirm/, the
-    report (written again by the command) reads them at equal budgets; a seed of pi*'s or of both
-    sets is refused before any work."""
+    """``benchmark.confirm_seeds``: the benchmark runs again on them into benchmark/confirm/, its
+    progress named apart, the report (written again by the command) reads them at equal budgets; a
+    seed of pi*'s or of both sets is refused before any work."""
     from metadagger.evaluation.report.benchmark import benchmark_section
 
     layout = _copy(finished, tmp_path / "run")
@@ -337,6 +337,9 @@ def test_the_confirmation_seeds_run_the_same_methods_into_their_own_folder_and_r
     said = _ok(["benchmark", "--out", layout.root, "--methods", "bc,dagger", "--set", "benchmark.confirm_seeds=[5003]"])
     # the report follows the benchmark: written again at its end, its section reading the new rows
     assert f"wrote {layout.report}" in said and "At equal budgets (confirmation seeds)" in layout.report.read_text()
+    # the progress says that a second set follows, and which set each line counts
+    assert "benchmark: the unseen seeds (" in said and "then the confirmation seeds (1)" in said, said
+    assert "benchmark, confirmation seeds: 1/1" in said, said
     confirm = layout.confirmation()
     assert {r["seed"] for r in read_csv(confirm.benchmark_table)} == {5003}
     assert {r["method"] for r in read_csv(confirm.benchmark_table)} == {"bc", "dagger", "dagger-oracle"}

@@ -68,6 +68,7 @@ from metadagger.utils.executors import default_workers
 from metadagger.utils.io import read_json
 from metadagger.utils.kernels import kernel_stamp, pin_cpu_kernels
 from metadagger.utils.plotting import draw_figure
+from metadagger.utils.progress import note
 
 STAGES = ("pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnose", "report")
 
@@ -245,10 +246,17 @@ def stage_benchmark(
         priors=priors,
         options=options,
     )
+    confirm = bench.confirm_seeds if seeds is None else ()
+    if confirm:
+        note(
+            f"benchmark: the unseen seeds ({len(bench.seeds)}), then the confirmation seeds ({len(confirm)})",
+            enabled=options.progress,
+        )
     rows = run(layout, bench)
-    if bench.confirm_seeds and seeds is None:
+    if confirm:
         # the second set: the same methods on seeds fixed before any result was read
-        run(layout.confirmation(), dataclasses.replace(bench, seeds=bench.confirm_seeds, confirm_seeds=()))
+        second = dataclasses.replace(bench, seeds=confirm, confirm_seeds=())
+        run(layout.confirmation(), second, desc="benchmark, confirmation seeds")
     _log(layout, config, lambda: {"benchmark": benchmark_scalars(layout)})
     return rows
 

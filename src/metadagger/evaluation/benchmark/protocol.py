@@ -156,6 +156,7 @@ def run_benchmark(
     meta_queries: dict[str, int],
     priors: dict[str, HeadPrior] | None = None,
     options: StageOptions = StageOptions(),
+    desc: str = "benchmark",
 ) -> list[dict[str, Any]]:
     """Run the missing rows of the benchmark; write ``queries.csv``, the query ledger
     ``labels.jsonl``, ``summary.json``, then the figure (a figure that fails is a warning: the rows
@@ -174,6 +175,7 @@ def run_benchmark(
             stage builds them from the pairs), where ``config.methods`` has it.
         options: rebuild (redo rows made from other inputs; else they are an error), executor,
             workers, progress: as for every stage.
+        desc: the name its progress lines carry (which set of seeds this is).
 
     Raises:
         UserError: ``config.methods`` has ``mdi`` but the run has no MDI protocol, or ``prior``
@@ -231,7 +233,7 @@ def run_benchmark(
         )
         for p in todo
     ]
-    drive(benchmark_seed, jobs, log=log, stamps=stamps, options=options, desc="benchmark")
+    drive(benchmark_seed, jobs, log=log, stamps=stamps, options=options, desc=desc)
     rows = log.rows(config.seeds, stamps)
     write_csv(layout.benchmark_table, rows, fields=FIELDS)
     write_lines(layout.benchmark_labels, ledger_lines(rows))
