@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from metadagger.errors import UserError
-from metadagger.results import tables
+from metadagger.results import bench_blocks, tables
 from metadagger.results.claims import claim
 from metadagger.results.registry import REGISTRY, load_registry
 from metadagger.results.staleness import registry_staleness
@@ -38,7 +38,7 @@ FENCE = re.compile(r"^```.*?^```", re.S | re.M)
 
 
 #: Block kinds by name (:mod:`metadagger.results.tables`, :mod:`metadagger.results.verdict`,
-#: :mod:`metadagger.results.claims`).
+#: :mod:`metadagger.results.claims`, :mod:`metadagger.results.bench_blocks`).
 BLOCKS: dict[str, Callable[..., str]] = {
     "glance": tables.glance,
     "runs": tables.runs_table,
@@ -49,6 +49,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "manifest": tables.manifest_line,
     "verdict": verdict,
     "claim": claim,
+    "bench-arms": bench_blocks.arms_table,
 }
 
 #: The column at which generated prose is wrapped (tables, headings and images are never wrapped).

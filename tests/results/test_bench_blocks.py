@@ -1,0 +1,75 @@
+"""Blocks written from the speed records in results/bench/: a page's times and ratios are the
+record's, and a missing or wrong record is one error line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from metadagger.cli.main import app
+from metadagger.results.blocks import build
+
+runner = CliRunner()
+
+RECORD = {
+    "arms": {
+        "before": {
+            "commit": "abc1234",
+            "stages": {"pairs": 300.0, "pistar": 200.0, "mdi": 0.0},
+            "peak_memory_mb": 2048.4,
+        },
+        "after abc1234": {
+            "commit": "abc1234",
+            "stages": {"pistar": 100.0, "pairs": 150.0, "diagnose": 50.0},
+            "peak_memory_mb": 1024.0,
+        },
+    },
+    "beside": "nothing",
+}
+
+
+def _page(root: Path, spec: str) -> Path:
+    (root / "docs").mkdir(exist_ok=True)
+    page = root / "docs" / "page.md"
+    page.write_text(f"# Speed\n\n<!-- results: {spec} -->\n<!-- /results -->\n")
+    return page
+
+
+def test_an_arms_block_has_each_stage_run_in_run_order_the_sum_the_speed_up_and_the_peak(tmp_path):
+    (tmp_path / "results" / "bench").mkdir(parents=True)
+    (tmp_path / "results" / "bench" / "whole.json").write_text(json.dumps(RECORD))
+    page = _page(tmp_path, "bench-arms whole.json")
+    assert len(build(tmp_path, registry=tmp_path / "results")) == 1
+    lines = page.read_text().splitlines()
+    assert "| arm | pistar | pairs | diagnose | all stages | speed-up | peak memory |" in lines
+    assert "| `before` (abc1234) | 3 min 20 s | 5 min 00 s | - | 8 min 20 s | 1.00x | 2,048 MB |" in lines
+    assert "| `after abc1234` | 1 min 40 s | 2 min 30 s | 50.0 s | 5 min 00 s | 1.67x | 1,024 MB |" in lines
+    assert any("[`whole.json`](../results/bench/whole.json)" in line for line in lines)
+    assert any("Beside them: nothing." in line for line in lines)
+    assert build(tmp_path, registry=tmp_path / "results", check=True) == []
+
+    # the record changes: check names the block
+    changed = {
+        **RECORD,
+        "arms": {**RECORD["arms"], "after abc1234": {**RECORD["arms"]["after abc1234"], "peak_memory_mb": 900.0}},
+    }
+    (tmp_path / "results" / "bench" / "whole.json").write_text(json.dumps(changed))
+    assert build(tmp_path, registry=tmp_path / "results", check=True) == [f"{page}:3 bench-arms whole.json"]
+
+
+def test_a_missing_record_or_one_without_arms_is_one_error_line(tmp_path):
+    (tmp_path / "results" / "bench").mkdir(parents=True)
+    (tmp_path / "results" / "bench" / "step.json").write_text(json.dumps({"per_env_step_ms": {}}))
+    for spec, needle in (
+        ("bench-arms gone.json", "results/bench/gone.json does not exist"),
+        ("bench-arms step.json", "holds no arms"),
+    ):
+        _page(tmp_path, spec)
+        result = runner.invoke(
+            app, ["results", "build", "--root", str(tmp_path), "--results", str(tmp_path / "results")]
+        )
+        lines = result.output.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), result.output
+        assert needle in lines[0] and "fix its arguments" in lines[0], lines[0]
