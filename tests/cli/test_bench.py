@@ -117,7 +117,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         run = tmp_path / "run"
         stage_pistar(RunLayout(run), init_run(run, "corridor-bench", "tiny", presets), StageOptions(progress=False))
 
-        result = bench_pairs(run, seeds=2, workers=(1, 2), target_kept=10, nodes=(4,), lanes=(2,))
+        result = bench_pairs(run, seeds=3, workers=(1, 2), target_kept=10, nodes=(4,), lanes=(2,))
         assert not (run / "pairs").exists()  # collected into temporary stores only
         assert set(result["seconds"]) == {"1", "2"} and all(t > 0 for t in result["seconds"].values())
         assert all(r > 0 for r in result["pairs_per_hour"].values())
@@ -146,6 +146,9 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
             bench_pairs(run, seeds=1, lanes=(0,))
         with pytest.raises(UserError, match="--target-kept >= 1 and --nodes >= 1"):
             bench_pairs(run, seeds=1, nodes=(0,))
+        # one block of 4 lanes from 3 seeds: the second worker would idle
+        with pytest.raises(UserError, match="--lanes 4 makes 1 block of lanes from --seeds 3.*give --seeds 5 or more"):
+            bench_pairs(run, seeds=3, lanes=(4,))
     finally:
         del _FACTORIES["corridor-bench"]
 

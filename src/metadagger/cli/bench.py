@@ -59,7 +59,8 @@ def bench_pairs(
 
     With ``lanes``, the same seeds are also made at each of those ``pairs.lanes`` widths with the
     most workers, side by side: ``lanes`` holds their seconds and pairs per hour, and
-    ``lanes_speedup`` each width's pairs per hour over the run's own setting's.
+    ``lanes_speedup`` each width's pairs per hour over the run's own setting's. Each width needs
+    seeds for a block of lanes per worker (a worker without one would idle).
 
     Each measurement collects into a fresh temporary store (process-pool start-up included), so
     the run's own pairs are untouched. The kept share comes from the run's ``pairs/summary.json``
@@ -90,6 +91,13 @@ def bench_pairs(
         raise UserError(
             f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}"
         )
+    for width in lanes:  # a width with fewer blocks than workers leaves a worker idle: not the lanes' speed
+        if math.ceil(seeds / width) < max(workers):
+            raise UserError(
+                f"bench pairs --lanes {width} makes {math.ceil(seeds / width)} block of lanes from --seeds {seeds}, "
+                f"fewer than the {max(workers)} workers, so a worker would idle; "
+                f"give --seeds {(max(workers) - 1) * width + 1} or more"
+            )
     load_pistar(layout)  # a missing or corrupt pi* is named under its own path, not the scratch copies'
     run_summary = layout.pairs_summary
     run_kept = read_json(run_summary, "the run's pairs summary") if run_summary.is_file() else None
