@@ -62,9 +62,13 @@ def test_an_arms_block_has_each_stage_run_in_run_order_the_sum_the_speed_up_and_
 def test_a_missing_record_or_one_without_arms_is_one_error_line(tmp_path):
     (tmp_path / "results" / "bench").mkdir(parents=True)
     (tmp_path / "results" / "bench" / "step.json").write_text(json.dumps({"per_env_step_ms": {}}))
+    (tmp_path / "results" / "bench" / "list.json").write_text(json.dumps([{"arms": {}}]))
+    (tmp_path / "results" / "bench" / "flat.json").write_text(json.dumps({"arms": {"a": 1.0}}))
     for spec, needle in (
         ("bench-arms gone.json", "results/bench/gone.json does not exist"),
         ("bench-arms step.json", "holds no arms"),
+        ("bench-arms list.json", "holds no arms"),
+        ("bench-arms flat.json", "holds no arms"),
     ):
         _page(tmp_path, spec)
         result = runner.invoke(

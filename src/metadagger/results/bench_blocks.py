@@ -24,8 +24,12 @@ def arms_table(context: BlockContext, file: str) -> str:
     if not path.is_file():
         raise ValueError(f"{BENCH}/{file} does not exist")
     record = read_json(path, f"the speed record {BENCH}/{file}")
-    arms: dict[str, dict[str, Any]] = record.get("arms") or {}
-    if not arms or not all(isinstance(arm.get("stages"), dict) for arm in arms.values()):
+    arms: dict[str, dict[str, Any]] = record.get("arms") if isinstance(record, dict) else None
+    if (
+        not isinstance(arms, dict)
+        or not arms
+        or not all(isinstance(a, dict) and isinstance(a.get("stages"), dict) for a in arms.values())
+    ):
         raise ValueError(f"{BENCH}/{file} holds no arms with stage seconds")
     named = {stage for arm in arms.values() for stage, seconds in arm["stages"].items() if seconds > 0}
     stages = [s for s in STAGE_ORDER if s in named] + sorted(named - set(STAGE_ORDER))
