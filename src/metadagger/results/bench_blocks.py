@@ -24,7 +24,7 @@ def arms_table(context: BlockContext, file: str) -> str:
     if not path.is_file():
         raise ValueError(f"{BENCH}/{file} does not exist")
     record = read_json(path, f"the speed record {BENCH}/{file}")
-    arms: dict[str, dict[str, Any]] = record.get("arms") if isinstance(record, dict) else None
+    arms: Any = record.get("arms") if isinstance(record, dict) else None
     if (
         not isinstance(arms, dict)
         or not arms
