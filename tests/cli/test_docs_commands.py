@@ -1,6 +1,9 @@
-"""The manuals name the command line as it is: every ``metadagger ...`` in README.md and docs/ (an
-inline code span, or a line of a fenced block) names commands that exist and options those commands
-take, and the README's "Command line" block names every command and subcommand there is."""
+"""The manuals name the command line and themselves as they are: every ``metadagger ...`` in
+README.md and docs/ (an inline code span, or a line of a fenced block) names commands that exist and
+options those commands take; the README's "Command line" block names every command and subcommand
+there is; and every pointer to a section of a manual (``docs/fetch.md, "The pairs"`` or
+``([fetch](fetch.md), 'The pairs')``, in the code, the presets, the scripts, the examples or the
+manuals) names a heading or a bold paragraph label of that manual."""
 
 from __future__ import annotations
 
@@ -18,6 +21,14 @@ MANUALS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 COMMAND_LINE = typer.main.get_command(app)
 INLINE = re.compile(r"`(metadagger [^`]+)`")
 FENCE = re.compile(r"^```[^\n]*\n(.*?)^```", re.M | re.S)
+#: A pointer to a manual's section: the manual's file name, then its section's name in quotes.
+POINTER = re.compile(r"([a-z_]+\.md)\)?,\s+(?:\"([^\"]+)\"|'([^']+)')")
+POINTING = [
+    *(p for p in (ROOT / "src").rglob("*") if p.suffix in {".py", ".yaml", ".js", ".html"}),
+    *(ROOT / "scripts").glob("*"),
+    *(ROOT / "examples").rglob("*.py"),
+    *MANUALS,
+]
 
 
 def _mentions(text: str) -> list[str]:
@@ -84,3 +95,35 @@ def test_a_wrong_command_or_option_is_caught():
     assert _problems("metadagger results add|build --out RUN") == ["build takes no --out"]
     assert _problems("metadagger results publish") == ["no command publish"]
     assert _problems("metadagger bench lanes --out RUN [--widths 8]") == ["lanes takes no --widths"]
+
+
+def _sections(manual: Path) -> set[str]:
+    """A manual's headings and bold paragraph labels (``**Equal budgets** ...``), in lower case."""
+    text = manual.read_text()
+    names = re.findall(r"^#+\s+(.*)$", text, re.M) + re.findall(r"^\*\*([^*]+?)\.?\*\*", text, re.M)
+    return {" ".join(name.split()).lower() for name in names}
+
+
+def _pointer_problems(text: str) -> list[str]:
+    sections = {manual.name: _sections(manual) for manual in MANUALS}
+    problems = []
+    for match in POINTER.finditer(text):
+        manual, name = match[1], " ".join((match[2] or match[3]).split())
+        if manual in sections and not any(s.startswith(name.lower()) for s in sections[manual]):
+            problems.append(f'{manual}, "{name}"')
+    return problems
+
+
+def test_every_pointer_to_a_manuals_section_names_one():
+    problems = [
+        f"{path.relative_to(ROOT)}: {problem}"
+        for path in POINTING
+        if path.is_file()
+        for problem in _pointer_problems(path.read_text(errors="replace"))
+    ]
+    assert not problems, "pointers to no section of their manual:\n" + "\n".join(problems)
+
+
+def test_a_pointer_to_a_missing_section_is_caught():
+    assert _pointer_problems("see docs/fetch.md, \"The pairs\" and ([benchmark](benchmark.md), 'Equal budgets')") == []
+    assert _pointer_problems('(docs/fetch.md, "Pairs that vanished")') == ['fetch.md, "Pairs that vanished"']
