@@ -111,8 +111,9 @@ def bench_pairs_cmd(
         [], "--lanes", help="Also time pairs.lanes at this width, with 2 workers, side by side; repeatable."
     ),
 ) -> None:
-    """Seconds per pair with 1 and 2 workers, pairs per hour, and the hours for --target-kept kept
-    pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
+    """Seconds per pair with 1 and 2 workers, and pairs per hour.
+
+    Also the hours for --target-kept kept pairs here and (extrapolated) on Ray clusters of --nodes nodes."""
     from metadagger.cli.bench import bench_pairs
 
     _measure_and_write(
@@ -151,8 +152,9 @@ def bench_step_cmd(
     overrides: list[str] = SET,
     json_out: Path = typer.Option(Path("runs/bench/step.json"), "--json", help="JSON file to write."),
 ) -> None:
-    """Where a laned benchmark step's time goes: the env's own step, the expert's labels, pi*'s
-    trunk and the rest, per env step, and a step's time over the env's own."""
+    """Where a laned benchmark step's time goes, and a step's time over the env's own.
+
+    Per env step: the env's own step, the expert's labels, pi*'s trunk and the rest."""
     from metadagger.cli.bench_lanes import bench_step
 
     _measure_and_write(json_out, "--json", lambda: bench_step(out, seed=seed, width=lanes, overrides=tuple(overrides)))
@@ -167,8 +169,9 @@ def bench_reproduce_cmd(
     workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Workers of both runs (default: all cores)."),
     out: Path = typer.Option(Path("runs/bench/reproduce.json"), "--out", help="JSON file to write."),
 ) -> None:
-    """Whole runs of --preset as it is and with the --set overrides (e.g. lane widths), one after the
-    other: seconds per stage, the speed-up, peak memory and whether the tables agree."""
+    """Whole runs of --preset as it is and with the --set overrides (e.g. lane widths), one after the other.
+
+    Seconds per stage, the speed-up, peak memory and whether the tables agree."""
     from metadagger.cli.bench_reproduce import bench_reproduce
 
     _measure_and_write(
@@ -184,8 +187,9 @@ def bench_kernels_cmd(
     repeats: int = typer.Option(2, "--repeats", min=1, help="Runs on each kind of kernels, alternated."),
     out: Path = typer.Option(Path("runs/bench/kernels.json"), "--out", help="JSON file to write."),
 ) -> None:
-    """What the CPU kernel pins cost: whole runs of --preset on the pinned kernels and on this
-    machine's own, side by side, and whether the two give the same numbers."""
+    """What the CPU kernel pins cost: whole runs of --preset on the pinned kernels and on this machine's own.
+
+    Side by side, and whether the two give the same numbers."""
     from metadagger.cli.bench import bench_kernels
 
     _measure_and_write(out, "--out", lambda: bench_kernels(task, preset=preset, repeats=repeats))
@@ -199,8 +203,9 @@ def bench_ops_cmd(
         None, "--compare", help="Another machine's fingerprint (its --out) to compare with."
     ),
 ) -> None:
-    """A fingerprint of every kind of computation a run does (sha256 of each output on fixed
-    inputs); with --compare, the computations whose bits differ on the other machine, first one first."""
+    """A fingerprint of every kind of computation a run does: sha256 of each output on fixed inputs.
+
+    With --compare, the computations whose bits differ on the other machine, first one first."""
     from metadagger.cli.fingerprint import compare_fingerprints, fingerprint_kernels, read_fingerprint
 
     other = read_fingerprint(compare) if compare is not None else None

@@ -36,9 +36,10 @@ def label(
     ),
     port: int = typer.Option(0, "--port", help="The page's port on 127.0.0.1 (0: a free one)."),
 ) -> None:
-    """Gated DAgger on one seed of a run with a person as the expert: a page on 127.0.0.1 shows each state
-    the gate chose and takes the label; the loop refits and rolls out the next round by itself. Every
-    label is kept as it is given: run the same command again to resume (docs/label.md)."""
+    """Gated DAgger on one seed of a run with a person as the expert, at a page on 127.0.0.1.
+
+    The page shows each state the gate chose and takes the label; the loop refits and rolls out the next round by
+    itself. Every label is kept as it is given: run the same command again to resume (docs/label.md)."""
     from metadagger.evaluation.benchmark.ledger import effort
     from metadagger.label.session import plan_of_run, run_label
     from metadagger.pipeline.stages import load_run

@@ -145,8 +145,9 @@ def train_mapper_cmd(
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """Train mappers on the run's kept pairs (curves.csv and curves.png beside each), one kind
-    per worker."""
+    """Train mappers on the run's kept pairs, one kind per worker.
+
+    Each mapper's curves.csv and curves.png are written beside it."""
     from metadagger.pipeline.stages import load_run, stage_mappers
     from metadagger.runfolder.layout import RunLayout
 
@@ -189,9 +190,10 @@ def tune(
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """Search a mapper's hyperparameters with Optuna: trials train on the run's training pairs and
-    are scored on its validation pairs (never on evaluation seeds); the study in tune/<kind>.db
-    resumes, the best trial goes to tune/<kind>.yaml (docs/tuning.md)."""
+    """Search a mapper's hyperparameters with Optuna, on the run's pair seeds only.
+
+    Trials train on the run's training pairs and are scored on its validation pairs (never on evaluation seeds); the
+    study in tune/<kind>.db resumes, the best trial goes to tune/<kind>.yaml (docs/tuning.md)."""
     from metadagger.pipeline.stages import load_run, stage_tune
     from metadagger.runfolder.layout import RunLayout
 
@@ -231,9 +233,10 @@ def evaluate(
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds, and the
-    MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger) for runs whose config has an mdi section.
-    Only the missing (seed, method) rows are evaluated."""
+    """MDM and one-shot evaluation of BC, every mapper and the controls on unseen seeds.
+
+    Runs whose config has an mdi section also run the MDI protocol (DAgger-MDI vs DAgger-BC vs DAgger). Only the missing
+    (seed, method) rows are evaluated."""
     from metadagger.pipeline.stages import load_run, stage_evaluate, stage_mdi
     from metadagger.runfolder.layout import RunLayout
     from metadagger.utils.yaml_config import parse_seeds
@@ -278,9 +281,9 @@ def benchmark(
         True, "--report/--no-report", help="Write the run's report/report.md again at the end (default: yes)."
     ),
 ) -> None:
-    """Success against expert queries: DAgger, gated DAgger baselines and MetaL DAgger on unseen
-    seeds (benchmark/queries.csv, summary.json, queries.png), then the run's report. Only the
-    missing rows are run."""
+    """Success against expert queries: DAgger, gated DAgger and MetaL DAgger on unseen seeds.
+
+    Writes benchmark/queries.csv, summary.json and queries.png, then the run's report. Only the missing rows are run."""
     from metadagger.evaluation.report.build import build_report
     from metadagger.pipeline.stages import load_run, stage_benchmark
     from metadagger.runfolder.layout import RunLayout
@@ -317,8 +320,9 @@ def diagnose(
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """Does a mapper learn anything? Function- and weight-space errors of every kind and control
-    on the validation pairs, the noise ceiling, memorisation and the data-scaling curve
+    """Does a mapper learn anything? Errors of every kind and control on the validation pairs.
+
+    Function- and weight-space errors, the noise ceiling, memorisation and the data-scaling curve
     (diagnostics/mapping.json, scaling.png; a section of the report)."""
     from metadagger.pipeline.stages import load_run, stage_diagnose
     from metadagger.runfolder.layout import RunLayout
@@ -352,8 +356,10 @@ def export(
     workers: Optional[int] = WORKERS,
     address: Optional[str] = ADDRESS,
 ) -> None:
-    """Write a run's episodes as a Minari dataset: observations, the learner's action, the expert's
-    label, whether it was queried, the DAgger round and the seed (docs/minari.md)."""
+    """Write a run's episodes as a Minari dataset (docs/minari.md).
+
+    Each step holds the observation, the learner's action, the expert's label, whether it was queried, the DAgger round
+    and the seed."""
     from metadagger.metal_dagger.export import check_export
     from metadagger.pipeline.outputs import stage_export
     from metadagger.pipeline.stages import load_run
@@ -401,8 +407,9 @@ def video(
     gif_stride: int = typer.Option(3, "--gif-stride", help="The GIF keeps every n-th frame (the MP4 keeps all)."),
     overrides: list[str] = SET,
 ) -> None:
-    """One seed's rollouts side by side, as the learner saw them, with method, step, reward and
-    expert queries: RUN/videos/<seed>-<methods>.mp4 and .gif (needs the video extra)."""
+    """One seed's rollouts side by side, as the learner saw them (needs the video extra).
+
+    Each frame shows the method, step, reward and expert queries: RUN/videos/<seed>-<methods>.mp4 and .gif."""
     from metadagger.pipeline.outputs import stage_video
     from metadagger.pipeline.stages import load_run
     from metadagger.runfolder.layout import RunLayout
@@ -450,9 +457,10 @@ def reproduce(
         "after the benchmark (`metadagger diagnose`; a section of the report).",
     ),
 ) -> None:
-    """pistar -> pairs -> mappers -> evaluate -> mdi (runs with an mdi section) -> benchmark
-    (runs with a benchmark section) -> diagnose (with --diagnose) -> report,
-    resuming finished work and rebuilding what a changed config or input made stale."""
+    """Every stage: pistar -> pairs -> mappers -> evaluate -> mdi -> benchmark -> diagnose -> report.
+
+    mdi runs where the config has an mdi section, benchmark where it has a benchmark section, diagnose with --diagnose.
+    Finished work is resumed; what a changed config or input made stale is rebuilt."""
     from metadagger.pipeline.run_config import check_log
     from metadagger.pipeline.stages import load_run
     from metadagger.pipeline.stages import reproduce as run_all

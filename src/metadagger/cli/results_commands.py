@@ -22,8 +22,9 @@ def results_add_cmd(
     beside: str = typer.Option(..., "--beside", help="What else ran on the machine while the run was made."),
     registry: Path = REGISTRY_OPTION,
 ) -> None:
-    """Reproduce run folder --out with this code (it resumes: a current run has nothing left to
-    do), then keep its small artifacts and a manifest as registry run --name."""
+    """Reproduce run folder --out with this code, then keep it in the registry as run --name.
+
+    It resumes: a current run has nothing left to do. The registry keeps its small artifacts and a manifest."""
     from metadagger.results.registry import add_run
 
     target = add_run(out, name, beside=beside, registry=registry)
@@ -49,8 +50,9 @@ def results_check_cmd(
     registry: Path = REGISTRY_OPTION,
     strict: bool = typer.Option(False, "--strict", help="Also exit 1 when any registry run is stale."),
 ) -> None:
-    """Exit 1, naming each block, when README.md or docs/ differ from what `results build` writes
-    (stale runs pass: their blocks mark them); with --strict, also naming each stale run."""
+    """Exit 1, naming each block, when README.md or docs/ differ from what `results build` writes.
+
+    Stale runs pass: their blocks mark them. With --strict, also exit 1 naming each stale run."""
     from metadagger.results.blocks import build
     from metadagger.results.registry import load_registry
     from metadagger.results.staleness import registry_staleness, stale_summary
@@ -71,8 +73,9 @@ def results_check_cmd(
 @results_app.command("status")
 @user_errors
 def results_status_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION) -> None:
-    """Every canonical run: current, stale (and why, as `setting: run's -> today's`) or missing,
-    the wall time it last took and the command that makes it again."""
+    """Every canonical run: current, stale or missing, with the command that makes it again.
+
+    A stale run's line says why, as `setting: run's -> today's`; each run's line gives the wall time it last took."""
     from metadagger.evaluation.report.run import duration
     from metadagger.results.registry import load_registry
     from metadagger.results.staleness import registry_status
@@ -96,8 +99,9 @@ def results_compare_cmd(
     new: Path = typer.Argument(..., help="The new run folder or registry run of the same preset."),
     json_out: Path = typer.Option(None, "--json", help="Also write the comparison as JSON here."),
 ) -> None:
-    """Every success rate of NEW's tables beside the 95% Wilson interval of OLD's (what a change of
-    numerics moved); the rates outside it are counted at the end."""
+    """Every success rate of NEW's tables beside the 95% Wilson interval of OLD's.
+
+    What a change of numerics moved: the rates outside the intervals are counted at the end."""
     from metadagger.results.compare import compare_runs, comparison_lines
     from metadagger.utils.io import write_json
 

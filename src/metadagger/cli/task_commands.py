@@ -67,9 +67,10 @@ def check_task_cmd(
         "0-9", "--seeds", help="Seeds the expert is measured on: a range '0-9', a list '1,5,9' or one seed."
     ),
 ) -> None:
-    """Check a task's code (observation and action spaces, the expert's labels, combine and
-    to_label, seeded episodes), then measure its expert on seeds: success, episode lengths and
-    steps per second. Each problem is one line naming the Task method; exit 2."""
+    """Check a task's code, then measure its expert on seeds.
+
+    The checks: observation and action spaces, the expert's labels, combine and to_label, seeded episodes; the measure:
+    success, episode lengths and steps per second. Each problem is one line naming the Task method; exit 2."""
     import time
 
     from metadagger.evaluation.expert import evaluate_expert, expert_table
