@@ -1,12 +1,14 @@
 """The manuals name the command line and themselves as they are: every ``metadagger ...`` in
 README.md and docs/ (an inline code span, or a line of a fenced block) names commands that exist and
 options those commands take; the README's "Command line" block names every command and subcommand
-there is; and every pointer to a section of a manual (``docs/fetch.md, "The pairs"`` or
+there is; every command's help opens with a one-line summary (the line its group's listing shows);
+and every pointer to a section of a manual (``docs/fetch.md, "The pairs"`` or
 ``([fetch](fetch.md), 'The pairs')``, in the code, the presets, the scripts, the examples or the
 manuals) names a heading or a bold paragraph label of that manual."""
 
 from __future__ import annotations
 
+import inspect
 import re
 from pathlib import Path
 from typing import Any
@@ -127,3 +129,21 @@ def test_every_pointer_to_a_manuals_section_names_one():
 def test_a_pointer_to_a_missing_section_is_caught():
     assert _pointer_problems("see docs/fetch.md, \"The pairs\" and ([benchmark](benchmark.md), 'Equal budgets')") == []
     assert _pointer_problems('(docs/fetch.md, "Pairs that vanished")') == ['fetch.md, "Pairs that vanished"']
+
+
+def _commands(group: Any, prefix: str = "") -> dict[str, Any]:
+    found = {}
+    for name, command in group.commands.items():
+        found[prefix + name] = command
+        if hasattr(command, "commands"):
+            found.update(_commands(command, f"{prefix}{name} "))
+    return found
+
+
+def test_every_command_opens_its_help_with_a_one_line_summary():
+    broken = [
+        name
+        for name, command in _commands(COMMAND_LINE).items()
+        if "\n" in inspect.cleandoc(command.help or "").split("\n\n")[0] or not command.help
+    ]
+    assert not broken, f"help without a one-line summary (then a blank line, then the details): {', '.join(broken)}"
