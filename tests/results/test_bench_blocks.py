@@ -77,3 +77,103 @@ def test_a_missing_record_or_one_without_arms_is_one_error_line(tmp_path):
         lines = result.output.strip().splitlines()
         assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), result.output
         assert needle in lines[0] and "fix its arguments" in lines[0], lines[0]
+
+
+NUMERICS = {
+    "task": "fetch",
+    "width": 20,
+    "states": 100000,
+    "actions_changed": 99979,
+    "share_changed": 0.99979,
+    "median_output_difference": 1.4e-07,
+    "p99_output_difference": 1.1e-06,
+    "largest_output_difference": 7.9e-06,
+}
+
+COMPARISON = {
+    "new": "results/fetch-quick",
+    "old": "at-abc1234/results/fetch-quick",
+    "rows": [{"table": "eval/mdm.csv"}] * 3,
+    "outside": [
+        {
+            "table": "eval/mdm.csv",
+            "column": "success",
+            "method": "ridge",
+            "setting": "",
+            "old": [1, 20],
+            "new": [10, 20],
+        },
+        {
+            "table": "benchmark/queries.csv",
+            "column": "success",
+            "method": "dagger",
+            "setting": "1",
+            "demo_fraction": "1.0",
+            "old": [3, 10],
+            "new": [1, 10],
+        },
+    ],
+    "only_new": ["benchmark/queries.csv success dagger-oracle/0.5/1.0"],
+}
+
+
+def test_a_numerics_block_has_a_row_per_record_with_its_counts_and_sizes(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "fetch.json").write_text(json.dumps(NUMERICS))
+    older = {k: v for k, v in NUMERICS.items() if k not in ("median_output_difference", "p99_output_difference")}
+    (bench / "old.json").write_text(
+        json.dumps({**older, "task": "carracing", "actions_changed": 0, "share_changed": 0})
+    )
+    page = _page(tmp_path, "bench-numerics fetch.json old.json")
+    assert len(build(tmp_path, registry=tmp_path / "results")) == 1
+    lines = page.read_text().splitlines()
+    assert "| record | task | lanes | states | actions changed | median | 99th percentile | largest |" in lines
+    assert (
+        "| [`fetch.json`](../results/bench/fetch.json) | `fetch` | 20 | 100,000 | 99,979 (99.98%) | 1.4e-07 | 1.1e-06 "
+        "| 7.9e-06 |" in lines
+    )
+    assert (
+        "| [`old.json`](../results/bench/old.json) | `carracing` | 20 | 100,000 | 0 (0.00%) | - | - | 7.9e-06 |"
+        in lines
+    )
+    assert build(tmp_path, registry=tmp_path / "results", check=True) == []
+
+
+def test_a_compare_block_counts_each_comparison_and_names_each_rate_that_left_its_interval(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "cmp.json").write_text(json.dumps(COMPARISON))
+    (bench / "same.json").write_text(json.dumps({**COMPARISON, "new": "results/carracing-quick", "outside": []}))
+    page = _page(tmp_path, "bench-compare cmp.json same.json")
+    build(tmp_path, registry=tmp_path / "results")
+    text = page.read_text()
+    assert (
+        "| [`cmp.json`](../results/bench/cmp.json) | `results/fetch-quick` against "
+        "`at-abc1234/results/fetch-quick` | 3 | 2 | 1 |" in text
+    )
+    assert "| 3 | 0 | 1 |" in text
+    moved = " ".join(text.split("- `results/fetch-quick`: ", 1)[1].split("<!--")[0].split())
+    assert moved == (
+        "eval/mdm.csv success of `ridge`: 1/20 -> 10/20; benchmark/queries.csv success of `dagger` "
+        "(setting 1, demonstration share 1.0): 3/10 -> 1/10."
+    )
+    assert "results/carracing-quick`:" not in text  # a comparison with nothing outside lists no rate
+
+
+def test_a_numerics_or_compare_record_without_its_fields_is_one_error_line(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "short.json").write_text(json.dumps({"task": "fetch"}))
+    for spec, needle in (
+        ("bench-numerics short.json", "results/bench/short.json lacks one of task, width"),
+        ("bench-compare short.json", "results/bench/short.json lacks one of new, old"),
+        ("bench-numerics", "bench-numerics needs at least one record"),
+        ("bench-compare gone.json", "results/bench/gone.json does not exist"),
+    ):
+        _page(tmp_path, spec)
+        result = runner.invoke(
+            app, ["results", "build", "--root", str(tmp_path), "--results", str(tmp_path / "results")]
+        )
+        lines = result.output.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and needle in lines[0], result.output

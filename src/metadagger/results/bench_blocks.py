@@ -1,8 +1,10 @@
-"""Generated blocks from the speed records kept in ``results/bench/`` (``metadagger bench ... --out``),
-so that a page states a measured time or ratio only as its record holds it."""
+"""Generated blocks from the records kept in ``results/bench/`` (``metadagger bench ...`` and
+``results compare`` JSON), so that a page states a measured time, ratio or count only as its record
+holds it."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from metadagger.evaluation.report.run import STAGE_ORDER, duration
@@ -15,15 +17,30 @@ from metadagger.utils.io import read_json
 BENCH = f"{REGISTRY}/bench"
 
 
+def _record(context: BlockContext, file: str, what: str) -> tuple[Path, Any]:
+    """The record ``file`` of ``results/bench/`` and its path; a missing file is a ``ValueError``."""
+    path = context.root / BENCH / file
+    if not path.is_file():
+        raise ValueError(f"{BENCH}/{file} does not exist")
+    return path, read_json(path, f"the {what} {BENCH}/{file}")
+
+
+def _fields(record: Any, file: str, fields: tuple[str, ...]) -> dict[str, Any]:
+    if not isinstance(record, dict) or any(field not in record for field in fields):
+        raise ValueError(f"{BENCH}/{file} lacks one of {', '.join(fields)}")
+    return record
+
+
+def _link(context: BlockContext, path: Path) -> str:
+    return f"[`{path.name}`]({context.link(path)})"
+
+
 def arms_table(context: BlockContext, file: str) -> str:
     """A record of whole runs side by side (``bench reproduce``: ``arms``, each with its stages'
     seconds and its largest process's peak memory): a row per arm with each stage's time (a stage
     no arm ran is left out), their sum, the first arm's sum over this one's, and the peak; then what
     ran beside, as recorded."""
-    path = context.root / BENCH / file
-    if not path.is_file():
-        raise ValueError(f"{BENCH}/{file} does not exist")
-    record = read_json(path, f"the speed record {BENCH}/{file}")
+    path, record = _record(context, file, "speed record")
     arms: Any = record.get("arms") if isinstance(record, dict) else None
     if (
         not isinstance(arms, dict)
@@ -47,8 +64,86 @@ def arms_table(context: BlockContext, file: str) -> str:
     ]
     header = ("arm", *stages, "all stages", "speed-up", "peak memory")
     note = (
-        f"*From [`{file}`]({context.link(path)}): each stage's wall time, the first arm's sum over each arm's "
+        f"*From {_link(context, path)}: each stage's wall time, the first arm's sum over each arm's "
         "(speed-up), the largest process's peak resident memory."
         + (f" Beside them: {record['beside']}.*" if record.get("beside") else "*")
     )
     return "\n".join(markdown_table(header, rows) + ["", note])
+
+
+#: What a ``bench numerics`` record must hold.
+NUMERICS_FIELDS = (
+    "task",
+    "width",
+    "states",
+    "actions_changed",
+    "share_changed",
+    "largest_output_difference",
+)
+
+
+def numerics_table(context: BlockContext, *files: str) -> str:
+    """``bench numerics`` records, a row each: the task, the lane width, the states compared, the
+    actions the lanes' batched forwards changed against batch 1 (a class, or any bit of a
+    continuous action), and each state's largest output difference: median, 99th percentile, maximum."""
+    if not files:
+        raise ValueError("bench-numerics needs at least one record")
+    rows = []
+    for file in files:
+        path, record = _record(context, file, "numerics record")
+        record = _fields(record, file, NUMERICS_FIELDS)
+        median, p99 = (record.get(f"{q}_output_difference") for q in ("median", "p99"))
+        rows.append(
+            (
+                _link(context, path),
+                f"`{record['task']}`",
+                record["width"],
+                f"{record['states']:,}",
+                f"{record['actions_changed']:,} ({record['share_changed']:.2%})",
+                *("-" if q is None else f"{q:.1e}" for q in (median, p99)),
+                f"{record['largest_output_difference']:.1e}",
+            )
+        )
+    header = ("record", "task", "lanes", "states", "actions changed", "median", "99th percentile", "largest")
+    note = (
+        "*pi\\*'s outputs on the states of its own episodes at batch 1 and in lanes of the width: the actions "
+        "that differ, and each state's largest output difference (median, 99th percentile, largest over the states; "
+        "'-': not in the record).*"
+    )
+    return "\n".join(markdown_table(header, rows) + ["", note])
+
+
+def compare_table(context: BlockContext, *files: str) -> str:
+    """``results compare`` records: a row each with the new run against the old one it was compared
+    with, the success rates both hold, how many leave the old rate's 95% interval and the groups only
+    the new run holds; then, a line a record, the rates that left their interval."""
+    if not files:
+        raise ValueError("bench-compare needs at least one record")
+    rows, moved = [], []
+    for file in files:
+        path, record = _record(context, file, "comparison")
+        record = _fields(record, file, ("new", "old", "rows", "outside", "only_new"))
+        rows.append(
+            (
+                _link(context, path),
+                f"`{record['new']}` against `{record['old']}`",
+                len(record["rows"]),
+                len(record["outside"]),
+                len(record["only_new"]),
+            )
+        )
+        if record["outside"]:
+            moved.append(f"- `{record['new']}`: " + "; ".join(_moved(r) for r in record["outside"]) + ".")
+    header = ("record", "runs", "rates in both", "outside the old 95% interval", "groups only in the new")
+    return "\n".join(markdown_table(header, rows) + (["", *moved] if moved else []))
+
+
+def _moved(row: dict[str, Any]) -> str:
+    """One rate that left its old interval: where it stands, old -> new successes."""
+    group = ", ".join(f"{name} {row[key]}" for key, name in GROUP_NAMES if row.get(key))
+    where = f"{row['table']} {row['column']} of `{row['method']}`" + (f" ({group})" if group else "")
+    return f"{where}: {row['old'][0]}/{row['old'][1]} -> {row['new'][0]}/{row['new'][1]}"
+
+
+#: A compared row's group columns, as a line names them.
+GROUP_NAMES = (("setting", "setting"), ("demo_fraction", "demonstration share"))

@@ -50,6 +50,8 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "verdict": verdict,
     "claim": claim,
     "bench-arms": bench_blocks.arms_table,
+    "bench-numerics": bench_blocks.numerics_table,
+    "bench-compare": bench_blocks.compare_table,
 }
 
 #: The column at which generated prose is wrapped (tables, headings and images are never wrapped).
