@@ -45,8 +45,8 @@ def in_blocks(work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], width:
 
 
 def run_block(block: LaneBlock) -> list[dict[str, Any]]:
-    """Each job of ``block`` as a chain, every :class:`SeedLearner` it makes rolling out in the
-    block's lanes through pi*'s trunk; the jobs' results in order."""
+    """Each job of ``block`` as a chain, every :class:`~metadagger.metal_dagger.method.SeedLearner`
+    it makes rolling out in the block's lanes through pi*'s trunk; the jobs' results in order."""
     first = block.jobs[0]
     with Lanes(first.task, cached_pistar(first.pistar).net, width=block.width) as lanes:
         return run_chains(lanes, [functools.partial(_job_chain, block.work, job) for job in block.jobs])

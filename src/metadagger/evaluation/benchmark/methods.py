@@ -34,7 +34,7 @@ PRIOR_PREFIX = "prior-"
 PRIOR_DAGGER_PREFIX = "prior-dagger-"
 #: Between a gated method and its prior's mean in a gated method with a prior: ``dagger-<gate>+prior-<mean>``.
 GATED_PRIOR = "+prior-"
-#: Prefix of DAgger with the disagreement gate (:class:`~metadagger.imitation.gates.DisagreementGate`)
+#: Prefix of DAgger with the disagreement gate (:class:`~metadagger.imitation.reading_gates.DisagreementGate`)
 #: against a mapper kind's head: ``disagree-<mapper kind>``.
 DISAGREE_PREFIX = "disagree-"
 #: The benchmark methods whose fits carry a prior (the stage builds their priors from the pairs).
@@ -244,7 +244,7 @@ class PriorGateKey(TowardMean, GateKey):
 @dataclass(frozen=True)
 class DisagreeKey(MethodKey):
     """DAgger from w_BC after every round, labelling where a mapper kind's head for w_BC and the
-    current head act apart (:class:`~metadagger.imitation.gates.DisagreementGate` at ``value``)."""
+    current head act apart (:class:`~metadagger.imitation.reading_gates.DisagreementGate` at ``value``)."""
 
     kind: str
     value: float
