@@ -28,7 +28,6 @@ from metadagger.imitation.rollouts import Trajectory, stack_labels
 from metadagger.utils.io import atomic_folder
 
 INSTALL_MINARI = 'pip install -c constraints.txt -e ".[minari]"'
-INFO_KEYS = ("expert_label", "queried", "round", "seed")
 
 
 @dataclass(frozen=True)

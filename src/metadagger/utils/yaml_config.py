@@ -256,10 +256,3 @@ def to_dict(obj: Any, *, stamp: bool = False) -> Any:
 def dump_yaml(obj: Any) -> str:
     """A dataclass (or mapping) as YAML text."""
     return yaml.safe_dump(to_dict(obj), sort_keys=False)
-
-
-def check_positive(owner: str, **values: float) -> None:
-    """Raise :class:`UserError` naming the field if any value is not > 0."""
-    for name, value in values.items():
-        if not value > 0:
-            raise UserError(f"{owner}.{name} must be > 0, got {value!r}")

@@ -20,8 +20,6 @@ from typing import Any, Iterable
 
 import numpy as np
 
-#: Fields of a line of ``benchmark/labels.jsonl``, in order.
-LEDGER_FIELDS = ("method", "setting", "demo_fraction", "seed", "round", "runs", "scores")
 #: Who answered a label: a person at the labelling page, or the task's scripted expert.
 PERSON, SCRIPTED = "person", "scripted"
 #: Fields of a line of a labelling session's ``labels.jsonl``.
