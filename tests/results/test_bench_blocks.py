@@ -59,6 +59,15 @@ def test_an_arms_block_has_each_stage_run_in_run_order_the_sum_the_speed_up_and_
     assert build(tmp_path, registry=tmp_path / "results", check=True) == [f"{page}:3 bench-arms whole.json"]
 
 
+def _error_line(root: Path, spec: str) -> str:
+    """What ``results build`` says of a page holding block ``spec``: one error line, exit code 2."""
+    _page(root, spec)
+    result = runner.invoke(app, ["results", "build", "--root", str(root), "--results", str(root / "results")])
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), result.output
+    return lines[0]
+
+
 def test_a_missing_record_or_one_without_arms_is_one_error_line(tmp_path):
     (tmp_path / "results" / "bench").mkdir(parents=True)
     (tmp_path / "results" / "bench" / "step.json").write_text(json.dumps({"per_env_step_ms": {}}))
@@ -70,13 +79,8 @@ def test_a_missing_record_or_one_without_arms_is_one_error_line(tmp_path):
         ("bench-arms list.json", "holds no arms"),
         ("bench-arms flat.json", "holds no arms"),
     ):
-        _page(tmp_path, spec)
-        result = runner.invoke(
-            app, ["results", "build", "--root", str(tmp_path), "--results", str(tmp_path / "results")]
-        )
-        lines = result.output.strip().splitlines()
-        assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), result.output
-        assert needle in lines[0] and "fix its arguments" in lines[0], lines[0]
+        line = _error_line(tmp_path, spec)
+        assert needle in line and "fix its arguments" in line, line
 
 
 NUMERICS = {
@@ -90,28 +94,19 @@ NUMERICS = {
     "largest_output_difference": 7.9e-06,
 }
 
+
+def _outside(table: str, method: str, old: list[int], new: list[int], **group: str) -> dict:
+    """A compared rate that left the old interval, as ``results compare`` records it."""
+    return {"table": table, "column": "success", "method": method, "setting": "", **group, "old": old, "new": new}
+
+
 COMPARISON = {
     "new": "results/fetch-quick",
     "old": "at-abc1234/results/fetch-quick",
     "rows": [{"table": "eval/mdm.csv"}] * 3,
     "outside": [
-        {
-            "table": "eval/mdm.csv",
-            "column": "success",
-            "method": "ridge",
-            "setting": "",
-            "old": [1, 20],
-            "new": [10, 20],
-        },
-        {
-            "table": "benchmark/queries.csv",
-            "column": "success",
-            "method": "dagger",
-            "setting": "1",
-            "demo_fraction": "1.0",
-            "old": [3, 10],
-            "new": [1, 10],
-        },
+        _outside("eval/mdm.csv", "ridge", [1, 20], [10, 20]),
+        _outside("benchmark/queries.csv", "dagger", [3, 10], [1, 10], setting="1", demo_fraction="1.0"),
     ],
     "only_new": ["benchmark/queries.csv success dagger-oracle/0.5/1.0"],
 }
@@ -171,9 +166,4 @@ def test_a_numerics_or_compare_record_without_its_fields_is_one_error_line(tmp_p
         ("bench-numerics", "bench-numerics needs at least one record"),
         ("bench-compare gone.json", "results/bench/gone.json does not exist"),
     ):
-        _page(tmp_path, spec)
-        result = runner.invoke(
-            app, ["results", "build", "--root", str(tmp_path), "--results", str(tmp_path / "results")]
-        )
-        lines = result.output.strip().splitlines()
-        assert result.exit_code == 2 and len(lines) == 1 and needle in lines[0], result.output
+        assert needle in _error_line(tmp_path, spec)
