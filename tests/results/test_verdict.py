@@ -26,7 +26,7 @@ def _benchmark(ridge: int, mean_da: int) -> list[dict]:
 
 def test_a_method_above_every_reference_is_named_with_its_intervals(tmp_path):
     context = registry_context(tmp_path, NAME, _benchmark(20, 0), confirm=_benchmark(10, 10))
-    unseen, confirmation = verdict(context, NAME).splitlines()
+    unseen, confirmation, both = verdict(context, NAME).splitlines()
     link = f"- [`{NAME}`](../results/{NAME}/report/report.md)"
     assert unseen.startswith(
         f"{link}, 20 unseen seeds {SHOWS}: above every one of its references: MDM Ridge at demonstration +5%"
@@ -35,6 +35,25 @@ def test_a_method_above_every_reference_is_named_with_its_intervals(tmp_path):
         assert f"against {reference} +100 points (+100 to +100)" in unseen
     assert confirmation.startswith(f"{link}, 20 confirmation seeds {SHOWS}: none above all its references")
     assert "closest: MDM Ridge" in confirmation and "against mean-DA +0 points (+0 to +0)" in confirmation
+    # above on the unseen seeds alone: nothing is claimed
+    assert both == (
+        f"{link}, both seed sets: no method is above all its references at the same reading on both, "
+        "so none is claimed."
+    )
+
+
+def test_a_method_above_every_reference_on_both_seed_sets_is_named_once_more(tmp_path):
+    context = registry_context(tmp_path, NAME, _benchmark(20, 0), confirm=_benchmark(20, 0))
+    *_, both = verdict(context, NAME).splitlines()
+    assert both.startswith(
+        f"- [`{NAME}`](../results/{NAME}/report/report.md), both seed sets: above every one of its references on "
+        "both: MDM Ridge at demonstration +5%; MDM Ridge at demonstration +10%"
+    )
+    assert "MDM Ridge by area." in both
+
+
+def test_a_run_with_one_seed_set_gets_no_line_for_both(tmp_path):
+    assert len(verdict(registry_context(tmp_path, NAME, _benchmark(20, 0)), NAME).splitlines()) == 1
 
 
 def test_a_stale_run_is_judged_from_its_rows_and_marked(tmp_path):

@@ -7,7 +7,9 @@ by the area under the curve (:func:`~metadagger.evaluation.benchmark.summary.bud
 curve beats its references at a reading when every one of those paired 95% intervals lies above 0
 there. For each run, on its unseen seeds and on its confirmation seeds where it has them, the block
 names every reading where a curve does, or says that none does and gives the closest: the reading
-whose lowest lower bound over the references is highest.
+whose lowest lower bound over the references is highest. A run with both seed sets gets a third
+line: the readings where a curve beats every reference on both sets, the same curve at the same
+budget (or by area), or that there is none, so that nothing is claimed from one set alone.
 """
 
 from __future__ import annotations
@@ -32,18 +34,35 @@ def verdict(context: BlockContext, names: str = "") -> str:
             lines.append(f"- `{name}`: {missing_run(name)}")
             continue
         sets = [("unseen seeds", "benchmark/queries.csv"), ("confirmation seeds", "benchmark/confirm/queries.csv")]
+        above = []
         for seeds, path in sets:
             if found.path(path).is_file():
-                lines.append(f"- {run_item(context, found)}, {_judged(rows_reading(found.path(path)), seeds)}")
+                text, beats = _judged(rows_reading(found.path(path)), seeds)
+                lines.append(f"- {run_item(context, found)}, {text}")
+                above.append(beats)
+        if len(above) == 2:
+            lines.append(f"- {run_item(context, found)}, {_on_both(*above)}")
     return "\n".join(lines)
 
 
-def _judged(reading: dict[str, Any] | None, seeds: str) -> str:
-    """The verdict on one seed set's equal-budget reading."""
+Reading = tuple[Curve, str]
+"""A curve at one reading: a budget (``+5%``) or ``area``."""
+
+
+def _on_both(unseen: list[Reading], confirmation: list[Reading]) -> str:
+    """The readings above every reference on both seed sets, or that there is none."""
+    both = [key for key in unseen if key in confirmation]
+    if not both:
+        return "both seed sets: no method is above all its references at the same reading on both, so none is claimed."
+    return "both seed sets: above every one of its references on both: " + "; ".join(_place(k) for k in both) + "."
+
+
+def _judged(reading: dict[str, Any] | None, seeds: str) -> tuple[str, list[Reading]]:
+    """The verdict on one seed set's equal-budget reading, and the readings above all references."""
     if not reading:
-        return f"{seeds}: no DAgger rows, so no equal-budget reading."
+        return f"{seeds}: no DAgger rows, so no equal-budget reading.", []
     readings = [(f"+{b['share']:.0%}", b["metal"]) for b in reading["budgets"]] + [("area", reading["auc_metal"])]
-    groups: dict[tuple[Curve, str], list[dict[str, Any]]] = {}
+    groups: dict[Reading, list[dict[str, Any]]] = {}
     for where, comparisons in readings:
         for c in comparisons:
             groups.setdefault(((c["method"], float(c["demo_fraction"])), where), []).append(c)
@@ -51,25 +70,30 @@ def _judged(reading: dict[str, Any] | None, seeds: str) -> str:
     shows = "no difference can show" if floor is None else f"a difference shows from {100 * floor:.0f} points"
     head = f"{len(reading['seeds'])} {seeds} ({shows})"
     if not groups:
-        return f"{head}: no method that reads a learned mapper ran."
+        return f"{head}: no method that reads a learned mapper ran.", []
     above = [key for key, comparisons in groups.items() if all(c["ci_low"] > 0 for c in comparisons)]
     if above:
-        return f"{head}: above every one of its references: " + "; ".join(_reading(k, groups[k]) for k in above) + "."
+        text = "; ".join(_reading(k, groups[k]) for k in above)
+        return f"{head}: above every one of its references: {text}.", above
     closest = max(groups, key=lambda key: min(c["ci_low"] for c in groups[key]))
     closest_reading = _reading(closest, groups[closest])
-    return f"{head}: none above all its references at any budget or by area; closest: {closest_reading}."
+    return f"{head}: none above all its references at any budget or by area; closest: {closest_reading}.", []
 
 
-def _reading(key: tuple[Curve, str], comparisons: list[dict[str, Any]]) -> str:
+def _place(key: Reading) -> str:
+    """A curve at a reading, as a line names it: ``MDM Ridge at demonstration +5%``."""
     (method, fraction), where = key
     label = method_label(method) + ("" if fraction == 1.0 else f" ({fraction:.0%} of the demonstration)")
-    at = "by area" if where == "area" else f"at demonstration {where}"
+    return label + (" by area" if where == "area" else f" at demonstration {where}")
+
+
+def _reading(key: Reading, comparisons: list[dict[str, Any]]) -> str:
     parts = [
         f"against {_against(c)} {100 * c['difference']:+.0f} points ({100 * c['ci_low']:+.0f} to "
         f"{100 * c['ci_high']:+.0f})"
         for c in comparisons
     ]
-    return f"{label} {at}, " + ", ".join(parts)
+    return f"{_place(key)}, " + ", ".join(parts)
 
 
 def _against(comparison: dict[str, Any]) -> str:
