@@ -129,3 +129,13 @@ def test_the_coverage_line_gives_each_rank_correlation_with_its_interval(tmp_pat
     rho = "+0.87 (+0.64 to +0.95)"  # the gains are 0 on the first ten seeds, 1 on the last ten
     assert f"over 20 seeds, Spearman's rho of the gap with the gain: MDM Ridge against mean-DA {rho}" in line
     assert line.endswith("the gap predicts the gain for MDM Ridge against mean-DA, MDM Ridge against pi*'s head.")
+
+
+def test_a_run_with_confirmation_seeds_has_each_claim_read_again_on_them(tmp_path, run_rows):
+    confirm = [r for r in run_rows if r["method"] != "mdm-ridge"] + rows("mdm-ridge", "", 2, 500)
+    context = registry_context(tmp_path, NAME, run_rows, confirm=confirm)
+    unseen, confirmation = claim(context, "mappers", NAME).splitlines()
+    assert unseen.startswith(f"- [`{NAME}`](../results/{NAME}/report/report.md): best mapper MDM Ridge 18/20")
+    assert confirmation.startswith(f"- [`{NAME}`](../results/{NAME}/report/report.md), confirmation seeds: ")
+    assert "best mapper MDM Ridge 2/20" in confirmation
+    assert len(claim(context, "labels", NAME).splitlines()) == 2

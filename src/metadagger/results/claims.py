@@ -14,7 +14,8 @@ what they show, worded from the intervals alone:
 - ``coverage``: whether the seeds' coverage gap predicts a MetaL method's gain over its constant
   twin (Spearman's rho with its 95% interval, each comparison).
 
-The runs without the rows a claim reads (or not in the registry yet) are named in one line.
+A run with confirmation seeds (``benchmark/confirm/``) gets a second item, the same claim read on
+them. The runs without the rows a claim reads (or not in the registry yet) are named in one line.
 """
 
 from __future__ import annotations
@@ -41,8 +42,12 @@ from metadagger.results.tables import (
     whole_entries,
 )
 
-#: What a claim reads of one run: its line's text, or None where the run lacks the rows it needs.
-Reader = Callable[[RegistryRun], "str | None"]
+#: What a claim reads of one run's seed set (its benchmark folder, ``benchmark`` or
+#: ``benchmark/confirm``): its line's text, or None where the set lacks the rows it needs.
+Reader = Callable[[RegistryRun, str], "str | None"]
+
+#: A run's seed sets: how a line names each, and its benchmark folder.
+SEED_SETS = (("", "benchmark"), (", confirmation seeds", "benchmark/confirm"))
 
 #: What each verdict of a comparison says, by claim.
 SAYS = {
@@ -69,11 +74,14 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
     lines, without = [], []
     for name in run_names(names):
         found = context.runs.get(name)
-        text = CLAIMS[kind](found) if found and found.path("benchmark/summary.json").is_file() else None
-        if text is None:
+        made = []
+        for called, folder in SEED_SETS if found else ():
+            text = CLAIMS[kind](found, folder) if found.path(f"{folder}/summary.json").is_file() else None
+            if text is not None:
+                made.append(f"- {run_item(context, found)}{called}: {text}")
+        if not made:
             without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))
-            continue
-        lines.append(f"- {run_item(context, found)}: {text}")
+        lines += made
     if without:
         lines += ["", f"*Without the rows this claim reads: {', '.join(without)}.*"]
     return "\n".join(lines)
@@ -102,8 +110,8 @@ def _found(summary: dict[str, Any], entry: dict[str, Any], against: str) -> dict
     return None
 
 
-def _mappers(found: RegistryRun) -> str | None:
-    summary = found.json("benchmark/summary.json")
+def _mappers(found: RegistryRun, folder: str) -> str | None:
+    summary = found.json(f"{folder}/summary.json")
     mapped = [
         e
         for e in whole_entries(summary["entries"])
@@ -124,10 +132,10 @@ def _mappers(found: RegistryRun) -> str | None:
     )
 
 
-def _refits(found: RegistryRun) -> str | None:
-    if not found.path("benchmark/queries.csv").is_file():
+def _refits(found: RegistryRun, folder: str) -> str | None:
+    if not found.path(f"{folder}/queries.csv").is_file():
         return None
-    checks = refit_check(read_csv(found.path("benchmark/queries.csv")))
+    checks = refit_check(read_csv(found.path(f"{folder}/queries.csv")))
     if not checks:
         return None
     parts = [
@@ -138,8 +146,8 @@ def _refits(found: RegistryRun) -> str | None:
     return "; ".join(parts) + "."
 
 
-def _labels(found: RegistryRun) -> str | None:
-    summary = found.json("benchmark/summary.json")
+def _labels(found: RegistryRun, folder: str) -> str | None:
+    summary = found.json(f"{folder}/summary.json")
     dagger = last_dagger(whole_entries(summary["entries"]))
     refit = [e for e in whole_entries(summary["entries"]) if e["method"] == BC_REFIT]
     c = _found(summary, dagger, BC_REFIT) if dagger else None
@@ -151,8 +159,8 @@ def _labels(found: RegistryRun) -> str | None:
     )
 
 
-def _oracle(found: RegistryRun) -> str | None:
-    summary = found.json("benchmark/summary.json")
+def _oracle(found: RegistryRun, folder: str) -> str | None:
+    summary = found.json(f"{folder}/summary.json")
     entries = whole_entries(summary["entries"])
     gates = [r for r in summary.get("references", []) if r["method"] in gated_methods()]
     oracle = [e for e in entries if e["method"] in reference_methods()]
@@ -169,8 +177,8 @@ def _oracle(found: RegistryRun) -> str | None:
     )
 
 
-def _coverage(found: RegistryRun) -> str | None:
-    coverage = found.json("benchmark/summary.json").get("coverage")
+def _coverage(found: RegistryRun, folder: str) -> str | None:
+    coverage = found.json(f"{folder}/summary.json").get("coverage")
     ranked = [c for c in (coverage or {}).get("methods", []) if c["rho"] is not None]
     if not ranked:
         return None
