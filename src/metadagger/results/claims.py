@@ -31,6 +31,7 @@ from metadagger.evaluation.rows import read_csv
 from metadagger.results.registry import RegistryRun
 from metadagger.results.tables import (
     CONTROLS,
+    SEED_SETS,
     SHORT_NAMES,
     BlockContext,
     best_entry,
@@ -45,9 +46,6 @@ from metadagger.results.tables import (
 #: What a claim reads of one run's seed set (its benchmark folder, ``benchmark`` or
 #: ``benchmark/confirm``): its line's text, or None where the set lacks the rows it needs.
 Reader = Callable[[RegistryRun, str], "str | None"]
-
-#: A run's seed sets: how a line names each, and its benchmark folder.
-SEED_SETS = (("", "benchmark"), (", confirmation seeds", "benchmark/confirm"))
 
 #: What each verdict of a comparison says, by claim.
 SAYS = {
@@ -75,9 +73,10 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
     for name in run_names(names):
         found = context.runs.get(name)
         made = []
-        for called, folder in SEED_SETS if found else ():
+        for seeds, folder in SEED_SETS if found else ():
             text = CLAIMS[kind](found, folder) if found.path(f"{folder}/summary.json").is_file() else None
             if text is not None:
+                called = "" if folder == SEED_SETS[0][1] else f", {seeds}"
                 made.append(f"- {run_item(context, found)}{called}: {text}")
         if not made:
             without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))

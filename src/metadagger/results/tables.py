@@ -344,6 +344,11 @@ def rows_reading(path: Path) -> dict[str, Any] | None:
     return _READINGS[digest]
 
 
+#: A run's seed sets: its unseen seeds, then its confirmation seeds where it has them (the same
+#: methods on a second set, fixed before any was read), each by its name and its benchmark folder.
+SEED_SETS = (("unseen seeds", "benchmark"), ("confirmation seeds", "benchmark/confirm"))
+
+
 def budgets_table(context: BlockContext, names: str = "") -> str:
     """The canonical runs ``names`` (comma-separated; default every one) read at equal budgets, from
     each one's ``benchmark/queries.csv``: at each budget and by the area under the curve, the best
@@ -357,11 +362,16 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
         if reading is None:
             rows.append((f"`{name}`", "not run yet" if found is None else "no DAgger rows", "", "", "", ""))
             continue
-        cell = _run_cell(context, name)
-        rows += [(cell, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
-        rows.append((cell, "area", *_by_area(reading)))
+        for seeds, folder in SEED_SETS:
+            reading = rows_reading(found.path(f"{folder}/queries.csv"))
+            if reading is None:
+                continue
+            cell = _run_cell(context, name) + ("" if folder == SEED_SETS[0][1] else f", {seeds}")
+            rows += [(cell, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
+            rows.append((cell, "area", *_by_area(reading)))
     note = (
-        "Every method read at the same spend on each unseen seed: the demonstration's queries plus a share of plain "
+        "Every method read at the same spend on each unseen seed (and, in their own rows, each confirmation seed): "
+        "the demonstration's queries plus a share of plain "
         "DAgger's final queries beyond them ([benchmark](benchmark.md), 'Equal budgets'); by area: the mean success "
         "over 16 log-spaced budgets up to DAgger's. At each: the best method (the controls and the oracle aside, "
         "chosen on these seeds), its success (or area), its paired difference from the best gate there (95% "

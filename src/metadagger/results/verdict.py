@@ -18,7 +18,15 @@ from typing import Any
 
 from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.paired import smallest_shown_difference
-from metadagger.results.tables import BlockContext, missing_run, rows_reading, run_item, run_names, short_label
+from metadagger.results.tables import (
+    SEED_SETS,
+    BlockContext,
+    missing_run,
+    rows_reading,
+    run_item,
+    run_names,
+    short_label,
+)
 
 Curve = tuple[str, float]
 
@@ -33,11 +41,10 @@ def verdict(context: BlockContext, names: str = "") -> str:
         if found is None:
             lines.append(f"- `{name}`: {missing_run(name)}")
             continue
-        sets = [("unseen seeds", "benchmark/queries.csv"), ("confirmation seeds", "benchmark/confirm/queries.csv")]
         above = []
-        for seeds, path in sets:
-            if found.path(path).is_file():
-                text, beats = _judged(rows_reading(found.path(path)), seeds)
+        for seeds, folder in SEED_SETS:
+            if found.path(f"{folder}/queries.csv").is_file():
+                text, beats = _judged(rows_reading(found.path(f"{folder}/queries.csv")), seeds)
                 lines.append(f"- {run_item(context, found)}, {text}")
                 above.append(beats)
         if len(above) == 2:
