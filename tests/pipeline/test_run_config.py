@@ -231,3 +231,12 @@ def test_a_run_folder_of_this_version_written_before_a_key_was_renamed_reads_it_
     assert "dagger-oracle" not in config.benchmark.gated()
     message = _refused(["pairs", "--out", run.root, "--set", "benchmark.ceiling=true"])
     assert "unknown field(s) ceiling (ceiling is now oracle)" in message
+
+
+@pytest.mark.parametrize("task", ["carracing", "fetch", "carracing-family", "fetch-family"])
+@pytest.mark.parametrize("preset", ["quick", "paper"])
+def test_the_spare_seed_is_none_the_run_names(task, preset):
+    config = resolve_config(task, preset)
+    named = config.pistar.used_seeds | set(config.pairs.seeds) | config.unseen_seeds
+    assert config.spare_seed not in named and config.spare_seed == max(named) + 1
+    assert set(config.benchmark.confirm_seeds) <= config.unseen_seeds

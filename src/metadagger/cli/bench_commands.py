@@ -10,6 +10,14 @@ import typer
 
 from metadagger.cli.options import OUT, SET, TASK, user_errors
 
+#: The seed ``bench lanes`` and ``bench step`` time.
+TIMED_SEED = typer.Option(
+    None,
+    "--seed",
+    help="The seed to time (default: the first seed above every seed the run names, so that no evaluation seed "
+    "is rolled out to choose a width).",
+)
+
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that write JSON.")
 
 
@@ -127,7 +135,7 @@ def bench_pairs_cmd(
 @user_errors
 def bench_lanes_cmd(
     out: Path = OUT,
-    seed: Optional[int] = typer.Option(None, "--seed", help="The benchmark seed to time (default: the run's first)."),
+    seed: Optional[int] = TIMED_SEED,
     lanes: list[int] = typer.Option([1, 32], "--lanes", help="Lane widths to time, side by side; repeatable."),
     repeats: int = typer.Option(1, "--repeats", help="Times each width is measured, the widths taking turns."),
     overrides: list[str] = SET,
@@ -147,7 +155,7 @@ def bench_lanes_cmd(
 @user_errors
 def bench_step_cmd(
     out: Path = OUT,
-    seed: Optional[int] = typer.Option(None, "--seed", help="The benchmark seed to time (default: the run's first)."),
+    seed: Optional[int] = TIMED_SEED,
     lanes: Optional[int] = typer.Option(None, "--lanes", help="The lane width (default: the run's benchmark.lanes)."),
     overrides: list[str] = SET,
     json_out: Path = typer.Option(Path("runs/bench/step.json"), "--json", help="JSON file to write."),

@@ -120,7 +120,7 @@ def _checked(run: str | Path, seed: int | None, overrides: Sequence[str], comman
     config = load_run(run, overrides)
     if config.benchmark is None:
         raise UserError(f"run {run} has no benchmark section; {command} times one of its benchmark seeds")
-    seed = config.benchmark.seeds[0] if seed is None else seed
+    seed = config.spare_seed if seed is None else seed
     dataclasses.replace(config.benchmark, seeds=(seed,))  # a bad seed or override is named before any work
     layout = RunLayout(run)
     for path, what in ((layout.pistar, "pi*"), (layout.root / "mappers", "the mappers")):

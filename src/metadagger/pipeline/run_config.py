@@ -104,12 +104,7 @@ class RunConfig:
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
-        unseen = (
-            set(self.evaluate.seeds)
-            | (set(self.mdi.seeds) if self.mdi else set())
-            | (set(self.benchmark.seeds) | set(self.benchmark.confirm_seeds) if self.benchmark else set())
-        )
-        seen = sorted((gt | set(self.pairs.seeds)) & unseen)
+        seen = sorted((gt | set(self.pairs.seeds)) & self.unseen_seeds)
         if seen:
             raise UserError(
                 f"evaluate.seeds, mdi.seeds and benchmark's seeds must be unseen, but {seen[:5]} are pi*'s or pairs' "
@@ -127,6 +122,22 @@ class RunConfig:
             )
         for kind in self.mappers:
             self.mapper_config(kind)  # validates the overrides now, not hours later
+
+    @property
+    def unseen_seeds(self) -> set[int]:
+        """Every seed the run measures on and learns from nowhere: evaluation, MDI, benchmark and
+        confirmation seeds."""
+        return (
+            set(self.evaluate.seeds)
+            | (set(self.mdi.seeds) if self.mdi else set())
+            | (set(self.benchmark.seeds) | set(self.benchmark.confirm_seeds) if self.benchmark else set())
+        )
+
+    @property
+    def spare_seed(self) -> int:
+        """The first seed above every seed the run names: one no stage rolls out, for timing a
+        setting (a lane width) without rolling out an evaluation seed."""
+        return max(self.pistar.used_seeds | set(self.pairs.seeds) | self.unseen_seeds) + 1
 
     def mapper_config(self, kind: str) -> MapperConfig:
         """The paper's settings for mapper ``kind`` with this run's overrides applied."""
