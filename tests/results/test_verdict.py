@@ -52,8 +52,10 @@ def test_a_method_above_every_reference_on_both_seed_sets_is_named_once_more(tmp
     assert "MDM Ridge by area." in both
 
 
-def test_a_run_with_one_seed_set_gets_no_line_for_both(tmp_path):
+def test_a_run_with_one_seed_set_or_nothing_above_on_either_gets_no_line_for_both(tmp_path):
     assert len(verdict(registry_context(tmp_path, NAME, _benchmark(20, 0)), NAME).splitlines()) == 1
+    none = registry_context(tmp_path / "none", NAME, _benchmark(10, 10), confirm=_benchmark(10, 10))
+    assert len(verdict(none, NAME).splitlines()) == 2
 
 
 def test_a_stale_run_is_judged_from_its_rows_and_marked(tmp_path):

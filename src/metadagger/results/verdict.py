@@ -7,9 +7,10 @@ by the area under the curve (:func:`~metadagger.evaluation.benchmark.summary.bud
 curve beats its references at a reading when every one of those paired 95% intervals lies above 0
 there. For each run, on its unseen seeds and on its confirmation seeds where it has them, the block
 names every reading where a curve does, or says that none does and gives the closest: the reading
-whose lowest lower bound over the references is highest. A run with both seed sets gets a third
-line: the readings where a curve beats every reference on both sets, the same curve at the same
-budget (or by area), or that there is none, so that nothing is claimed from one set alone.
+whose lowest lower bound over the references is highest. A run with both seed sets, where a curve
+beats every reference on either, gets a third line: the readings where one does on both sets, the
+same curve at the same budget (or by area), or that there is none, so that nothing is claimed from
+one set alone.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def verdict(context: BlockContext, names: str = "") -> str:
                 text, beats = _judged(rows_reading(found.path(f"{folder}/queries.csv")), seeds)
                 lines.append(f"- {run_item(context, found)}, {text}")
                 above.append(beats)
-        if len(above) == 2:
+        if len(above) == 2 and any(above):  # where neither set has one, its two lines say so
             lines.append(f"- {run_item(context, found)}, {_on_both(*above)}")
     return "\n".join(lines)
 
