@@ -213,7 +213,7 @@ def plan_of_run(layout: RunLayout, config: RunConfig, *, seed: int, gate: str, s
             another config, or the gate or its setting is not one a session takes (a gate of class
             distributions on a task with action vectors among them).
     """
-    used = config.pistar.used_seeds | set(config.pairs.seeds)
+    used = config.seen_seeds
     if seed in used:
         raise UserError(
             f"--seed {seed} was used for pi* or the pairs; label an unseen seed, e.g. one of benchmark.seeds"

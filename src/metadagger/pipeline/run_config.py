@@ -104,7 +104,7 @@ class RunConfig:
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
             raise UserError(f"pairs.seeds overlap pi*'s seeds ({shared[:5]}...); pick disjoint ranges")
-        seen = sorted((gt | set(self.pairs.seeds)) & self.unseen_seeds)
+        seen = sorted(self.seen_seeds & self.unseen_seeds)
         if seen:
             raise UserError(
                 f"evaluate.seeds, mdi.seeds and benchmark's seeds must be unseen, but {seen[:5]} are pi*'s or pairs' "
@@ -124,6 +124,11 @@ class RunConfig:
             self.mapper_config(kind)  # validates the overrides now, not hours later
 
     @property
+    def seen_seeds(self) -> set[int]:
+        """Every seed pi* or the pairs learn from (pi*'s own check seeds included)."""
+        return self.pistar.used_seeds | set(self.pairs.seeds)
+
+    @property
     def unseen_seeds(self) -> set[int]:
         """Every seed the run measures on and learns from nowhere: evaluation, MDI, benchmark and
         confirmation seeds."""
@@ -137,7 +142,7 @@ class RunConfig:
     def spare_seed(self) -> int:
         """The first seed above every seed the run names: one no stage rolls out, for timing a
         setting (a lane width) without rolling out an evaluation seed."""
-        return max(self.pistar.used_seeds | set(self.pairs.seeds) | self.unseen_seeds) + 1
+        return max(self.seen_seeds | self.unseen_seeds) + 1
 
     def mapper_config(self, kind: str) -> MapperConfig:
         """The paper's settings for mapper ``kind`` with this run's overrides applied."""

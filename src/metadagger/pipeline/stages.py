@@ -168,7 +168,7 @@ def stage_tune(
 
 def _unseen(config: RunConfig, seeds: Sequence[int]) -> tuple[int, ...]:
     """``seeds`` as a tuple, checked to be none of pi*'s or the pairs' seeds."""
-    used = config.pistar.used_seeds | set(config.pairs.seeds)
+    used = config.seen_seeds
     seen = sorted(set(seeds) & used)
     if seen:
         raise UserError(f"evaluation seeds must be unseen, but {seen[:5]} were used for pi* or pairs; pick other seeds")

@@ -9,6 +9,7 @@ from typing import Any
 
 from metadagger.evaluation.report.run import STAGE_ORDER, duration
 from metadagger.evaluation.report.tables import markdown_table
+from metadagger.results.compare import GROUP_COLUMNS
 from metadagger.results.registry import REGISTRY
 from metadagger.results.tables import BlockContext
 from metadagger.utils.io import read_json
@@ -138,12 +139,12 @@ def compare_table(context: BlockContext, *files: str) -> str:
     return "\n".join(markdown_table(header, rows) + (["", *moved] if moved else []))
 
 
+#: How a line names a compared row's group columns (:data:`~metadagger.results.compare.GROUP_COLUMNS`).
+GROUP_NAMES = {"setting": "setting", "demo_fraction": "demonstration share"}
+
+
 def _moved(row: dict[str, Any]) -> str:
     """One rate that left its old interval: where it stands, old -> new successes."""
-    group = ", ".join(f"{name} {row[key]}" for key, name in GROUP_NAMES if row.get(key))
+    group = ", ".join(f"{GROUP_NAMES[key]} {row[key]}" for key in GROUP_COLUMNS if row.get(key))
     where = f"{row['table']} {row['column']} of `{row['method']}`" + (f" ({group})" if group else "")
     return f"{where}: {row['old'][0]}/{row['old'][1]} -> {row['new'][0]}/{row['new'][1]}"
-
-
-#: A compared row's group columns, as a line names them.
-GROUP_NAMES = (("setting", "setting"), ("demo_fraction", "demonstration share"))

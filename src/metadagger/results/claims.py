@@ -34,6 +34,7 @@ from metadagger.results.tables import (
     SEED_SETS,
     SHORT_NAMES,
     BlockContext,
+    after_run,
     best_entry,
     difference_points,
     last_dagger,
@@ -76,8 +77,7 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
         for seeds, folder in SEED_SETS if found else ():
             text = CLAIMS[kind](found, folder) if found.path(f"{folder}/summary.json").is_file() else None
             if text is not None:
-                called = "" if folder == SEED_SETS[0][1] else f", {seeds}"
-                made.append(f"- {run_item(context, found)}{called}: {text}")
+                made.append(f"- {run_item(context, found)}{after_run(seeds, folder)}: {text}")
         if not made:
             without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))
         lines += made

@@ -349,6 +349,11 @@ def rows_reading(path: Path) -> dict[str, Any] | None:
 SEED_SETS = (("unseen seeds", "benchmark"), ("confirmation seeds", "benchmark/confirm"))
 
 
+def after_run(seeds: str, folder: str) -> str:
+    """How a line names a seed set after its run: nothing for the unseen seeds, else ``, confirmation seeds``."""
+    return "" if folder == SEED_SETS[0][1] else f", {seeds}"
+
+
 def budgets_table(context: BlockContext, names: str = "") -> str:
     """The canonical runs ``names`` (comma-separated; default every one) read at equal budgets, from
     each one's ``benchmark/queries.csv``: at each budget and by the area under the curve, the best
@@ -358,15 +363,14 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
     rows = []
     for name in runs:
         found = context.runs.get(name)
-        reading = rows_reading(found.path("benchmark/queries.csv")) if found is not None else None
-        if reading is None:
+        readings = [(s, f, rows_reading(found.path(f"{f}/queries.csv"))) for s, f in SEED_SETS] if found else []
+        if not readings or readings[0][2] is None:
             rows.append((f"`{name}`", "not run yet" if found is None else "no DAgger rows", "", "", "", ""))
             continue
-        for seeds, folder in SEED_SETS:
-            reading = rows_reading(found.path(f"{folder}/queries.csv"))
+        for seeds, folder, reading in readings:
             if reading is None:
                 continue
-            cell = _run_cell(context, name) + ("" if folder == SEED_SETS[0][1] else f", {seeds}")
+            cell = _run_cell(context, name) + after_run(seeds, folder)
             rows += [(cell, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
             rows.append((cell, "area", *_by_area(reading)))
     note = (
