@@ -111,24 +111,51 @@ def test_the_findings_page_and_the_readme_stay_short():
     assert not long, long
 
 
-def test_the_coverage_line_gives_each_rank_correlation_with_its_interval(tmp_path):
+def test_the_coverage_line_counts_the_rank_correlations_and_gives_the_extremes_with_their_intervals(tmp_path):
     dagger = rows("dagger", "3", 20, 3000)
     for i, row in enumerate(dagger):
         row["coverage_gap"] = i / 20  # the later seeds, the larger gaps
     ridge = rows("mdm-ridge", "", 20, 500)
     for i, row in enumerate(ridge):
         row["success"] = i >= 10  # the mapper solves the seeds with the larger gaps only
+    half = [  # from half the demonstration, the mapper and its twins fail every seed: no rank
+        {**row, "demo_fraction": 0.5}
+        for row in (
+            *rows("mdm-ridge", "", 0, 250),
+            *rows("mdm-mean-da", "", 0, 250),
+            *rows("mdm-pistar-head", "", 0, 250),
+        )
+    ]
     made = [
         *rows("bc", "", 0, 500),
         *dagger,
         *ridge,
         *rows("mdm-mean-da", "", 0, 500),
         *rows("mdm-pistar-head", "", 0, 500),
+        *half,
     ]
     line = _line(registry_context(tmp_path, NAME, made), "coverage")
     rho = "+0.87 (+0.64 to +0.95)"  # the gains are 0 on the first ten seeds, 1 on the last ten
-    assert f"over 20 seeds, Spearman's rho of the gap with the gain: MDM Ridge against mean-DA {rho}" in line
-    assert line.endswith("the gap predicts the gain for MDM Ridge against mean-DA, MDM Ridge against pi*'s head.")
+    assert line.startswith(
+        f"- [`{NAME}`](../results/{NAME}/report/report.md): over 20 seeds, Spearman's rho of the gap with the gain "
+        "in 2 comparisons of a MetaL method with a constant twin (2 more without a rank: the same gain on every "
+        "seed), its interval above 0 in 2 and below in 0 (about 0.1 each by chance, were they independent); "
+    )
+    assert f"highest MDM Ridge against pi*'s head {rho}, lowest MDM Ridge against mean-DA {rho}" in line
+    assert line.endswith(": the gap predicts the gain in 2 of 2.")
+
+
+def test_a_coverage_comparison_from_part_of_the_demonstration_is_named_so(tmp_path):
+    dagger = [{**row, "coverage_gap": i / 20} for i, row in enumerate(rows("dagger", "3", 20, 3000))]
+    ridge = [
+        {**row, "demo_fraction": 0.5, "success": i % 2 == 0} for i, row in enumerate(rows("mdm-ridge", "", 0, 250))
+    ]
+    twin = [{**row, "demo_fraction": 0.5} for row in rows("mdm-mean-da", "", 0, 250)]
+    made = [*rows("bc", "", 0, 500), *dagger, *ridge, *twin]
+    line = _line(registry_context(tmp_path, NAME, made), "coverage")
+    assert "in 1 comparison of a MetaL method" in line and "highest" not in line
+    assert "; MDM Ridge (50% of the demonstration) against mean-DA -0.09 (" in line
+    assert line.endswith(": no interval lies above 0.")
 
 
 def test_a_run_with_confirmation_seeds_has_each_claim_read_again_on_them(tmp_path, run_rows):
@@ -136,6 +163,6 @@ def test_a_run_with_confirmation_seeds_has_each_claim_read_again_on_them(tmp_pat
     context = registry_context(tmp_path, NAME, run_rows, confirm=confirm)
     unseen, confirmation = claim(context, "mappers", NAME).splitlines()
     assert unseen.startswith(f"- [`{NAME}`](../results/{NAME}/report/report.md): best mapper MDM Ridge 18/20")
-    assert confirmation.startswith(f"- [`{NAME}`](../results/{NAME}/report/report.md), confirmation seeds: ")
+    assert confirmation.startswith("  - confirmation seeds: ")  # an item nested under the run's
     assert "best mapper MDM Ridge 2/20" in confirmation
     assert len(claim(context, "labels", NAME).splitlines()) == 2

@@ -33,12 +33,12 @@ def test_a_method_above_every_reference_is_named_with_its_intervals(tmp_path):
     )
     for reference in ("mean-DA", "pi*'s head", "BC refitted", "DAgger, SafeDAgger gate"):
         assert f"against {reference} +100 points (+100 to +100)" in unseen
-    assert confirmation.startswith(f"{link}, 20 confirmation seeds {SHOWS}: none above all its references")
+    # the confirmation seeds' reading, and the one on both sets, are items nested under the run's
+    assert confirmation.startswith(f"  - 20 confirmation seeds {SHOWS}: none above all its references")
     assert "closest: MDM Ridge" in confirmation and "against mean-DA +0 points (+0 to +0)" in confirmation
     # above on the unseen seeds alone: nothing is claimed
     assert both == (
-        f"{link}, both seed sets: no method is above all its references at the same reading on both, "
-        "so none is claimed."
+        "  - both seed sets: no method is above all its references at the same reading on both, so none is claimed."
     )
 
 
@@ -46,7 +46,7 @@ def test_a_method_above_every_reference_on_both_seed_sets_is_named_once_more(tmp
     context = registry_context(tmp_path, NAME, _benchmark(20, 0), confirm=_benchmark(20, 0))
     *_, both = verdict(context, NAME).splitlines()
     assert both.startswith(
-        f"- [`{NAME}`](../results/{NAME}/report/report.md), both seed sets: above every one of its references on "
+        "  - both seed sets: above every one of its references on "
         "both: MDM Ridge at demonstration +5%; MDM Ridge at demonstration +10%"
     )
     assert "MDM Ridge by area." in both

@@ -12,10 +12,11 @@ what they show, worded from the intervals alone:
   refits' training alone.
 - ``oracle``: the learner's-mistakes rule (the oracle, a reference) against the best gate.
 - ``coverage``: whether the seeds' coverage gap predicts a MetaL method's gain over its constant
-  twin (Spearman's rho with its 95% interval, each comparison).
+  twin (Spearman's rho with its 95% interval): how many comparisons have an interval above 0 and
+  below, and the highest and lowest rho (each one is in the run's report).
 
-A run with confirmation seeds (``benchmark/confirm/``) gets a second item, the same claim read on
-them. The runs without the rows a claim reads (or not in the registry yet) are named in one line.
+A run with confirmation seeds (``benchmark/confirm/``) gets a second item nested under its first,
+the same claim read on them. The runs without the rows a claim reads (or not in the registry yet) are named in one line.
 """
 
 from __future__ import annotations
@@ -34,14 +35,14 @@ from metadagger.results.tables import (
     SEED_SETS,
     SHORT_NAMES,
     BlockContext,
-    after_run,
     best_entry,
     difference_points,
     last_dagger,
-    run_item,
     run_names,
+    seed_set_item,
     short_label,
     whole_entries,
+    with_share,
 )
 
 #: What a claim reads of one run's seed set (its benchmark folder, ``benchmark`` or
@@ -77,7 +78,8 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
         for seeds, folder in SEED_SETS if found else ():
             text = CLAIMS[kind](found, folder) if found.path(f"{folder}/summary.json").is_file() else None
             if text is not None:
-                made.append(f"- {run_item(context, found)}{after_run(seeds, folder)}: {text}")
+                named = "" if not made else f" {seeds}"
+                made.append(f"{seed_set_item(context, found, first=not made)}{named}: {text}")
         if not made:
             without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))
         lines += made
@@ -178,20 +180,27 @@ def _oracle(found: RegistryRun, folder: str) -> str | None:
 
 def _coverage(found: RegistryRun, folder: str) -> str | None:
     coverage = found.json(f"{folder}/summary.json").get("coverage")
-    ranked = [c for c in (coverage or {}).get("methods", []) if c["rho"] is not None]
+    compared = (coverage or {}).get("methods", [])
+    ranked = [c for c in compared if c["rho"] is not None]
     if not ranked:
         return None
-    parts, above = [], []
+    read = []
     for c in ranked:
         low, high = rank_interval(c["rho"], c["seeds"]) or (float("nan"), float("nan"))
-        pair = f"{method_label(c['method'])} against {short_label(c['against'])}"
-        parts.append(f"{pair} {c['rho']:+.2f} ({low:+.2f} to {high:+.2f})")
-        if low > 0:
-            above.append(pair)
-    says = f"the gap predicts the gain for {', '.join(above)}" if above else "no interval lies above 0"
-    return (
-        f"over {ranked[0]['seeds']} seeds, Spearman's rho of the gap with the gain: " + "; ".join(parts) + f": {says}."
+        pair = f"{with_share(method_label(c['method']), c['demo_fraction'])} against {short_label(c['against'])}"
+        read.append((c["rho"], f"{pair} {c['rho']:+.2f} ({low:+.2f} to {high:+.2f})", low, high))
+    above, below = sum(low > 0 for *_, low, _ in read), sum(high < 0 for *_, high in read)
+    unranked = len(compared) - len(ranked)
+    counted = (
+        f"in {len(read)} comparison{'s' if len(read) > 1 else ''} of a MetaL method with a constant twin"
+        + (f" ({unranked} more without a rank: the same gain on every seed)" if unranked else "")
+        + f", its interval above 0 in {above} and below in {below} (about {0.025 * len(read):.1f} each by chance, "
+        "were they independent)"
     )
+    extremes = sorted(read, key=lambda r: r[0])
+    shown = extremes[-1][1] if len(read) == 1 else f"highest {extremes[-1][1]}, lowest {extremes[0][1]}"
+    says = f"the gap predicts the gain in {above} of {len(read)}" if above else "no interval lies above 0"
+    return f"over {ranked[0]['seeds']} seeds, Spearman's rho of the gap with the gain {counted}; {shown}: {says}."
 
 
 #: The claims by kind.

@@ -6,7 +6,8 @@
 - ``runs``: every canonical run: its arguments, wall time, CPU, what it shows.
 - ``report RUN HEADING [ROW ...]``: the section of RUN's ``report.md`` under HEADING (its figures
   linked where they lie in the registry), or only its first table's rows ROW.
-- ``figure RUNS PATH ALT``: an image of the first of RUNS (comma-separated) that has it.
+- ``figure RUNS PATH ALT``: an image of the first of RUNS that has it. RUNS: comma-separated run
+  names, or a preset's name for every canonical run of it (:func:`run_names`).
 - ``queries-figure RUNS ALT``: the benchmark figure of the first of RUNS, drawn from its summary.
 - ``budgets [RUNS]``: the runs read at equal budgets and by the area under the curve.
 - ``verdict RUNS``: whether a MetaL DAgger method beats every one of its references
@@ -221,8 +222,12 @@ def _status(context: BlockContext, name: str) -> str:
 
 
 def run_names(names: str = "") -> list[str]:
-    """The canonical runs ``names`` (comma-separated; each must be one), or every one, the paper presets first."""
-    runs = [canonical_run(name) for name in names.split(",")] if names else list(CANONICAL_RUNS)
+    """The canonical runs ``names``: comma-separated run names (each must be one), or a preset's name
+    for every canonical run of that preset (``paper``); by default every one, the paper presets first."""
+    if names in {run.preset for run in CANONICAL_RUNS}:
+        runs = [run for run in CANONICAL_RUNS if run.preset == names]
+    else:
+        runs = [canonical_run(name) for name in names.split(",")] if names else list(CANONICAL_RUNS)
     return [run.name for run in sorted(runs, key=lambda r: r.preset != "paper")]
 
 
@@ -349,7 +354,13 @@ def rows_reading(path: Path) -> dict[str, Any] | None:
 SEED_SETS = (("unseen seeds", "benchmark"), ("confirmation seeds", "benchmark/confirm"))
 
 
-def after_run(seeds: str, folder: str) -> str:
+def seed_set_item(context: BlockContext, found: RegistryRun, first: bool) -> str:
+    """The start of a list item reading a run on one seed set: ``- `run` `` (linked, marked where
+    stale) for its first set, ``  -`` (an item nested under it) for the next."""
+    return f"- {run_item(context, found)}" if first else "  -"
+
+
+def _after_run(seeds: str, folder: str) -> str:
     """How a line names a seed set after its run: nothing for the unseen seeds, else ``, confirmation seeds``."""
     return "" if folder == SEED_SETS[0][1] else f", {seeds}"
 
@@ -370,7 +381,7 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
         for seeds, folder, reading in readings:
             if reading is None:
                 continue
-            cell = _run_cell(context, name) + after_run(seeds, folder)
+            cell = _run_cell(context, name) + _after_run(seeds, folder)
             rows += [(cell, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
             rows.append((cell, "area", *_by_area(reading)))
     note = (
@@ -395,7 +406,7 @@ def _at_budget(budget: dict[str, Any]) -> tuple[str, str, str, str]:
     against = [c for c in budget["comparisons"] if gate and c["against"] == gate["method"]]
     oracle = [e for e in budget["entries"] if e["method"] in reference_methods()]
     return (
-        _curve(best),
+        with_share(method_label(best["method"]), best["demo_fraction"]),
         pct(best["success_rate"]),
         difference_points(against[0]) if against else "=",
         pct(max(e["success_rate"] for e in oracle)) if oracle else "-",
@@ -418,16 +429,17 @@ def _by_area(reading: dict[str, Any]) -> tuple[str, str, str, str]:
     ]
     oracle = [v for (m, _), v in area.items() if m in reference_methods()]
     return (
-        _curve(best),
+        with_share(method_label(best["method"]), best["demo_fraction"]),
         f"{area[(best['method'], float(best['demo_fraction']))]:.2f}",
         difference_points(against[0]) if against else "=",
         f"{max(oracle):.2f}" if oracle else "-",
     )
 
 
-def _curve(entry: dict[str, Any]) -> str:
-    share = float(entry["demo_fraction"])
-    return method_label(entry["method"]) + ("" if share == 1.0 else f" ({share:.0%} of the demonstration)")
+def with_share(label: str, share: float) -> str:
+    """A method's name with the share of the demonstration it starts from, where that is not all of
+    it: ``MDM Ridge (50% of the demonstration)``."""
+    return label if float(share) == 1.0 else f"{label} ({float(share):.0%} of the demonstration)"
 
 
 def difference_points(comparison: dict[str, Any]) -> str:

@@ -24,9 +24,10 @@ from metadagger.results.tables import (
     BlockContext,
     missing_run,
     rows_reading,
-    run_item,
     run_names,
+    seed_set_item,
     short_label,
+    with_share,
 )
 
 Curve = tuple[str, float]
@@ -46,10 +47,10 @@ def verdict(context: BlockContext, names: str = "") -> str:
         for seeds, folder in SEED_SETS:
             if found.path(f"{folder}/queries.csv").is_file():
                 text, beats = _judged(rows_reading(found.path(f"{folder}/queries.csv")), seeds)
-                lines.append(f"- {run_item(context, found)}, {text}")
+                lines.append(f"{seed_set_item(context, found, first=not above)}{',' if not above else ''} {text}")
                 above.append(beats)
         if len(above) == 2 and any(above):  # where neither set has one, its two lines say so
-            lines.append(f"- {run_item(context, found)}, {_on_both(*above)}")
+            lines.append(f"{seed_set_item(context, found, first=False)} {_on_both(*above)}")
     return "\n".join(lines)
 
 
@@ -91,8 +92,9 @@ def _judged(reading: dict[str, Any] | None, seeds: str) -> tuple[str, list[Readi
 def _place(key: Reading) -> str:
     """A curve at a reading, as a line names it: ``MDM Ridge at demonstration +5%``."""
     (method, fraction), where = key
-    label = method_label(method) + ("" if fraction == 1.0 else f" ({fraction:.0%} of the demonstration)")
-    return label + (" by area" if where == "area" else f" at demonstration {where}")
+    return with_share(method_label(method), fraction) + (
+        " by area" if where == "area" else f" at demonstration {where}"
+    )
 
 
 def _reading(key: Reading, comparisons: list[dict[str, Any]]) -> str:
@@ -105,6 +107,4 @@ def _reading(key: Reading, comparisons: list[dict[str, Any]]) -> str:
 
 
 def _against(comparison: dict[str, Any]) -> str:
-    fraction = float(comparison["against_demo_fraction"])
-    label = short_label(comparison["against"])
-    return label if fraction == 1.0 else f"{label} ({fraction:.0%} of the demonstration)"
+    return with_share(short_label(comparison["against"]), comparison["against_demo_fraction"])
