@@ -167,3 +167,47 @@ def test_a_numerics_or_compare_record_without_its_fields_is_one_error_line(tmp_p
         ("bench-compare gone.json", "results/bench/gone.json does not exist"),
     ):
         assert needle in _error_line(tmp_path, spec)
+
+
+STEP = {
+    "run": "/somewhere/runs/carracing-quick",
+    "seed": 9000,
+    "width": 32,
+    "env_steps": 1000,
+    "trunk_forwards": 100,
+    "per_env_step_ms": {
+        "env_step": 2.0,
+        "expert_labels": 0.5,
+        "trunk_forward": 1.0,
+        "rest_of_the_step": 0.5,
+        "lanes_step": 4.0,
+        "head_fits": 0.25,
+    },
+    "step_over_env": 2.0,
+    "machine": {"load_avg_1min": 2.04},
+}
+
+
+def test_a_step_block_has_each_part_its_share_and_the_step_over_the_envs_own(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "step.json").write_text(json.dumps(STEP))
+    page = _page(tmp_path, "bench-step step.json")
+    build(tmp_path, registry=tmp_path / "results")
+    lines = page.read_text().splitlines()
+    assert "| the env's own step (physics and rendering) | 2.00 | 50% |  |" in lines
+    assert "| pi*'s trunk, one forward for the live lanes | 1.00 | 25% |  |" in lines
+    assert "| **a laned step** | 4.00 | 100% | 2.00x |" in lines
+    assert "| head-only fits between rollouts (beside the step) | 0.25 | - |  |" in lines
+    note = " ".join(page.read_text().split("*From ", 1)[1].split())
+    assert note.startswith("[`step.json`](../results/bench/step.json): benchmark seed 9000 of `carracing-quick`")
+    assert "1,000 env steps, 100 trunk forwards; the 1-minute load average at its end 2.0." in note
+
+
+def test_a_step_record_without_its_parts_is_one_error_line(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "flat.json").write_text(json.dumps({**STEP, "per_env_step_ms": {"env_step": 1.0}}))
+    (bench / "short.json").write_text(json.dumps({"seed": 1}))
+    assert "results/bench/flat.json lacks a part of the step" in _error_line(tmp_path, "bench-step flat.json")
+    assert "results/bench/short.json lacks one of per_env_step_ms" in _error_line(tmp_path, "bench-step short.json")

@@ -148,3 +148,43 @@ def _moved(row: dict[str, Any]) -> str:
     group = ", ".join(f"{GROUP_NAMES[key]} {row[key]}" for key in GROUP_COLUMNS if row.get(key))
     where = f"{row['table']} {row['column']} of `{row['method']}`" + (f" ({group})" if group else "")
     return f"{where}: {row['old'][0]}/{row['old'][1]} -> {row['new'][0]}/{row['new'][1]}"
+
+
+#: The parts of a laned step a ``bench step`` record times, in the order a table shows them.
+STEP_PARTS = (
+    ("env_step", "the env's own step (physics and rendering)"),
+    ("expert_labels", "the expert's label of every state"),
+    ("trunk_forward", "pi*'s trunk, one forward for the live lanes"),
+    ("rest_of_the_step", "the rest (the batch, the heads' actions, recording)"),
+)
+
+
+def step_table(context: BlockContext, file: str) -> str:
+    """A ``bench step`` record: each part of a laned benchmark step in milliseconds per env step,
+    its share of the step and the step's time over the env's own; the head-only fits between
+    rollouts beside it; then the seed, the width and the load the record was made under."""
+    path, record = _record(context, file, "step record")
+    record = _fields(record, file, ("per_env_step_ms", "step_over_env", "width", "seed", "env_steps"))
+    per_step = record["per_env_step_ms"]
+    if (
+        not isinstance(per_step, dict)
+        or any(key not in per_step for key, _ in STEP_PARTS)
+        or "lanes_step" not in per_step
+    ):
+        raise ValueError(f"{BENCH}/{file} lacks a part of the step in per_env_step_ms")
+    whole, env = per_step["lanes_step"], per_step["env_step"]
+    rows = [(name, f"{per_step[key]:.2f}", f"{per_step[key] / whole:.0%}", "") for key, name in STEP_PARTS]
+    rows.append(("**a laned step**", f"{whole:.2f}", "100%", f"{whole / env:.2f}x"))
+    if "head_fits" in per_step:
+        rows.append(("head-only fits between rollouts (beside the step)", f"{per_step['head_fits']:.2f}", "-", ""))
+    header = ("part", "ms per env step", "share of the step", "over the env's own")
+    load = (record.get("machine") or {}).get("load_avg_1min")
+    run = Path(str(record.get("run", "the run"))).name
+    note = (
+        f"*From {_link(context, path)}: benchmark seed {record['seed']} of `{run}` at "
+        f"{record['width']} lanes, {record['env_steps']:,} env steps"
+        + (f", {record['trunk_forwards']:,} trunk forwards" if "trunk_forwards" in record else "")
+        + (f"; the 1-minute load average at its end {load:.1f}." if isinstance(load, (int, float)) else ".")
+        + "*"
+    )
+    return "\n".join(markdown_table(header, rows) + ["", note])

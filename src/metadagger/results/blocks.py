@@ -52,6 +52,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "bench-arms": bench_blocks.arms_table,
     "bench-numerics": bench_blocks.numerics_table,
     "bench-compare": bench_blocks.compare_table,
+    "bench-step": bench_blocks.step_table,
 }
 
 #: The column at which generated prose is wrapped (tables, headings and images are never wrapped).
