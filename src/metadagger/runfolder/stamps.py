@@ -69,6 +69,8 @@ def describe_changes(old: Mapping[str, Any], new: Mapping[str, Any], *, prefix: 
             changes.append(
                 f"{name.removesuffix('_fingerprint')}: {'changed' if a and b else 'missing' if not b else 'new'}"
             )
+        elif isinstance(a, list) and isinstance(b, list) and not (_integers(a) and _integers(b)):
+            changes.append(f"{name}: {_list_change(a, b)}")
         else:
             changes.append(f"{name}: {_short(old, key)} -> {_short(new, key)}")
     return changes
@@ -78,5 +80,33 @@ def _short(stamp: Mapping[str, Any], key: str) -> str:
     if key not in stamp:
         return "(default)"
     value = stamp[key]
-    text = json.dumps(value) if value is not None else "none"
+    text = _ranges(value) if _integers(value) and value else json.dumps(value) if value is not None else "none"
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _integers(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+
+
+def _ranges(values: list[int]) -> str:
+    """A list of integers as seed lists are written: ``[5000, ..., 5039, 7]`` -> ``5000-5039,7``."""
+    runs: list[list[int]] = []
+    for v in values:
+        if runs and v == runs[-1][1] + 1:
+            runs[-1][1] = v
+        else:
+            runs.append([v, v])
+    return ",".join(str(lo) if lo == hi else f"{lo}-{hi}" for lo, hi in runs)
+
+
+def _list_change(old: list[Any], new: list[Any], most: int = 4) -> str:
+    """How a list setting changed: the items added and removed (the first ``most`` of each), or that
+    only their order did."""
+
+    def some(items: list[Any]) -> str:
+        shown = ", ".join(json.dumps(item) for item in items[:most])
+        return shown + (f" and {len(items) - most} more" if len(items) > most else "")
+
+    added, removed = [v for v in new if v not in old], [v for v in old if v not in new]
+    parts = ([f"added {some(added)}"] if added else []) + ([f"removed {some(removed)}"] if removed else [])
+    return "; ".join(parts) if parts else "reordered"
