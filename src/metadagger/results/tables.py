@@ -12,7 +12,7 @@
 - ``budgets [RUNS]``: the runs read at equal budgets and by the area under the curve.
 - ``verdict RUNS``: whether a MetaL DAgger method beats every one of its references
   (:mod:`metadagger.results.verdict`).
-- ``claim KIND RUNS``: one of the findings' claims, a line per run (:mod:`metadagger.results.claims`).
+- ``claim KIND RUNS``: one of the findings' claims, an item per run (:mod:`metadagger.results.claims`).
 - ``manifest RUN``: what made RUN: commit, CPU and kernels, wall time, what ran beside.
 
 A block about a run the registry does not hold yet says so, with the command that makes it.

@@ -5,12 +5,12 @@ references, on the same seeds and at the same spend: its constant twins (the sam
 control's head, or zero, in the mapper's place), BC refitted and the best gate; at each budget and
 by the area under the curve (:func:`~metadagger.evaluation.benchmark.summary.budget_reading`). A
 curve beats its references at a reading when every one of those paired 95% intervals lies above 0
-there. For each run, on its unseen seeds and on its confirmation seeds where it has them, the block
-names every reading where a curve does, or says that none does and gives the closest: the reading
-whose lowest lower bound over the references is highest. A run with both seed sets, where a curve
-beats every reference on either, gets a third line: the readings where one does on both sets, the
-same curve at the same budget (or by area), or that there is none, so that nothing is claimed from
-one set alone.
+there. For each run, on its unseen seeds and (in an item nested under the run's) on its
+confirmation seeds where it has them, the block names every reading where a curve does, or says
+that none does and gives the closest: the reading whose lowest lower bound over the references is
+highest. A run with both seed sets, where a curve beats every reference on either, gets a third
+item: the readings where one does on both sets, the same curve at the same budget (or by area), or
+that there is none, so that nothing is claimed from one set alone.
 """
 
 from __future__ import annotations
