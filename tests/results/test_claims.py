@@ -166,3 +166,12 @@ def test_a_run_with_confirmation_seeds_has_each_claim_read_again_on_them(tmp_pat
     assert confirmation.startswith("  - confirmation seeds: ")  # an item nested under the run's
     assert "best mapper MDM Ridge 2/20" in confirmation
     assert len(claim(context, "labels", NAME).splitlines()) == 2
+
+
+def test_a_claim_read_on_the_confirmation_seeds_alone_names_them_in_the_runs_own_item(tmp_path, run_rows):
+    unseen = [r for r in run_rows if r["method"] != "bc-refit"]  # no BC refitted: no labels claim there
+    context = registry_context(tmp_path, NAME, unseen, confirm=run_rows)
+    (line,) = claim(context, "labels", NAME).splitlines()
+    assert line.startswith(
+        f"- [`{NAME}`](../results/{NAME}/report/report.md), confirmation seeds: DAgger after 3 rounds"
+    )

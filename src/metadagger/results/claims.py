@@ -78,7 +78,7 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
         for seeds, folder in SEED_SETS if found else ():
             text = CLAIMS[kind](found, folder) if found.path(f"{folder}/summary.json").is_file() else None
             if text is not None:
-                named = "" if not made else f" {seeds}"
+                named = "" if folder == SEED_SETS[0][1] else f"{',' if not made else ''} {seeds}"
                 made.append(f"{seed_set_item(context, found, first=not made)}{named}: {text}")
         if not made:
             without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))
