@@ -16,7 +16,8 @@ what they show, worded from the intervals alone:
   below, and the highest and lowest rho (each one is in the run's report).
 
 A run with confirmation seeds (``benchmark/confirm/``) gets a second item nested under its first,
-the same claim read on them. The runs without the rows a claim reads (or not in the registry yet) are named in one line.
+the same claim read on them. The runs without the rows a claim reads (or not in the registry yet)
+are named in one line.
 """
 
 from __future__ import annotations
@@ -78,8 +79,8 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
         for seeds, folder in SEED_SETS if found else ():
             text = CLAIMS[kind](found, folder) if found.path(f"{folder}/summary.json").is_file() else None
             if text is not None:
-                named = "" if folder == SEED_SETS[0][1] else f"{',' if not made else ''} {seeds}"
-                made.append(f"{seed_set_item(context, found, first=not made)}{named}: {text}")
+                named = "" if folder == SEED_SETS[0][1] else seeds
+                made.append(f"{seed_set_item(context, found, first=not made, named=named)}: {text}")
         if not made:
             without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))
         lines += made
@@ -189,7 +190,8 @@ def _coverage(found: RegistryRun, folder: str) -> str | None:
         low, high = rank_interval(c["rho"], c["seeds"]) or (float("nan"), float("nan"))
         pair = f"{with_share(method_label(c['method']), c['demo_fraction'])} against {short_label(c['against'])}"
         read.append((c["rho"], f"{pair} {c['rho']:+.2f} ({low:+.2f} to {high:+.2f})", low, high))
-    above, below = sum(low > 0 for *_, low, _ in read), sum(high < 0 for *_, high in read)
+    above = sum(low > 0 for _, _, low, _ in read)
+    below = sum(high < 0 for _, _, _, high in read)
     unranked = len(compared) - len(ranked)
     counted = (
         f"in {len(read)} comparison{'s' if len(read) > 1 else ''} of a MetaL method with a constant twin"

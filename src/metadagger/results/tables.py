@@ -354,15 +354,11 @@ def rows_reading(path: Path) -> dict[str, Any] | None:
 SEED_SETS = (("unseen seeds", "benchmark"), ("confirmation seeds", "benchmark/confirm"))
 
 
-def seed_set_item(context: BlockContext, found: RegistryRun, first: bool) -> str:
-    """The start of a list item reading a run on one seed set: ``- `run` `` (linked, marked where
-    stale) for its first set, ``  -`` (an item nested under it) for the next."""
-    return f"- {run_item(context, found)}" if first else "  -"
-
-
-def _after_run(seeds: str, folder: str) -> str:
-    """How a line names a seed set after its run: nothing for the unseen seeds, else ``, confirmation seeds``."""
-    return "" if folder == SEED_SETS[0][1] else f", {seeds}"
+def seed_set_item(context: BlockContext, found: RegistryRun, *, first: bool, named: str = "") -> str:
+    """The head of a list item reading a run on one seed set: for its first set the run (linked,
+    marked where stale), then ``, named`` where given; for the next, an item nested under it that
+    starts with ``named``."""
+    return (f"- {run_item(context, found)}" + (f", {named}" if named else "")) if first else f"  - {named}"
 
 
 def budgets_table(context: BlockContext, names: str = "") -> str:
@@ -381,7 +377,7 @@ def budgets_table(context: BlockContext, names: str = "") -> str:
         for seeds, folder, reading in readings:
             if reading is None:
                 continue
-            cell = _run_cell(context, name) + _after_run(seeds, folder)
+            cell = _run_cell(context, name) + ("" if folder == SEED_SETS[0][1] else f", {seeds}")
             rows += [(cell, f"+{b['share']:.0%}", *_at_budget(b)) for b in reading["budgets"]]
             rows.append((cell, "area", *_by_area(reading)))
     note = (

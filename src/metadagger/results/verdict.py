@@ -47,10 +47,10 @@ def verdict(context: BlockContext, names: str = "") -> str:
         for seeds, folder in SEED_SETS:
             if found.path(f"{folder}/queries.csv").is_file():
                 text, beats = _judged(rows_reading(found.path(f"{folder}/queries.csv")), seeds)
-                lines.append(f"{seed_set_item(context, found, first=not above)}{',' if not above else ''} {text}")
+                lines.append(seed_set_item(context, found, first=not above, named=text))
                 above.append(beats)
         if len(above) == 2 and any(above):  # where neither set has one, its two lines say so
-            lines.append(f"{seed_set_item(context, found, first=False)} {_on_both(*above)}")
+            lines.append(seed_set_item(context, found, first=False, named=_on_both(*above)))
     return "\n".join(lines)
 
 
