@@ -207,6 +207,7 @@ def test_bench_step_takes_a_laned_step_apart_without_touching_the_run(carracing_
     result = bench_step(run, width=4, overrides=("benchmark.methods=[bc, dagger]",))
     assert (run / "benchmark" / "rows.jsonl").read_bytes() == before
     assert (result["seed"], result["width"]) == (10001, 4) and result["env_steps"] > 0 and result["trunk_forwards"] > 0
+    assert result["trunk_rows"] == 4 * result["trunk_forwards"] >= result["env_steps"]  # no smaller shape at width 4
     seconds = result["seconds"]
     parts = seconds["env_step"] + seconds["expert_labels"] + seconds["trunk_forward"] + result["rest_of_the_step"]
     assert parts == pytest.approx(seconds["lanes_step"]) and min(seconds.values()) > 0

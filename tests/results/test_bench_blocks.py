@@ -175,6 +175,7 @@ STEP = {
     "width": 32,
     "env_steps": 1000,
     "trunk_forwards": 100,
+    "trunk_rows": 1250,
     "per_env_step_ms": {
         "env_step": 2.0,
         "expert_labels": 0.5,
@@ -201,7 +202,7 @@ def test_a_step_block_has_each_part_its_share_and_the_step_over_the_envs_own(tmp
     assert "| head-only fits between rollouts (beside the step) | 0.25 | - |  |" in lines
     note = " ".join(page.read_text().split("*From ", 1)[1].split())
     assert note.startswith("[`step.json`](../results/bench/step.json): benchmark seed 9000 of `carracing-quick`")
-    assert "1,000 env steps, 100 trunk forwards; the 1-minute load average at its end 2.0." in note
+    assert "1,000 env steps, 100 trunk forwards on 1,250 rows (20% of them padding); the 1-minute load" in note
 
 
 def test_a_step_record_without_its_parts_is_one_error_line(tmp_path):

@@ -206,7 +206,8 @@ def step_child(argv: list[str]) -> None:
     probe.close()
     parts = ("lanes_step", "env_step", "expert_labels", "trunk_forward", "head_fits", "expert_labels_at_reset")
     seconds = dict.fromkeys(parts, 0.0)
-    counts = {"env_steps": 0, "trunk_forwards": 0}
+    # trunk_rows: the rows the trunk computed, the live lanes' and the padding to a checked shape
+    counts = {"env_steps": 0, "trunk_forwards": 0, "trunk_rows": 0}
     stepping = [False]  # inside Lanes.step: the expert's labels there are a step's, else a reset's
 
     def timed(part: str, fn: Callable[..., Any], count: str | None = None) -> Callable[..., Any]:
@@ -228,7 +229,13 @@ def step_child(argv: list[str]) -> None:
 
     def lanes_init(self: Any, *args: Any, **kwargs: Any) -> None:
         made(self, *args, **kwargs)
-        self._trunk = timed("trunk_forward", self._trunk, "trunk_forwards")
+        trunk = timed("trunk_forward", self._trunk, "trunk_forwards")
+
+        def counted(batch: Any) -> Any:
+            counts["trunk_rows"] += len(batch)
+            return trunk(batch)
+
+        self._trunk = counted
 
     lanes.Lanes.__init__ = lanes_init
     lanes.Lanes.step = timed("lanes_step", lanes.Lanes.step)

@@ -49,7 +49,8 @@ MAX_LANES = 256
 
 #: A step's trunk forward runs on the live lanes' rows alone, padded to a multiple of this many
 #: rows where that shape gives the width's bits (:meth:`Lanes._exact_shapes`), else to the width.
-SHAPE_STEP = 8
+#: The pinned kernels compute a batch's rows in blocks of 4, so no other shape can keep them.
+SHAPE_STEP = 4
 
 #: Bumped by every change to what a laned run (lanes above 1) computes: stamped beside the width
 #: (:func:`lanes_stamp`), so that laned artifacts made before the change are stale.

@@ -159,6 +159,12 @@ STEP_PARTS = (
 )
 
 
+def _padding(record: dict[str, Any]) -> str:
+    """The rows the trunk computed beyond the live lanes' (a step padded to a checked shape)."""
+    rows, live = record["trunk_rows"], record["env_steps"]
+    return f" on {rows:,} rows ({(rows - live) / rows:.0%} of them padding)" if rows else ""
+
+
 def step_table(context: BlockContext, file: str) -> str:
     """A ``bench step`` record: each part of a laned benchmark step in milliseconds per env step,
     its share of the step and the step's time over the env's own; the head-only fits between
@@ -184,6 +190,7 @@ def step_table(context: BlockContext, file: str) -> str:
         f"*From {_link(context, path)}: benchmark seed {record['seed']} of `{run}` at "
         f"{record['width']} lanes, {record['env_steps']:,} env steps"
         + (f", {record['trunk_forwards']:,} trunk forwards" if "trunk_forwards" in record else "")
+        + (_padding(record) if "trunk_rows" in record else "")
         + (f"; the 1-minute load average at its end {load:.1f}." if isinstance(load, (int, float)) else ".")
         + "*"
     )
