@@ -227,9 +227,10 @@ def test_a_trunk_whose_rows_depend_on_their_place_keeps_the_width_and_each_lanes
 
 @pytest.mark.parametrize("task_name", ["carracing", "carracing-family", "fetch", "fetch-family"])
 def test_every_packaged_width_gives_a_row_the_same_bits_in_any_place(task_name):
-    """At every lane width a packaged preset sets, the task's trunk gives an image the same bits in
-    any row of the batch (here: the batch reversed), so an episode never depends on its lane; at a
-    width of 10 or 15 the pinned kernels compute the last rows otherwise (docs/performance.md)."""
+    """At every lane width a packaged preset sets, and at 8 and 16 (what a user who turns lanes on
+    where a preset keeps 1 is pointed to), the task's trunk gives an image the same bits in any row
+    of the batch (here: the batch reversed), so an episode never depends on its lane; at a width of
+    10 or 15 the pinned kernels compute the last rows otherwise (docs/performance.md)."""
     from metadagger.pipeline.run_config import PRESETS, resolve_config
     from metadagger.tasks import make_task
 
@@ -237,7 +238,7 @@ def test_every_packaged_width_gives_a_row_the_same_bits_in_any_place(task_name):
         pytest.importorskip("mujoco", reason="the fetch extra is not installed")
     task = make_task(task_name)
     net = make_policy(task, seed=0).net
-    widths = set()
+    widths = {8, 16}
     for preset in PRESETS:
         config = resolve_config(task_name, preset)
         stages = (config.pistar, config.pairs, config.evaluate, config.mdi, config.benchmark)

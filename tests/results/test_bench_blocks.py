@@ -212,3 +212,49 @@ def test_a_step_record_without_its_parts_is_one_error_line(tmp_path):
     (bench / "short.json").write_text(json.dumps({"seed": 1}))
     assert "results/bench/flat.json lacks a part of the step" in _error_line(tmp_path, "bench-step flat.json")
     assert "results/bench/short.json lacks one of per_env_step_ms" in _error_line(tmp_path, "bench-step short.json")
+
+
+LANES = {
+    "run": "runs/fetch-quick",
+    "seed": 10040,
+    "widths": {
+        "1": {"wall_seconds": 21.0, "worker_peak_rss_mb": 745.0},
+        "16": {"wall_seconds": 20.5, "worker_peak_rss_mb": 2228.0},
+        "8": {"wall_seconds": 19.8, "worker_peak_rss_mb": 1390.0},
+    },
+    "speedup_wall": {"1": 1.0, "16": 1.0244, "8": 1.0606},
+}
+PAIRS = {
+    "seeds": 40,
+    "seconds": {"1": 66.1, "2": 31.7},
+    "lanes": {"20": {"seconds": 30.7}},
+    "lanes_speedup": {"20": 1.031},
+}
+
+
+def test_a_lanes_block_has_a_row_per_width_of_a_benchmark_seed_and_of_the_pairs(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "lanes.json").write_text(json.dumps(LANES))
+    (bench / "pairs.json").write_text(json.dumps(PAIRS))
+    page = _page(tmp_path, "bench-lanes lanes.json pairs.json")
+    build(tmp_path, registry=tmp_path / "results")
+    rows = [line for line in page.read_text().splitlines() if line.startswith("| [`")]
+    lanes, pairs = "[`lanes.json`](../results/bench/lanes.json)", "[`pairs.json`](../results/bench/pairs.json)"
+    assert rows == [  # widths in numeric order, the pairs' width 1 at 2 workers first
+        f"| {lanes} | benchmark seed 10040, one process | 1 | 21.0 | 1.00x | 745 MB |",
+        f"| {lanes} | benchmark seed 10040, one process | 8 | 19.8 | 1.06x | 1,390 MB |",
+        f"| {lanes} | benchmark seed 10040, one process | 16 | 20.5 | 1.02x | 2,228 MB |",
+        f"| {pairs} | 40 pair seeds, 2 workers | 1 | 31.7 | 1.00x | - |",
+        f"| {pairs} | 40 pair seeds, 2 workers | 20 | 30.7 | 1.03x | - |",
+    ]
+
+
+def test_a_lanes_record_without_its_widths_is_one_error_line(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "bare.json").write_text(json.dumps({"seeds": 4}))
+    assert "results/bench/bare.json lacks one of seeds, seconds, lanes, lanes_speedup" in _error_line(
+        tmp_path, "bench-lanes bare.json"
+    )
+    assert "bench-lanes needs at least one record" in _error_line(tmp_path, "bench-lanes")

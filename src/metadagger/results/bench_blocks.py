@@ -72,6 +72,38 @@ def arms_table(context: BlockContext, file: str) -> str:
     return "\n".join(markdown_table(header, rows) + ["", note])
 
 
+def lanes_table(context: BlockContext, *files: str) -> str:
+    """``bench lanes`` and ``bench pairs --lanes`` records, a row per lane width: what was timed (one
+    benchmark seed in one process, or the pair seeds with 2 workers), the wall seconds, the speed-up
+    over width 1 and, for a benchmark seed, the process's peak resident memory."""
+    if not files:
+        raise ValueError("bench-lanes needs at least one record")
+    rows = []
+    for file in files:
+        path, record = _record(context, file, "lanes record")
+        if isinstance(record, dict) and "widths" in record:
+            record = _fields(record, file, ("seed", "widths", "speedup_wall"))
+            timed = f"benchmark seed {record['seed']}, one process"
+            widths = {int(w): entry for w, entry in record["widths"].items()}
+            for width in sorted(widths):
+                entry = widths[width]
+                speedup = record["speedup_wall"][str(width)]
+                peak = f"{entry['worker_peak_rss_mb']:,.0f} MB"
+                rows.append(
+                    (_link(context, path), timed, width, f"{entry['wall_seconds']:.1f}", f"{speedup:.2f}x", peak)
+                )
+        else:
+            record = _fields(record, file, ("seeds", "seconds", "lanes", "lanes_speedup"))
+            timed = f"{record['seeds']} pair seeds, 2 workers"
+            rows.append((_link(context, path), timed, 1, f"{record['seconds']['2']:.1f}", "1.00x", "-"))
+            for width in sorted(record["lanes"], key=int):
+                seconds, speedup = record["lanes"][width]["seconds"], record["lanes_speedup"][width]
+                rows.append((_link(context, path), timed, int(width), f"{seconds:.1f}", f"{speedup:.2f}x", "-"))
+    header = ("record", "timed", "lanes", "wall seconds", "speed-up", "peak memory")
+    note = "*Each record's widths measured one after the other on one machine; its `machine` block holds the load.*"
+    return "\n".join(markdown_table(header, rows) + ["", note])
+
+
 #: What a ``bench numerics`` record must hold.
 NUMERICS_FIELDS = (
     "task",

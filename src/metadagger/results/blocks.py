@@ -53,6 +53,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "bench-numerics": bench_blocks.numerics_table,
     "bench-compare": bench_blocks.compare_table,
     "bench-step": bench_blocks.step_table,
+    "bench-lanes": bench_blocks.lanes_table,
 }
 
 #: The column at which generated prose is wrapped (tables, headings and images are never wrapped).
