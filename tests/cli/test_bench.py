@@ -212,6 +212,7 @@ def test_bench_step_takes_a_laned_step_apart_without_touching_the_run(carracing_
     parts = seconds["env_step"] + seconds["expert_labels"] + seconds["trunk_forward"] + result["rest_of_the_step"]
     assert parts == pytest.approx(seconds["lanes_step"]) and min(seconds.values()) > 0
     assert result["step_over_env"] == pytest.approx(seconds["lanes_step"] / seconds["env_step"])
+    assert seconds["env_step_outside_lanes"] > 0  # the demonstrations: not in the step's ratio
     assert result["step_over_env"] > 1
     assert result["per_env_step_ms"]["env_step"] == pytest.approx(1000 * seconds["env_step"] / result["env_steps"])
     with pytest.raises(UserError, match="bench step needs --lanes from 1 to 256"):

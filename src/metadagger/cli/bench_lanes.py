@@ -81,7 +81,8 @@ def bench_step(
     :meth:`Lanes.step <metadagger.imitation.lanes.Lanes.step>` taken apart into the env's own steps
     (its physics and rendering: the floor on a CPU), the expert's labels of every state, pi*'s trunk
     forwards and the rest (stacking the batch, the heads' actions, recording); the head-only fits
-    between rollouts beside it. ``step_over_env`` is a laned step's time over the env's own."""
+    between rollouts and the env steps outside the lanes (the demonstrations) beside it.
+    ``step_over_env`` is a laned step's time over the env's own steps inside it."""
     run, seed, config = _checked(run, seed, overrides, "bench step")
     width = config.benchmark.lanes if width is None else width
     _check_widths((width,), "bench step")
@@ -204,11 +205,13 @@ def step_child(argv: list[str]) -> None:
     probe = task.make_env()
     base = type(probe.unwrapped)
     probe.close()
-    parts = ("lanes_step", "env_step", "expert_labels", "trunk_forward", "head_fits", "expert_labels_at_reset")
-    seconds = dict.fromkeys(parts, 0.0)
+    parts = ("lanes_step", "env_step", "expert_labels", "trunk_forward", "head_fits")
+    # outside Lanes.step, the expert's labels are a reset's and the env's steps another rollout's
+    elsewhere = {"expert_labels": "expert_labels_at_reset", "env_step": "env_step_outside_lanes"}
+    seconds = dict.fromkeys(parts + tuple(elsewhere.values()), 0.0)
     # trunk_rows: the rows the trunk computed, the live lanes' and the padding to a checked shape
     counts = {"env_steps": 0, "trunk_forwards": 0, "trunk_rows": 0}
-    stepping = [False]  # inside Lanes.step: the expert's labels there are a step's, else a reset's
+    stepping = [False]  # inside Lanes.step
 
     def timed(part: str, fn: Callable[..., Any], count: str | None = None) -> Callable[..., Any]:
         def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -218,9 +221,9 @@ def step_child(argv: list[str]) -> None:
                 return fn(*args, **kwargs)
             finally:
                 stepping[0] = outer
-                where = part if part != "expert_labels" or outer else "expert_labels_at_reset"
-                seconds[where] += time.perf_counter() - start
-                if count is not None:
+                inside = outer or part not in elsewhere
+                seconds[part if inside else elsewhere[part]] += time.perf_counter() - start
+                if count is not None and inside:
                     counts[count] += 1
 
         return wrapper
