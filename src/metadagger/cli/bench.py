@@ -55,20 +55,21 @@ def bench_pairs(
     nodes: Sequence[int] = (4, 16),
     lanes: Sequence[int] = (),
 ) -> dict:
-    """Time pair collection with 1 and 2 workers on the first ``seeds`` pair seeds of a run.
+    """Time pair collection with 1 and 2 workers on the first ``seeds`` pair seeds of a run, one
+    seed at a time (``pairs.lanes`` 1, whatever the run sets).
 
     With ``lanes``, the same seeds are also made at each of those ``pairs.lanes`` widths with the
     most workers, side by side: ``lanes`` holds their seconds and pairs per hour, and
-    ``lanes_speedup`` each width's pairs per hour over the run's own setting's. Each width needs
-    seeds for a block of lanes per worker (a worker without one would idle).
+    ``lanes_speedup`` each width's pairs per hour over width 1's with as many workers. Each width
+    needs seeds for a block of lanes per worker (a worker without one would idle).
 
     Each measurement collects into a fresh temporary store (process-pool start-up included), so
     the run's own pairs are untouched. The kept share comes from the run's ``pairs/summary.json``
     when the run has one, else from the bench's own seeds; with it the bench extrapolates the
     minutes needed for ``target_kept`` kept pairs (default the paper's 300 train + 75 validation)
-    on this machine, and on Ray clusters of ``nodes`` nodes like it (``extrapolated``: pair
-    seeds are independent jobs, so the rate is taken to grow with the node count; measured on
-    one machine only).
+    at the fastest rate measured with the most workers on this machine, and on Ray clusters of
+    ``nodes`` nodes like it (``extrapolated``: pair seeds are independent jobs, so the rate is
+    taken to grow with the node count; measured on one machine only).
     """
     import dataclasses
     import tempfile
@@ -101,7 +102,7 @@ def bench_pairs(
     load_pistar(layout)  # a missing or corrupt pi* is named under its own path, not the scratch copies'
     run_summary = layout.pairs_summary
     run_kept = read_json(run_summary, "the run's pairs summary") if run_summary.is_file() else None
-    pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]))
+    pairs_config = dataclasses.replace(config.pairs, seeds=tuple(config.pairs.seeds[:seeds]), lanes=1)
     task = run_task(config)
 
     def timed(config: Any, n: int) -> tuple[float, dict]:
@@ -122,11 +123,12 @@ def bench_pairs(
     kept_source = summary if run_kept is None else run_kept
     kept_share = kept_source["kept"] / kept_source["seeds"] if kept_source["seeds"] else 0.0
     best = str(max(workers))
-    pairs_per_hour = 3600.0 * seeds / timings[best]
+    pairs_per_hour = 3600.0 * seeds / min([timings[best], *by_width.values()])
     minutes = (60.0 * target_kept / (kept_share * pairs_per_hour)) if kept_share > 0 else None
     return {
         "run": str(run),
         "seeds": seeds,
+        "run_pairs_lanes": config.pairs.lanes,
         "seconds": timings,
         "seconds_per_pair": {k: v / seeds for k, v in timings.items()},
         "pairs_per_hour": {k: 3600.0 * seeds / v for k, v in timings.items()},
