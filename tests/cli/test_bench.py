@@ -129,6 +129,7 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
         assert result["extrapolated"]["pair_seeds_for_target_kept"] == 10
         assert result["machine"]["cpu_count"] == os.cpu_count()
         assert result["lanes"]["2"]["workers"] == 2 and result["lanes"]["2"]["pairs_per_hour"] > 0
+        assert result["lanes"]["2"]["block_sizes"] == [1, 2]  # one block per worker, as even as can be
         # lanes against the same seeds one at a time with as many workers, whatever the run sets
         assert result["lanes_speedup"]["2"] == pytest.approx(result["seconds"]["2"] / result["lanes"]["2"]["seconds"])
         assert result["run_pairs_lanes"] == 1
@@ -148,8 +149,8 @@ def test_bench_pairs_times_workers_without_touching_the_run(tmp_path):
             bench_pairs(run, seeds=1, lanes=(0,))
         with pytest.raises(UserError, match="--target-kept >= 1 and --nodes >= 1"):
             bench_pairs(run, seeds=1, nodes=(0,))
-        # one block of 4 lanes from 3 seeds: the second worker would idle
-        with pytest.raises(UserError, match="--lanes 4 makes 1 block of lanes from --seeds 3.*give --seeds 5 or more"):
+        # 3 seeds for 2 workers: blocks of 1 and 2 lanes, under half a width of 4
+        with pytest.raises(UserError, match="--lanes 4 cuts --seeds 3 into blocks of 1 lanes .*give --seeds 8 for"):
             bench_pairs(run, seeds=3, lanes=(4,))
     finally:
         del _FACTORIES["corridor-bench"]

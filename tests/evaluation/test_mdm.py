@@ -140,15 +140,15 @@ def test_a_conditioned_mapper_reads_the_seed_context_from_the_bc_rollout(toy_run
 
 
 def test_seeds_in_lanes_do_not_depend_on_workers_blocks_or_resume(toy_run, tmp_path):
-    """Seeds evaluated in blocks of lanes: the same table and heads with 1 or 2 workers and after a
+    """Seeds evaluated in blocks of lanes: the same table and heads with 1 or 3 workers and after a
     run that made part of the seeds; rows made alone are not taken for rows made in lanes."""
     methods = ("pistar-head", "mean-da")
-    one, two, resumed = (_copy(toy_run, tmp_path / name) for name in ("one", "two", "resumed"))
-    rows = _evaluate(one, SEEDS, methods, lanes=2)  # a block of 2 and a block of 1
-    assert _evaluate(two, SEEDS, methods, lanes=2, workers=2) == rows
+    one, three, resumed = (_copy(toy_run, tmp_path / name) for name in ("one", "three", "resumed"))
+    rows = _evaluate(one, SEEDS, methods, lanes=2)  # blocks [300] and [301, 302]
+    assert _evaluate(three, SEEDS, methods, lanes=2, workers=3) == rows  # a block of one seed each
     _evaluate(resumed, SEEDS[1:2], methods, lanes=2)
-    assert _evaluate(resumed, SEEDS, methods, lanes=2) == rows
-    for layout in (two, resumed):
+    assert _evaluate(resumed, SEEDS, methods, lanes=2) == rows  # then [300, 302]
+    for layout in (three, resumed):
         assert layout.eval_table("mdm").read_bytes() == one.eval_table("mdm").read_bytes()
         for seed in SEEDS:
             name = f"{seed}.safetensors"

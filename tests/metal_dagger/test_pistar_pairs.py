@@ -148,12 +148,12 @@ def test_pairs_are_stored_summarised_and_byte_identical_across_runs(gt_run, tmp_
 
 
 def test_pairs_in_lanes_do_not_depend_on_workers_blocks_or_resume(gt_run, tmp_path):
-    """Pair seeds made in blocks of lanes: the same files with 1 or 2 workers, for a seed made
+    """Pair seeds made in blocks of lanes: the same files with 1 or 3 workers, for a seed made
     alone, and after a run that stopped with part of the seeds done."""
-    laned = dataclasses.replace(PAIRS, lanes=4)  # 6 seeds: a block of 4 and a block of 2
+    laned = dataclasses.replace(PAIRS, lanes=4)  # 6 seeds: two blocks of 3 (three of 2 for 3 workers)
     one, two, resumed = tmp_path / "one", tmp_path / "two", tmp_path / "resumed"
     collect_pairs(CorridorTask(), with_pistar(gt_run, one), laned, StageOptions(workers=1, progress=False))
-    collect_pairs(CorridorTask(), with_pistar(gt_run, two), laned, StageOptions(workers=2, progress=False))
+    collect_pairs(CorridorTask(), with_pistar(gt_run, two), laned, StageOptions(workers=3, progress=False))
     layout = with_pistar(gt_run, resumed)
     collect_pairs(
         CorridorTask(), layout, dataclasses.replace(laned, seeds=(203,)), StageOptions(workers=1, progress=False)

@@ -75,6 +75,7 @@ def bench_pairs(
     import tempfile
 
     from metadagger.imitation.lanes import check_lanes
+    from metadagger.metal_dagger.lane_blocks import block_sizes
     from metadagger.metal_dagger.pairs import collect_pairs
     from metadagger.metal_dagger.pistar import load_pistar
     from metadagger.pipeline.run_config import load_run
@@ -92,12 +93,12 @@ def bench_pairs(
         raise UserError(
             f"bench pairs needs 1 <= --seeds <= {len(config.pairs.seeds)} (the run's pair seeds), got {seeds}"
         )
-    for width in lanes:  # a width with fewer blocks than workers leaves a worker idle: not the lanes' speed
-        if math.ceil(seeds / width) < max(workers):
+    blocks = {str(w): block_sizes(seeds, w, max(workers)) for w in lanes}
+    for width in lanes:  # blocks under half the width time the lanes' idle rows, not the lanes
+        if 2 * min(blocks[str(width)]) < width:
             raise UserError(
-                f"bench pairs --lanes {width} makes {math.ceil(seeds / width)} block of lanes from --seeds {seeds}, "
-                f"fewer than the {max(workers)} workers, so a worker would idle; "
-                f"give --seeds {(max(workers) - 1) * width + 1} or more"
+                f"bench pairs --lanes {width} cuts --seeds {seeds} into blocks of {min(blocks[str(width)])} lanes "
+                f"for {max(workers)} workers, under half the width; give --seeds {max(workers) * width} for full blocks"
             )
     load_pistar(layout)  # a missing or corrupt pi* is named under its own path, not the scratch copies'
     run_summary = layout.pairs_summary
@@ -134,7 +135,7 @@ def bench_pairs(
         "pairs_per_hour": {k: 3600.0 * seeds / v for k, v in timings.items()},
         "speedup": {k: timings[str(min(workers))] / v for k, v in timings.items()},
         "lanes": {
-            k: {"workers": max(workers), "seconds": v, "pairs_per_hour": 3600.0 * seeds / v}
+            k: {"workers": max(workers), "block_sizes": blocks[k], "seconds": v, "pairs_per_hour": 3600.0 * seeds / v}
             for k, v in by_width.items()
         },
         "lanes_speedup": {k: timings[best] / v for k, v in by_width.items()},

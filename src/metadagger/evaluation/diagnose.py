@@ -138,7 +138,7 @@ def collect_seed_data(
     ]
     stored = {seed: i for i, seed in enumerate(split.val_seeds)}
     # pairs made in lanes are made again in lanes of the same width: a pair depends on the width only
-    work, units = in_blocks(diagnose_seed, [j for j in jobs if j.methods], pairs.lanes)
+    work, units = in_blocks(diagnose_seed, [j for j in jobs if j.methods], pairs.lanes, options.workers)
 
     def save(result: dict[str, Any]) -> None:
         seed = result["seed"]

@@ -373,7 +373,7 @@ def evaluate_mdi(
             head = torch.from_numpy(np.array(head))  # a copy: arrays from Ray workers are read-only
             save_tensors(layout.heads(head_folder(method, shot)) / f"{result['seed']}.safetensors", {"head": head})
 
-    work, units = in_blocks(evaluate_mdi_seed, jobs, config.lanes)
+    work, units = in_blocks(evaluate_mdi_seed, jobs, config.lanes, options.workers)
     drive(work, units, log=log, stamps=stamps, save=save, options=options, desc="mdi")
     rows = log.rows(config.seeds, stamps)
     write_csv(layout.eval_table("mdi"), rows, fields=MDI_FIELDS)

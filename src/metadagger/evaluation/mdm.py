@@ -205,7 +205,7 @@ def evaluate_run(
             head = torch.from_numpy(np.array(head))  # a copy: arrays from Ray workers are read-only
             save_tensors(layout.heads(method) / f"{result['seed']}.safetensors", {"head": head})
 
-    work, units = in_blocks(evaluate_seed, jobs, config.lanes)
+    work, units = in_blocks(evaluate_seed, jobs, config.lanes, options.workers)
     drive(work, units, log=log, stamps=stamps, save=save, options=options, desc="evaluate")
     rows = log.rows(config.seeds, stamps)
     # the column appears only where a mapper read a context, so other runs' tables keep their form

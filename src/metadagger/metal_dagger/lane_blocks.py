@@ -8,6 +8,8 @@ of a block as a chain (:func:`~metadagger.imitation.lanes.run_chains`), and ever
 from __future__ import annotations
 
 import functools
+import math
+import os
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -30,18 +32,33 @@ class LaneBlock:
         return int(self.jobs[0].seed)
 
 
-def in_blocks(work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], width: int) -> tuple[Callable, list]:
-    """``(work, jobs)`` for the driver: with ``width`` above 1, blocks of ``width`` consecutive jobs
-    run by :func:`run_block`, each returning its jobs' results; else as they are.
+def in_blocks(
+    work: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], width: int, workers: int | None = None
+) -> tuple[Callable, list]:
+    """``(work, jobs)`` for the driver: with ``width`` above 1, blocks of consecutive jobs, each in
+    lanes of ``width`` and run by :func:`run_block`, returning its jobs' results; else as they are.
 
-    A seed's results do not depend on which seeds share its block (an episode does not depend on
-    its lane-mates, nor, at a width that is a multiple of 4, on its lane: docs/performance.md; and
-    each seed has a learner of its own), so blocks may be cut from whatever jobs are left to do.
+    The blocks are as even as can be, and as many as the fewest that hold the jobs rounded up to a
+    multiple of ``workers`` (default: this machine's cores), so that no worker waits while another
+    runs a last, lone block. A seed's results do not depend on which seeds share its block (an
+    episode does not depend on its lane-mates, nor, at a width that is a multiple of 4, on its
+    lane: docs/performance.md; and each seed has a learner of its own), so the cut changes the
+    time a stage takes, never its numbers.
     """
     if width == 1:
         return work, list(jobs)
-    blocks = [LaneBlock(work, tuple(jobs[i : i + width]), width) for i in range(0, len(jobs), width)]
+    blocks, start = [], 0
+    for size in block_sizes(len(jobs), width, workers or os.cpu_count() or 1):
+        blocks.append(LaneBlock(work, tuple(jobs[start : start + size]), width))
+        start += size
     return run_block, blocks
+
+
+def block_sizes(jobs: int, width: int, workers: int) -> list[int]:
+    """How many of ``jobs`` each block holds: the fewest blocks of at most ``width`` that hold them,
+    rounded up to a multiple of ``workers`` but never more blocks than jobs, as even as can be."""
+    count = min(jobs, math.ceil(math.ceil(jobs / width) / workers) * workers)
+    return [jobs * (i + 1) // count - jobs * i // count for i in range(count)]
 
 
 def run_block(block: LaneBlock) -> list[dict[str, Any]]:

@@ -247,7 +247,7 @@ def collect_pairs(
         fix=f"run `metadagger pairs --out {layout.root} --rebuild` to collect them again, or `metadagger reproduce`",
     )
     jobs = [PairJob(task=task, pistar=str(layout.pistar), seed=p.seed, methods=p.methods, config=config) for p in todo]
-    work, units = in_blocks(collect_pair, jobs, config.lanes)
+    work, units = in_blocks(collect_pair, jobs, config.lanes, options.workers)
     drive(work, units, log=store, stamps=stamps, options=options, desc="pairs")
     current = {s for s, stamp in store.stamps().items() if stamp["pair"] == stamps["pair"]} & set(config.seeds)
     summary = summarize_pairs([r for r in store.records() if r["seed"] in current] if current else [])
