@@ -61,7 +61,8 @@ def bench_pairs(
     With ``lanes``, the same seeds are also made at each of those ``pairs.lanes`` widths with the
     most workers, side by side: ``lanes`` holds their seconds and pairs per hour, and
     ``lanes_speedup`` each width's pairs per hour over width 1's with as many workers. Each width
-    needs seeds for a block of lanes per worker (a worker without one would idle).
+    needs seeds for blocks at least half as wide (``block_sizes``: the blocks the stage cut), or
+    the ratio would time idle lanes.
 
     Each measurement collects into a fresh temporary store (process-pool start-up included), so
     the run's own pairs are untouched. The kept share comes from the run's ``pairs/summary.json``
