@@ -115,6 +115,17 @@ def test_fit_on_an_aggregate_equals_the_fit_on_its_concatenation(task, demo):
     assert torch.equal(heads[0], heads[1])
 
 
+@pytest.mark.parametrize("extra", [{}, {"augment_shift": 2}, {"batch_shards": 2}], ids=["plain", "shifted", "sharded"])
+def test_a_whole_policy_fit_on_an_aggregate_equals_the_fit_on_its_concatenation(task, demo, extra):
+    parts = [Dataset(obs=demo.obs[a:b], labels=demo.labels[a:b]) for a, b in ((0, 5), (5, 6), (6, len(demo)))]
+    weights = []
+    for data in (demo, Aggregate(parts)):  # the aggregate's images are gathered batch by batch, never concatenated
+        policy = make_policy(task, seed=4, **TOY_ARCH)
+        fit_bc(policy, data, BCConfig(lr=3e-3, epochs=2, batch_size=4, seed=2, **extra))
+        weights.append(parameters_to_vector(policy.net.parameters()))
+    assert torch.equal(weights[0], weights[1])
+
+
 def test_a_cache_serves_every_policy_on_its_trunk_and_reads_features_computed_to_act(policy, demo):
     twin = policy.with_own_head()
     assert twin.net.trunk is policy.net.trunk and twin.net.head is not policy.net.head

@@ -24,6 +24,7 @@ from metadagger.imitation.data import Aggregate, Dataset
 from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.head_adam import LinearHeadAdam
 from metadagger.imitation.head_fits import HeadFit
+from metadagger.imitation.image_rows import ImageRows
 from metadagger.imitation.selection import EpochSelector
 from metadagger.policies import Policy, load_policy
 from metadagger.utils.device import compute_device
@@ -276,15 +277,16 @@ def _check_cache(cache: FeatureCache, policy: Policy) -> None:
 
 def _inputs_and_model(
     policy: Policy, data: Dataset | Aggregate, config: BCConfig, cache: FeatureCache | None
-) -> tuple[torch.Tensor, torch.nn.Module]:
-    """What a fit trains on and what it trains: cached trunk features and the head, or images and the network."""
+) -> tuple[torch.Tensor | ImageRows, torch.nn.Module]:
+    """What a fit trains on and what it trains: cached trunk features and the head, or images (in
+    their parts: :class:`~metadagger.imitation.image_rows.ImageRows`) and the network."""
     if config.head_only:
         cache = cache if cache is not None else FeatureCache(policy)
         _check_cache(cache, policy)
         return cache.features_of(data), policy.net.head
     if cache is not None:
         raise UserError("a FeatureCache only applies to head-only fits; set BCConfig(head_only=True) or drop cache=")
-    return torch.from_numpy(data.obs), policy.net
+    return ImageRows(data), policy.net
 
 
 class ReferenceEpoch:
@@ -295,7 +297,7 @@ class ReferenceEpoch:
         self,
         model: torch.nn.Module,
         params: list[torch.nn.Parameter],
-        inputs: torch.Tensor,
+        inputs: torch.Tensor | ImageRows,
         targets: torch.Tensor,
         config: BCConfig,
         discrete: bool,
@@ -402,7 +404,7 @@ class DeviceEpoch:
 def _epochs(
     model: torch.nn.Module,
     params: list[torch.nn.Parameter],
-    inputs: torch.Tensor,
+    inputs: torch.Tensor | ImageRows,
     targets: torch.Tensor,
     config: BCConfig,
     discrete: bool,
