@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 from metadagger.imitation.lanes import Lane, Lanes, run_chains
 from metadagger.metal_dagger.pistar import cached_pistar
+from metadagger.utils.executors import default_workers
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ def in_blocks(
     lanes of ``width`` and run by :func:`run_block`, returning its jobs' results; else as they are.
 
     The blocks are as even as can be, and as many as the fewest that hold the jobs rounded up to a
-    multiple of ``workers`` (default: this machine's cores), so that no worker waits while another
+    multiple of ``workers`` (default: the cores a local executor would use), so that no worker waits while another
     runs a last, lone block. A seed's results do not depend on which seeds share its block (an
     episode does not depend on its lane-mates, nor, at a width that is a multiple of 4, on its
     lane: docs/performance.md; and each seed has a learner of its own), so the cut changes the
@@ -48,7 +48,7 @@ def in_blocks(
     if width == 1:
         return work, list(jobs)
     blocks, start = [], 0
-    for size in block_sizes(len(jobs), width, workers or os.cpu_count() or 1):
+    for size in block_sizes(len(jobs), width, workers or default_workers()):
         blocks.append(LaneBlock(work, tuple(jobs[start : start + size]), width))
         start += size
     return run_block, blocks
