@@ -1,6 +1,7 @@
 """Shared fixtures: the command line's CPU kernels, pinned before numpy loads; one thread for torch
 (CI has 2 cores); metadagger's Gymnasium ids registered (tests ``gym.make`` them directly;
-importing metadagger does not register them); a seeded generator and a closed port."""
+importing metadagger does not register them); the machine's cache of finished artifacts off (a test
+that reads it sets its own); a seeded generator and a closed port."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import metadagger
 
 metadagger.pin_cpu_kernels()  # before numpy, OpenCV and torch load, as the command line does
 
+import os  # noqa: E402
 import socket  # noqa: E402
 from collections.abc import Iterator  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -20,6 +22,7 @@ from metadagger.tasks.gym_ids import register_envs  # noqa: E402
 
 torch.set_num_threads(1)
 register_envs()
+os.environ["METADAGGER_CACHE"] = "off"  # every test trains its own pi*, its subprocesses too
 
 
 @pytest.fixture(scope="session")

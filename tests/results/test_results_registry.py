@@ -367,6 +367,19 @@ def test_status_lists_every_canonical_run_and_strict_check_fails_on_a_stale_one(
     )
 
 
+def test_status_says_where_a_run_took_its_pistar_from(registry, canonical, tmp_path):
+    import shutil
+
+    copy = tmp_path / "results"
+    shutil.copytree(registry, copy)
+    origin = {"run": "/machine/runs/carracing-family-ci", "seconds": 7200.0, "commits": ["abc1234"], "cpus": ["CPU"]}
+    (copy / CI_RUN.name / "pistar" / "origin.json").write_text(json.dumps(origin))
+    status = runner.invoke(app, ["results", "status", "--root", str(tmp_path), "--results", "results"])
+    first = status.output.splitlines()[0]
+    assert first.startswith(f"{CI_RUN.name}: current, last took ")
+    assert first.endswith("(pi* taken from the cache, made in 2 h 00 min by run carracing-family-ci)")
+
+
 def test_adding_one_run_leaves_the_other_registry_runs_as_they_are(
     registry, canonical, carracing_ci_run, tmp_path, monkeypatch
 ):

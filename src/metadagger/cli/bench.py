@@ -22,6 +22,7 @@ import numpy as np
 
 from metadagger.errors import UserError
 from metadagger.runfolder.layout import RunLayout
+from metadagger.runfolder.machine_cache import CACHE_ENV, OFF
 from metadagger.utils.io import read_json, write_json
 from metadagger.utils.kernels import KERNEL_ENV, NATIVE_SWITCH, machine_description
 
@@ -293,8 +294,10 @@ def bench_prior(*, fits: int = 32, rows: int = 500, epochs: int = 20, repeats: i
 
 
 def _kernel_environment(kernels: str) -> dict[str, str]:
-    """This process's environment without any kernel setting, plus ``native``'s switch."""
+    """This process's environment without any kernel setting, plus ``native``'s switch, and the
+    machine's cache off (each repeat trains its own pi*)."""
     env = {k: v for k, v in os.environ.items() if k not in KERNEL_ENV and k != NATIVE_SWITCH}
+    env[CACHE_ENV] = OFF
     return {**env, NATIVE_SWITCH: "native"} if kernels == "native" else env
 
 

@@ -21,6 +21,7 @@ from typing import Sequence
 
 from metadagger.cli.bench import machine_block
 from metadagger.errors import UserError
+from metadagger.runfolder.machine_cache import CACHE_ENV, OFF
 
 #: The tables whose digests say whether two arms made the same numbers.
 TABLES = ("eval/mdm.csv", "benchmark/queries.csv")
@@ -68,7 +69,9 @@ def _timed(command: list[str], out: Path, arm: str) -> dict:
     """One arm: wall seconds, the run's stage seconds, the largest process's peak memory, the digests."""
     with tempfile.TemporaryFile(mode="w+") as errors:
         start = time.perf_counter()
-        proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=errors)
+        # each arm trains its own pi*: one taken from the machine's cache would time nothing
+        environment = {**os.environ, CACHE_ENV: OFF}
+        proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=errors, env=environment)
         # wait4's usage holds the child's peak and its reaped workers' (the largest of them)
         _, status, usage = os.wait4(proc.pid, 0)
         proc.returncode = os.waitstatus_to_exitcode(status)

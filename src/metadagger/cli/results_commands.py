@@ -76,14 +76,12 @@ def results_status_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTIO
     """Every canonical run: current, stale or missing, with the command that makes it again.
 
     A stale run's line says why, as `setting: run's -> today's`; each run's line gives the wall time it last took."""
-    from metadagger.evaluation.report.run import duration
     from metadagger.results.registry import load_registry
     from metadagger.results.staleness import registry_status
 
     rows = registry_status(load_registry(root / registry))
     for row in rows:
-        wall = duration(row["wall_seconds"]) if row["wall_seconds"] is not None else "never made"
-        typer.echo(f"{row['name']}: {row['state']}, last took {wall}")
+        typer.echo(f"{row['name']}: {row['state']}, last took {row['wall'] or 'never made'}")
         for reason in row["reasons"]:
             typer.echo(f"    {reason}")
         if row["state"] != "current":

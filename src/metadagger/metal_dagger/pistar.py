@@ -3,14 +3,20 @@ rounds over all K seeds. Its layers 1..n-1 are frozen into every per-seed policy
 
 Artifacts (paths from :class:`~metadagger.runfolder.layout.RunLayout`): pi*, its metrics (success on its
 own seeds and on unseen seeds), the stamp of the config it is made from (written first) and
-per-round checkpoints, so a killed run resumes after its last finished fit.
+per-round checkpoints, so a killed run resumes after its last finished fit. A pi* depends only on
+the task it learns and its config, so the runs of one machine share it
+(:mod:`~metadagger.runfolder.machine_cache`): a family's run takes the one its base task's run made.
 """
 
 from __future__ import annotations
 
+import datetime
 import functools
 import shutil
+import sys
+import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from metadagger.errors import UserError
 from metadagger.imitation.bc import BCConfig, fit_or_resume
@@ -22,13 +28,18 @@ from metadagger.imitation.metrics import summarize, wilson_interval
 from metadagger.imitation.selection import EpochSelector
 from metadagger.imitation.whole_policy_dagger import DAggerConfig, run_whole_policy_dagger
 from metadagger.policies import Policy, load_policy, make_policy
+from metadagger.runfolder import machine_cache
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.stamps import describe_changes, stamp_of
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
-from metadagger.utils.io import read_json, write_json
-from metadagger.utils.kernels import kernel_stamp
+from metadagger.utils.io import atomic_write, read_json, write_json
+from metadagger.utils.kernels import kernel_stamp, machine_description
 from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
+from metadagger.version import source_revision
+
+CACHE_KIND = "pistar"
+"""pi*'s kind in the machine's cache."""
 
 
 @dataclass(frozen=True)
@@ -108,6 +119,12 @@ def pistar_stamp(task: Task, config: PiStarConfig) -> dict:
     }
 
 
+def pistar_cache_stamp(task: Task, config: PiStarConfig) -> dict:
+    """What pi* is made from in any run: :func:`pistar_stamp` of the task pi* learns (a family's
+    nominal member, so a family's run and its base task's share one pi*)."""
+    return pistar_stamp(task.pistar_task(), config)
+
+
 def pistar_changes(task: Task, config: PiStarConfig, layout: RunLayout) -> list[str]:
     """How the recorded pi* differs from one ``config`` would make (``[]``: the same, none yet, or a
     pi* put there by hand, without a stamp: downstream stamps still record its fingerprint)."""
@@ -150,8 +167,13 @@ def train_pistar(
         shutil.rmtree(layout.pistar_dir)
     if layout.pistar.is_file() and layout.pistar_metrics.is_file():
         load_policy(layout.pistar)  # a damaged pi* is named here rather than reused
+        _keep_in_cache(task, config, layout, seconds=None)
         return read_json(layout.pistar_metrics, "pi*'s metrics")
     write_json(layout.pistar_stamp, pistar_stamp(task, config))
+    if _take_from_cache(task, config, layout, progress=progress):
+        return read_json(layout.pistar_metrics, "pi*'s metrics")
+    layout.pistar_origin.unlink(missing_ok=True)  # made here: no record of another run's
+    started = time.perf_counter()
     task = task.pistar_task()  # a family's pi* learns its nominal member (docs/families.md)
 
     demos = collect(task, config.seeds, policy=None, progress=progress, workers=workers)
@@ -211,7 +233,54 @@ def train_pistar(
         metrics["bc_selection"] = selector.choice if bc_losses is not None else None
     policy.save(layout.pistar)
     write_json(layout.pistar_metrics, metrics)
+    _keep_in_cache(task, config, layout, seconds=time.perf_counter() - started)
     return metrics
+
+
+def _take_from_cache(task: Task, config: PiStarConfig, layout: RunLayout, *, progress: bool) -> bool:
+    """Copy the machine's cached pi* made from this config into the run, with ``origin.json`` saying
+    where it was made; False when the cache holds none (or one that does not load)."""
+    names = (layout.pistar.name, layout.pistar_metrics.name)
+    entry = machine_cache.cached(CACHE_KIND, pistar_cache_stamp(task, config), names)
+    if entry is None:
+        return False
+    try:
+        load_policy(entry / layout.pistar.name)
+    except UserError:  # a damaged entry (a CheckpointError) goes: pi* is made here and kept again
+        shutil.rmtree(entry, ignore_errors=True)
+        return False
+    made = machine_cache.made_record(entry)
+    write_json(layout.pistar_origin, {**made, "cache": str(entry)})
+    for path in (layout.pistar, layout.pistar_metrics):  # the metrics last: they mark pi* finished
+        atomic_write(path, lambda tmp, source=entry / path.name: shutil.copyfile(source, tmp))
+    if progress:
+        took = "" if made.get("seconds") is None else f" in {made['seconds'] / 60:.0f} min"
+        print(
+            f"pi*: taken from the machine's cache, made by run {made.get('run')}{took} "
+            f"({machine_cache.CACHE_ENV}={machine_cache.OFF} trains it here)",
+            file=sys.stderr,
+            flush=True,
+        )
+    return True
+
+
+def _keep_in_cache(task: Task, config: PiStarConfig, layout: RunLayout, *, seconds: float | None) -> None:
+    """Put the run's finished pi* in the machine's cache (unless it came from there), with where and
+    when it was made and its training's wall seconds (None: pi* finished in an earlier call, whose
+    recorded stage time is taken)."""
+    if layout.pistar_origin.is_file():
+        return
+    times = read_json(layout.stage_times, "the stage times").get("pistar", {}) if layout.stage_times.is_file() else {}
+    earlier = float(times.get("total_seconds", 0.0))
+    made: dict[str, Any] = {
+        "run": str(layout.root.resolve()),
+        "seconds": round(earlier + seconds, 1) if seconds is not None else (earlier or None),
+        "commits": times.get("commits") if seconds is None else [source_revision() or "unknown"],
+        "cpus": times.get("cpus") if seconds is None else [machine_description()["cpu"]],
+        "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+    files = {path.name: path for path in (layout.pistar, layout.pistar_metrics)}
+    machine_cache.keep(CACHE_KIND, pistar_cache_stamp(task, config), files, made)
 
 
 def pistar_rates(metrics: dict) -> str:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from metadagger.errors import UserError
+from metadagger.evaluation.report.run import duration
 from metadagger.imitation.lanes import LANE_NUMERICS
 from metadagger.pipeline.run_config import RunConfig, load_run, resolve_config
 from metadagger.pipeline.stages import StageOptions, reproduce
@@ -29,11 +30,14 @@ from metadagger.version import source_revision
 #: Where the registry lives, relative to the repository root.
 REGISTRY = Path("results")
 
+#: Where a run took pi* from the machine's cache: the record of where it was made.
+ORIGIN = "pistar/origin.json"
 #: The files of a run folder a registry run keeps (globs relative to the run folder).
 KEPT_FILES = (
     "config.yaml",
     "stage_times.json",
     "pistar/metrics.json",
+    ORIGIN,  # only where pi* was taken from the machine's cache
     "pairs/summary.json",
     "mappers/*/curves.csv",
     "eval/*.csv",
@@ -216,6 +220,16 @@ class RegistryRun:
     def json(self, relative: str) -> Any:
         """A kept JSON file of the run, read."""
         return read_json(self.path(relative), f"{relative} of registry run {self.name}")
+
+    def wall_time(self) -> str:
+        """The run's wall time, all stages and calls; where its pi* was taken from the machine's cache
+        (``pistar/origin.json``), what it cost where it was made is said beside it."""
+        wall = duration(self.manifest["wall_seconds"])
+        if not self.path(ORIGIN).is_file():
+            return wall
+        origin = self.json(ORIGIN)
+        made = f" in {duration(origin['seconds'])}" if origin.get("seconds") is not None else ""
+        return f"{wall} (pi* taken from the cache, made{made} by run {Path(origin['run']).name})"
 
 
 def load_registry(registry: str | Path = REGISTRY, names: Sequence[str] | None = None) -> dict[str, RegistryRun]:

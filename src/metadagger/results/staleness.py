@@ -94,8 +94,9 @@ def _laned(data: Any) -> bool:
 
 def registry_status(runs: Mapping[str, RegistryRun]) -> list[dict[str, Any]]:
     """Every canonical run, in the docs' order: its name, ``current``, ``stale`` or ``missing``
-    (not in the registry), why it is stale, the wall time it last took (seconds; None when
-    missing) and the command that makes it."""
+    (not in the registry), why it is stale, the wall time it last took
+    (:meth:`~metadagger.results.registry.RegistryRun.wall_time`; None when missing) and the command
+    that makes it."""
     rows = []
     for canonical in CANONICAL_RUNS:
         found = runs.get(canonical.name)
@@ -105,7 +106,7 @@ def registry_status(runs: Mapping[str, RegistryRun]) -> list[dict[str, Any]]:
                 "name": canonical.name,
                 "state": "missing" if found is None else "stale" if reasons else "current",
                 "reasons": reasons,
-                "wall_seconds": found.manifest["wall_seconds"] if found is not None else None,
+                "wall": found.wall_time() if found is not None else None,
                 "command": canonical.command,
             }
         )

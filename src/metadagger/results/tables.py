@@ -32,7 +32,6 @@ from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.benchmark.methods import BC_REFIT, MDI_METHODS, gated_methods, metal_twins, reference_methods
 from metadagger.evaluation.benchmark.summary import budget_reading
-from metadagger.evaluation.report.run import duration
 from metadagger.evaluation.report.tables import markdown_table, pct
 from metadagger.evaluation.rows import read_csv
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
@@ -186,7 +185,7 @@ def runs_table(context: BlockContext) -> str:
     rows = []
     for run in CANONICAL_RUNS:
         found = context.runs.get(run.name)
-        wall = duration(found.manifest["wall_seconds"]) if found else "not run yet"
+        wall = found.wall_time() if found else "not run yet"
         extra = run.command.split(f"--out runs/{run.name}", 1)[1].strip()
         cpu = found.manifest["machine"]["cpu"] if found else "-"
         rows.append(
@@ -480,7 +479,7 @@ def manifest_line(context: BlockContext, name: str) -> str:
     kernels = m["machine"]["kernels"]
     pins = "native kernels" if kernels == "native" else "pinned kernels"
     return (
-        f"`{m['command']}`: {duration(m['wall_seconds'])} on {m['machine']['cpu']} "
+        f"`{m['command']}`: {found.wall_time()} on {m['machine']['cpu']} "
         f"({', '.join(m['machine']['instruction_sets'])}; {pins}), {m['machine']['cores']} cores; beside it: "
         f"{m['beside']}. Stages made by {', '.join(_short(c) for c in commits) or 'unrecorded commits'}; "
         f"checked current at {_short(m['commit'])}; now {_status(context, name)}."

@@ -63,6 +63,11 @@ class RunLayout:
         """Checkpoints of pi*'s fits (resume)."""
         return self.pistar_dir / "rounds"
 
+    @property
+    def pistar_origin(self) -> Path:
+        """Where pi* was made, when it was taken from the machine's cache (absent when made here)."""
+        return self.pistar_dir / "origin.json"
+
     # pairs
     @property
     def pairs_dir(self) -> Path:

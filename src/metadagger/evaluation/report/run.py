@@ -102,7 +102,22 @@ def pistar_section(layout: RunLayout) -> list[str]:
         + markdown_table(("seeds", "successes", "success", "95% CI", "mean reward", "mean steps"), cells)
         + ["", f"Expert queries spent on pi*: {m.get('expert_queries', 0)}.", ""]
         + _selection_lines(m)
+        + _origin_lines(layout)
     )
+
+
+def _origin_lines(layout: RunLayout) -> list[str]:
+    """Where pi* was made, when the run took it from the machine's cache."""
+    if not layout.pistar_origin.is_file():
+        return []
+    origin = read_json(layout.pistar_origin, "pi*'s origin")
+    took = f" in {duration(origin['seconds'])}" if origin.get("seconds") is not None else ""
+    commits = ", ".join(c[:7] for c in origin.get("commits") or []) or "unknown"
+    return [
+        f"pi* was taken from the machine's cache: run `{origin['run']}` made it{took} (commit {commits}); "
+        "its stage time here is the copy's, and the files are what training it here would write.",
+        "",
+    ]
 
 
 def _selection_lines(metrics: dict) -> list[str]:
