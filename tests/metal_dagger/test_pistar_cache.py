@@ -80,7 +80,7 @@ def test_a_damaged_entry_is_trained_again_and_mended(cache, tmp_path):
     assert made_record(entry)["run"] == str(two.root.resolve())
 
 
-def test_a_pistar_finished_with_the_cache_off_is_kept_when_its_stage_runs_again(tmp_path, monkeypatch):
+def test_a_pistar_finished_with_the_cache_off_is_kept_when_its_stage_runs_again(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv(CACHE_ENV, "off")
     made = RunLayout(tmp_path / "made")
     train_pistar(RunCorridorTask(), PISTAR, made, progress=False)
@@ -91,5 +91,10 @@ def test_a_pistar_finished_with_the_cache_off_is_kept_when_its_stage_runs_again(
     assert entry is not None and (entry / "policy.safetensors").read_bytes() == made.pistar.read_bytes()
     assert made_record(entry)["seconds"] is None  # a folder made in code records no stage time
     taken = RunLayout(tmp_path / "taken")
-    train_pistar(CorridorFamily(), PISTAR, taken, progress=False)
+    capsys.readouterr()
+    train_pistar(CorridorFamily(), PISTAR, taken, progress=True)
     assert taken.pistar.read_bytes() == made.pistar.read_bytes()
+    said = (
+        f"pi*: taken from the machine's cache, made by run {made.root.resolve()} (METADAGGER_CACHE=off trains it here)"
+    )
+    assert said in capsys.readouterr().err

@@ -13,7 +13,6 @@ from __future__ import annotations
 import datetime
 import functools
 import shutil
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,6 +34,7 @@ from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import atomic_write, read_json, write_json
 from metadagger.utils.kernels import kernel_stamp, machine_description
+from metadagger.utils.progress import clock, note
 from metadagger.utils.yaml_config import STAMPED_UNLESS_DEFAULT
 from metadagger.version import source_revision
 
@@ -253,14 +253,12 @@ def _take_from_cache(task: Task, config: PiStarConfig, layout: RunLayout, *, pro
     write_json(layout.pistar_origin, {**made, "cache": str(entry)})
     for path in (layout.pistar, layout.pistar_metrics):  # the metrics last: they mark pi* finished
         atomic_write(path, lambda tmp, source=entry / path.name: shutil.copyfile(source, tmp))
-    if progress:
-        took = "" if made.get("seconds") is None else f" in {made['seconds'] / 60:.0f} min"
-        print(
-            f"pi*: taken from the machine's cache, made by run {made.get('run')}{took} "
-            f"({machine_cache.CACHE_ENV}={machine_cache.OFF} trains it here)",
-            file=sys.stderr,
-            flush=True,
-        )
+    took = "" if made.get("seconds") is None else f" in {clock(made['seconds'])}"
+    note(
+        f"pi*: taken from the machine's cache, made by run {made.get('run')}{took} "
+        f"({machine_cache.CACHE_ENV}={machine_cache.OFF} trains it here)",
+        enabled=progress,
+    )
     return True
 
 

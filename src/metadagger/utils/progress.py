@@ -55,9 +55,9 @@ class _Lines:
         return {math.ceil(self.total * quarter / 4) for quarter in (1, 2, 3, 4)}
 
     def _print(self, done: int, elapsed: float) -> None:
-        line = f"{self.desc}: {done}/{self.total} in {_clock(elapsed)}"
+        line = f"{self.desc}: {done}/{self.total} in {clock(elapsed)}"
         if done < self.total:
-            line += f", about {_clock(elapsed / done * (self.total - done))} left"
+            line += f", about {clock(elapsed / done * (self.total - done))} left"
         if self.postfix:
             line += f" ({self.postfix})"
         print(line, file=self.stream, flush=True)
@@ -70,7 +70,8 @@ def _length(iterable: Iterable[Any]) -> int | None:
         return None
 
 
-def _clock(seconds: float) -> str:
+def clock(seconds: float) -> str:
+    """``4m05s`` or ``12s``: a duration as the progress lines write it."""
     minutes, secs = divmod(int(round(seconds)), 60)
     return f"{minutes}m{secs:02d}s" if minutes else f"{secs}s"
 
