@@ -13,11 +13,18 @@ from metadagger.evaluation.report.run import pistar_section
 from metadagger.imitation.bc import BCConfig
 from metadagger.metal_dagger import pistar as pistar_module
 from metadagger.metal_dagger.pistar import CACHE_KIND, PiStarConfig, pistar_cache_stamp, pistar_changes, train_pistar
+from metadagger.runfolder import machine_cache
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.machine_cache import CACHE_ENV, cached, entry_folder, made_record
 
 PISTAR = PiStarConfig(seeds=(0, 1), eval_seeds=(100,), dagger_rounds=1, bc=BCConfig(lr=3e-3, batch_size=16, epochs=2))
 NAMES = ("policy.safetensors", "metrics.json")
+
+
+@pytest.fixture(autouse=True)
+def committed(monkeypatch) -> None:
+    """Every test runs as from a commit (a tree with uncommitted changes has no cache)."""
+    monkeypatch.setattr(machine_cache, "source_revision", lambda: "0123abc")
 
 
 @pytest.fixture

@@ -13,6 +13,12 @@ from metadagger.runfolder.machine_cache import CACHE_ENV, cache_root, cached, en
 STAMP = {"task": "corridor", "epochs": 3, "seeds": [0, 1, 2]}
 
 
+@pytest.fixture(autouse=True)
+def committed(monkeypatch) -> None:
+    """Every test runs as from a commit, whatever the tree it is run from."""
+    monkeypatch.setattr(machine_cache, "source_revision", lambda: "0123abc")
+
+
 @pytest.fixture
 def cache(tmp_path, monkeypatch) -> Path:
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
@@ -33,6 +39,10 @@ def test_the_cache_lives_where_the_environment_says_and_can_be_turned_off(tmp_pa
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     assert cache_root() == tmp_path / "home" / ".cache" / "metadagger"
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "mine"))
+    assert cache_root() == tmp_path / "mine"
+    monkeypatch.setattr(machine_cache, "source_revision", lambda: "0123abc+dirty")  # code being changed
+    assert cache_root() is None
+    monkeypatch.setattr(machine_cache, "source_revision", lambda: "")  # installed, not a checkout
     assert cache_root() == tmp_path / "mine"
     monkeypatch.setenv(CACHE_ENV, "OFF")
     assert cache_root() is None and entry_folder("pistar", STAMP) is None

@@ -4,7 +4,10 @@ An artifact that depends on nothing but its stamp (pi*: the task it learns, its 
 numerics) is looked up here before it is computed, and kept here once it is. A run folder that
 takes one copies its files and records where they were made, so it holds what computing them would
 have written, byte for byte. ``METADAGGER_CACHE`` moves the cache (default
-``$XDG_CACHE_HOME/metadagger``, else ``~/.cache/metadagger``); ``METADAGGER_CACHE=off`` turns it off.
+``$XDG_CACHE_HOME/metadagger``, else ``~/.cache/metadagger``); ``METADAGGER_CACHE=off`` turns it
+off. It is off too while metadagger's own source has uncommitted changes: the key is the stamp,
+which a change of the code that makes an artifact does not reach until it bumps ``NUMERICS``, so
+code being changed neither takes nor keeps.
 
 An entry is a folder ``KIND/KEY`` (KEY: a hash of the stamp) holding the files, ``stamp.json``
 (checked on every read, so a hash that collides or an entry of another stamp is never taken) and
@@ -25,6 +28,7 @@ from typing import Any, Mapping
 from metadagger.errors import UserError
 from metadagger.runfolder.stamps import canonical, data_fingerprint
 from metadagger.utils.io import atomic_folder, write_json
+from metadagger.version import source_revision
 
 CACHE_ENV = "METADAGGER_CACHE"
 """The environment variable that names the cache's folder, or ``off``."""
@@ -34,9 +38,10 @@ MADE_FILE = "made.json"
 
 
 def cache_root() -> Path | None:
-    """The cache's folder, or None when ``METADAGGER_CACHE=off``."""
+    """The cache's folder, or None when ``METADAGGER_CACHE=off`` or metadagger's source tree has
+    uncommitted changes."""
     value = os.environ.get(CACHE_ENV, "").strip()
-    if value.lower() == OFF:
+    if value.lower() == OFF or source_revision().endswith("+dirty"):
         return None
     if value:
         return Path(value).expanduser()
