@@ -123,3 +123,33 @@ def test_the_refit_check_reads_each_refits_last_round_against_bc_on_the_whole_de
     assert checks["bc-refit"]["ci_high"] < 0
     assert checks["dagger"]["setting"] == "3" and (checks["dagger"]["only_a"], checks["dagger"]["only_b"]) == (2, 0)
     assert refit_check(rows("dagger", "3", [True] * 10)) == []
+
+
+def test_the_reports_twin_table_puts_each_best_gate_under_the_budgets_where_it_is_best(tmp_path):
+    """The safe gate is the best at the two smaller budgets, the random gate at the largest and by
+    area: each comparison sits in its own budget's column, a dash in the others."""
+    from metadagger.evaluation.benchmark.summary import summarize_benchmark
+    from metadagger.evaluation.report.benchmark import benchmark_section
+    from metadagger.runfolder.layout import RunLayout
+    from metadagger.utils.io import write_json
+
+    rows = [r for r in _rows() if r["method"] not in ("dagger-safe", "dagger-oracle")]
+    for seed in range(6):
+        rows += [
+            _row("dagger-safe", "0.8", seed, seed < 3, 120),
+            _row("dagger-random", "0.5", seed, True, 190),
+            _row("mdm-ridge", "", seed, seed < 4, 100),
+        ]
+    layout = RunLayout(tmp_path)
+    rows = [{**r, "steps": 50} for r in rows]
+    write_json(layout.benchmark_summary, summarize_benchmark(rows, {"pistar": 0, "pairs": 0}))
+    lines = benchmark_section(layout)
+    table = lines[lines.index("### MetaL DAgger against its constant twins") + 4 :]
+    table = table[: table.index("")]
+    split = [row.strip("| ").split(" | ") for row in table[2:]]
+    cells = {tuple(row[:2]): row[2:] for row in split}
+    assert all(len(row) == 4 for row in cells.values())  # three budgets and the area, on every row
+    safe, random = cells["MDM Ridge", "DAgger, SafeDAgger gate"], cells["MDM Ridge", "DAgger, random gate"]
+    assert [cell == "-" for cell in safe] == [False, False, True, True]
+    assert [cell == "-" for cell in random] == [True, True, False, False]
+    assert all(cell != "-" for cell in cells["MDM Ridge", "MDM mean-DA (control)"])

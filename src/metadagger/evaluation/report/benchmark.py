@@ -281,22 +281,25 @@ def _confirmation(layout: RunLayout) -> list[str]:
 def _metal_twins(reading: dict[str, Any], where: str = "") -> list[str]:
     """Each method that reads a learned mapper's head against its constant twins, BC refitted and the
     best gate: the paired difference of success at each budget and of the area under the curve."""
+    budgets = reading["budgets"]
     pairs: dict[tuple[str, float, str, float], list[str]] = {}
-    for b in reading["budgets"]:
+    for i, b in enumerate(budgets):  # the best gate may differ by budget: its row has a cell at its budgets only
         for c in b.get("metal", []):
-            pairs.setdefault(_pair_key(c), []).append(
+            pairs.setdefault(_pair_key(c), ["-"] * len(budgets))[i] = (
                 f"{_points(c['difference'])} ({_points(c['ci_low'])} to {_points(c['ci_high'])})"
             )
     auc = {
         _pair_key(c): f"{c['difference']:+.3f} ({c['ci_low']:+.3f} to {c['ci_high']:+.3f})"
         for c in reading.get("auc_metal", [])
     }
+    for key in auc:  # the best gate by area may be best at no budget
+        pairs.setdefault(key, ["-"] * len(budgets))
     if not pairs:
         return []
     header = (
         "method",
         "against",
-        *(f"at demonstration + {b['share']:.0%}, points" for b in reading["budgets"]),
+        *(f"at demonstration + {b['share']:.0%}, points" for b in budgets),
         "area under the curve",
     )
     cells = [
