@@ -7,6 +7,7 @@ import pytest
 from metadagger.errors import UserError
 from metadagger.evaluation.report.build import build_report
 from metadagger.evaluation.report.mdm import FIGURE
+from metadagger.evaluation.report.tables import markdown_table
 from metadagger.evaluation.rows import write_csv
 from metadagger.mapping.train import CURVE_COLUMNS
 from metadagger.runfolder.layout import RunLayout
@@ -261,3 +262,9 @@ def test_a_figure_that_fails_costs_only_itself(run, capsys, monkeypatch):
         f"warning: figure {run.figures / FIGURE} was not drawn (RuntimeError: no ink)",
     ]
     assert plt.get_fignums() == []
+
+
+def test_a_table_row_with_another_number_of_cells_than_columns_is_refused():
+    assert markdown_table(("a", "b"), [(1, 2)]) == ["| a | b |", "|---|---|", "| 1 | 2 |"]
+    with pytest.raises(ValueError, match="a table row has 3 cells under 2 columns"):
+        markdown_table(("a", "b"), [(1, 2), (1, 2, 3)])

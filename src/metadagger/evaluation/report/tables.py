@@ -34,9 +34,18 @@ def rate(rows: Iterable[dict[str, Any]], key: str = "success") -> str:
 
 
 def markdown_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
-    """A Markdown table as lines (cells as given, converted with ``str``)."""
+    """A Markdown table as lines (cells as given, converted with ``str``).
+
+    Raises:
+        ValueError: a row with another number of cells than the header (its cells would sit under
+            the wrong columns).
+    """
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    for row in rows:
+        if len(row) != len(header):
+            raise ValueError(f"a table row has {len(row)} cells under {len(header)} columns: {list(row)[:3]}")
+        lines.append("| " + " | ".join(str(c) for c in row) + " |")
+    return lines
 
 
 def figure_lines(figures: Path, name: str, alt: str, draw: Callable[[Path], object]) -> list[str]:
