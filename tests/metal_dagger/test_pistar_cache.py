@@ -105,3 +105,16 @@ def test_a_pistar_finished_with_the_cache_off_is_kept_when_its_stage_runs_again(
         f"pi*: taken from the machine's cache, made by run {made.root.resolve()} (METADAGGER_CACHE=off trains it here)"
     )
     assert said in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("preset", ["quick", "paper"])
+def test_the_carracing_family_presets_share_pi_star_with_carracing(preset):
+    """A family's preset keeps its base task's pistar settings, so one pi* serves both runs."""
+    from metadagger.pipeline.run_config import resolve_config
+    from metadagger.tasks import make_task
+
+    stamps = []
+    for name in ("carracing", "carracing-family"):
+        config = resolve_config(name, preset)
+        stamps.append(pistar_cache_stamp(make_task(name, max_episode_steps=config.max_episode_steps), config.pistar))
+    assert stamps[0] == stamps[1]
