@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from metadagger.errors import UserError
-from metadagger.evaluation.report.run import duration
+from metadagger.evaluation.report.run import duration, origin_took
 from metadagger.imitation.lanes import LANE_NUMERICS
 from metadagger.pipeline.run_config import RunConfig, load_run, resolve_config
 from metadagger.pipeline.stages import StageOptions, reproduce
@@ -228,8 +228,7 @@ class RegistryRun:
         if not self.path(ORIGIN).is_file():
             return wall
         origin = self.json(ORIGIN)
-        made = f" in {duration(origin['seconds'])}" if origin.get("seconds") is not None else ""
-        return f"{wall} (pi* taken from the cache, made{made} by run {Path(origin['run']).name})"
+        return f"{wall} (pi* taken from the cache, made{origin_took(origin)} by run {Path(origin['run']).name})"
 
 
 def load_registry(registry: str | Path = REGISTRY, names: Sequence[str] | None = None) -> dict[str, RegistryRun]:

@@ -59,14 +59,19 @@ def cached(kind: str, stamp: Mapping[str, Any], names: tuple[str, ...]) -> Path 
     """The entry of ``kind`` made from ``stamp`` holding every file of ``names``, or None: the cache
     is off, holds none, or holds one whose stamp or record does not read as this one."""
     folder = entry_folder(kind, stamp)
-    if folder is None or not all((folder / name).is_file() for name in (*names, STAMP_FILE, MADE_FILE)):
-        return None
+    return folder if folder is not None and _holds(folder, stamp, names) else None
+
+
+def _holds(folder: Path, stamp: Mapping[str, Any], names: tuple[str, ...]) -> bool:
+    """Whether ``folder`` is a whole entry made from ``stamp`` holding every file of ``names``."""
+    if not all((folder / name).is_file() for name in (*names, STAMP_FILE, MADE_FILE)):
+        return False
     try:
         recorded = json.loads((folder / STAMP_FILE).read_text())
         json.loads((folder / MADE_FILE).read_text())
     except (OSError, UnicodeDecodeError, ValueError):
-        return None
-    return folder if canonical(recorded) == canonical(stamp) else None
+        return False
+    return canonical(recorded) == canonical(stamp)
 
 
 def made_record(folder: Path) -> dict[str, Any]:
@@ -79,7 +84,7 @@ def keep(kind: str, stamp: Mapping[str, Any], files: Mapping[str, Path], made: M
     ``made`` (JSON: where, when, how long); an entry there already is left as it is. Returns the
     entry, or None when the cache is off or cannot be written (a warning line says why)."""
     folder = entry_folder(kind, stamp)
-    if folder is None or cached(kind, stamp, tuple(files)) is not None:
+    if folder is None or _holds(folder, stamp, tuple(files)):
         return folder
 
     def write(staging: Path) -> None:

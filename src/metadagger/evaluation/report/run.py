@@ -111,13 +111,19 @@ def _origin_lines(layout: RunLayout) -> list[str]:
     if not layout.pistar_origin.is_file():
         return []
     origin = read_json(layout.pistar_origin, "pi*'s origin")
-    took = f" in {duration(origin['seconds'])}" if origin.get("seconds") is not None else ""
+    took = origin_took(origin)
     commits = ", ".join(c[:7] for c in origin.get("commits") or []) or "unknown"
     return [
         f"pi* was taken from the machine's cache: run `{origin['run']}` made it{took} (commit {commits}); "
         "its stage time here is the copy's, and the files are what training it here would write.",
         "",
     ]
+
+
+def origin_took(origin: dict) -> str:
+    """`` in 3 min 46 s``: the wall time that made a pi* taken from the cache (``pistar/origin.json``),
+    or "" where none was recorded."""
+    return f" in {duration(origin['seconds'])}" if origin.get("seconds") is not None else ""
 
 
 def _selection_lines(metrics: dict) -> list[str]:
