@@ -269,7 +269,7 @@ def _keep_in_cache(task: Task, config: PiStarConfig, layout: RunLayout, *, secon
     if layout.pistar_origin.is_file():
         return
     times = read_json(layout.stage_times, "the stage times").get("pistar", {}) if layout.stage_times.is_file() else {}
-    earlier = float(times.get("total_seconds", 0.0))
+    earlier = float(times.get("earlier_seconds", times.get("total_seconds", 0.0)))  # the calls' before this one
     made: dict[str, Any] = {
         "run": str(layout.root.resolve()),
         "seconds": round(earlier + seconds, 1) if seconds is not None else (earlier or None),

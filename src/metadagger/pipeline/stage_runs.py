@@ -3,10 +3,12 @@ first and put back when it refuses, and with its wall time recorded in ``stage_t
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import functools
+import threading
 import time
-from typing import Any, Callable, Concatenate, ParamSpec, TypeVar
+from typing import Any, Callable, Concatenate, Iterator, ParamSpec, TypeVar
 
 from metadagger.errors import UserError
 from metadagger.pipeline.run_config import RunConfig, save_run
@@ -22,45 +24,95 @@ P = ParamSpec("P")
 R = TypeVar("R")
 
 
+#: How often a running stage writes the time it has spent so far: a call killed without a word
+#: (SIGKILL, a machine that stops) loses at most this much of its time.
+HEARTBEAT_SECONDS = 60.0
+
+
 def _timed(stage: Callable[..., R], layout: RunLayout, config: RunConfig, *args: Any, **kwargs: Any) -> R:
-    """``stage(...)``, its wall time added to ``RUN/stage_times.json`` when it finishes or is
-    stopped (SIGTERM, Ctrl-C: the time a resumed run spent still counts); a run folder made in
-    code, without a ``config.yaml``, records none."""
-    start = time.perf_counter()
-
-    def record(stopped: bool) -> None:
-        if layout.config.is_file():
-            record_stage_time(
-                layout, stage.__name__.removeprefix("stage_"), time.perf_counter() - start, stopped=stopped
-            )
-
+    """``stage(...)``, its wall time added to ``RUN/stage_times.json``: at the start, every
+    :data:`HEARTBEAT_SECONDS` while it runs (marked ``stopped``, as a call that ends unannounced
+    leaves it) and when it finishes or is stopped (SIGTERM, Ctrl-C). The time a resumed run spent
+    still counts; a run folder made in code, without a ``config.yaml``, records none."""
+    if not layout.config.is_file():
+        return stage(layout, config, *args, **kwargs)
+    call = StageCall(layout, stage.__name__.removeprefix("stage_"))
+    call.record(finished=False)
     try:
-        result = stage(layout, config, *args, **kwargs)
+        with _beating(call):
+            result = stage(layout, config, *args, **kwargs)
     except KeyboardInterrupt:
-        record(stopped=True)
+        call.record(finished=False)
         raise
-    record(stopped=False)
+    except BaseException:
+        call.forget()
+        raise
+    call.record(finished=True)
     return result
 
 
-def record_stage_time(layout: RunLayout, stage: str, seconds: float, *, stopped: bool = False) -> None:
-    """Add one call of ``stage`` to the run's stage times: ``seconds`` (this call's),
-    ``total_seconds`` (all calls'), ``finished`` (when it ended, UTC, ISO 8601), ``stopped``
-    (only while the last call was stopped before it finished), and the source commits and CPUs of
-    all its calls (``commits``, ``cpus``: each once, in order of first use)."""
-    times = read_json(layout.stage_times, "the stage times") if layout.stage_times.is_file() else {}
-    before = times.get(stage, {})
-    total = float(before.get("total_seconds", 0.0)) + seconds
-    cpu = machine_description()["cpu"]
-    times[stage] = {
-        "seconds": round(seconds, 3),
-        "total_seconds": round(total, 3),
-        "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "commits": _once(before.get("commits", []), source_revision() or "unknown"),
-        "cpus": _once(before.get("cpus", []), cpu),
-        **({"stopped": True} if stopped else {}),
-    }
-    write_json(layout.stage_times, times)
+@contextlib.contextmanager
+def _beating(call: "StageCall") -> Iterator[None]:
+    """Within: ``call`` written every :data:`HEARTBEAT_SECONDS` by a thread, stopped on the way out."""
+    done = threading.Event()
+
+    def beat() -> None:
+        while not done.wait(HEARTBEAT_SECONDS):
+            try:
+                call.record(finished=False)
+            except (OSError, UserError):  # a disk that refuses now: the call's last record says why
+                pass
+
+    heart = threading.Thread(target=beat, name=f"stage-time-{call.stage}", daemon=True)
+    heart.start()
+    try:
+        yield
+    finally:
+        done.set()
+        heart.join()
+
+
+class StageCall:
+    """One call of a stage in ``stage_times.json``: ``seconds`` (this call's), ``total_seconds``
+    (all calls', this one's so far included), ``finished`` (when it was last written, UTC, ISO
+    8601), ``stopped`` and ``earlier_seconds`` (the calls' before this one) while the call has not
+    finished, and the source commits and CPUs of all its calls (``commits``, ``cpus``: each once,
+    in order of first use)."""
+
+    def __init__(self, layout: RunLayout, stage: str) -> None:
+        self.layout, self.stage, self.start = layout, stage, time.perf_counter()
+        self.before = self._times().get(stage, {})
+        self.earlier = float(self.before.get("total_seconds", 0.0))
+
+    def _times(self) -> dict[str, Any]:
+        path = self.layout.stage_times
+        return read_json(path, "the stage times") if path.is_file() else {}
+
+    def record(self, *, finished: bool) -> None:
+        """Write this call's time so far; ``finished=False`` marks it as not finished."""
+        seconds = time.perf_counter() - self.start
+        times = self._times()
+        times[self.stage] = {
+            "seconds": round(seconds, 3),
+            "total_seconds": round(self.earlier + seconds, 3),
+            "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "commits": _once(self.before.get("commits", []), source_revision() or "unknown"),
+            "cpus": _once(self.before.get("cpus", []), machine_description()["cpu"]),
+            **({} if finished else {"stopped": True, "earlier_seconds": round(self.earlier, 3)}),
+        }
+        write_json(self.layout.stage_times, times)
+
+    def forget(self) -> None:
+        """Put the stage's entry back as it was before this call (a call that failed counts no time)."""
+        times = self._times()
+        if self.before:
+            times[self.stage] = self.before
+        else:
+            times.pop(self.stage, None)
+        if times:
+            write_json(self.layout.stage_times, times)
+        else:
+            self.layout.stage_times.unlink(missing_ok=True)
 
 
 def _once(seen: list[str], item: str) -> list[str]:
