@@ -13,7 +13,8 @@ what they show, worded from the intervals alone:
 - ``oracle``: the learner's-mistakes rule (the oracle, a reference) against the best gate.
 - ``coverage``: whether the seeds' coverage gap predicts a MetaL method's gain over its constant
   twin (Spearman's rho with its 95% interval): how many comparisons have an interval above 0 and
-  below, and the highest and lowest rho (each one is in the run's report).
+  below, how many each way chance alone would give, and the highest and lowest rho (each one is in
+  the run's report).
 
 A run with confirmation seeds (``benchmark/confirm/``) gets a second item nested under its first,
 the same claim read on them. The runs without the rows a claim reads (or not in the registry yet)
@@ -189,20 +190,17 @@ def _coverage(found: RegistryRun, folder: str) -> str | None:
     for c in ranked:
         low, high = rank_interval(c["rho"], c["seeds"]) or (float("nan"), float("nan"))
         pair = f"{with_share(method_label(c['method']), c['demo_fraction'])} against {short_label(c['against'])}"
-        read.append((c["rho"], f"{pair} {c['rho']:+.2f} ({low:+.2f} to {high:+.2f})", low, high))
+        read.append((c["rho"], f"{c['rho']:+.2f} ({low:+.2f} to {high:+.2f}), {pair}", low, high))
     above = sum(low > 0 for _, _, low, _ in read)
     below = sum(high < 0 for _, _, _, high in read)
     unranked = len(compared) - len(ranked)
     counted = (
-        f"in {len(read)} comparison{'s' if len(read) > 1 else ''} of a MetaL method with a constant twin"
-        + (f" ({unranked} more without a rank: the same gain on every seed)" if unranked else "")
-        + f", its interval above 0 in {above} and below in {below} (about {0.025 * len(read):.1f} each by chance, "
-        "were they independent)"
+        f"rho above 0 in {above} of {len(read)} comparison{'s' if len(read) > 1 else ''}, below in {below} "
+        f"({0.025 * len(read):.1f} each way by chance" + (f"; {unranked} more without a rank)" if unranked else ")")
     )
     extremes = sorted(read, key=lambda r: r[0])
-    shown = extremes[-1][1] if len(read) == 1 else f"highest {extremes[-1][1]}, lowest {extremes[0][1]}"
-    says = f"the gap predicts the gain in {above} of {len(read)}" if above else "no interval lies above 0"
-    return f"over {ranked[0]['seeds']} seeds, Spearman's rho of the gap with the gain {counted}; {shown}: {says}."
+    shown = extremes[-1][1] if len(read) == 1 else f"highest {extremes[-1][1]}; lowest {extremes[0][1]}"
+    return f"over {ranked[0]['seeds']} seeds, {counted}; {shown}."
 
 
 #: The claims by kind.
