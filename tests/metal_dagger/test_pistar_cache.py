@@ -107,14 +107,15 @@ def test_a_pistar_finished_with_the_cache_off_is_kept_when_its_stage_runs_again(
     assert said in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("base", ["carracing", "fetch"])
 @pytest.mark.parametrize("preset", ["quick", "paper"])
-def test_the_carracing_family_presets_share_pi_star_with_carracing(preset):
+def test_the_family_presets_share_pi_star_with_their_base_task(preset, base):
     """A family's preset keeps its base task's pistar settings, so one pi* serves both runs."""
     from metadagger.pipeline.run_config import resolve_config
     from metadagger.tasks import make_task
 
     stamps = []
-    for name in ("carracing", "carracing-family"):
+    for name in (base, f"{base}-family"):
         config = resolve_config(name, preset)
         stamps.append(pistar_cache_stamp(make_task(name, max_episode_steps=config.max_episode_steps), config.pistar))
     assert stamps[0] == stamps[1]
