@@ -433,6 +433,20 @@ def report(out: Path = OUT) -> None:
 
 @app.command()
 @user_errors
+def status(out: Path = OUT) -> None:
+    """Where a run stands: who writes it now, each stage and the seeds it has done.
+
+    Read from the run's files alone (nothing is run or loaded): the process holding its write lock,
+    each stage's state and wall time (stage_times.json), and the seeds each per-seed stage has logged."""
+    from metadagger.pipeline.run_status import run_status
+    from metadagger.pipeline.stages import load_run
+    from metadagger.runfolder.layout import RunLayout
+
+    typer.echo("\n".join(run_status(RunLayout(out), load_run(out))))
+
+
+@app.command()
+@user_errors
 def reproduce(
     task: str = TASK,
     preset: str = PRESET,
