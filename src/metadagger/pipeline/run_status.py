@@ -84,7 +84,8 @@ def _alive(pid: int) -> bool:
 
 
 def _running_stage(times: dict[str, Any]) -> str | None:
-    """The stage a live writer is in: the last written of those whose call has not finished."""
+    """The stage a live writer is in: the last written of those whose call has not finished (its
+    time so far is the last heartbeat's, plus the time since)."""
     unfinished = [(e.get("finished", ""), s) for s, e in times.items() if isinstance(e, dict) and e.get("stopped")]
     return max(unfinished)[1] if unfinished else None
 
@@ -93,8 +94,17 @@ def _state(entry: dict[str, Any] | None, *, running: bool) -> str:
     if entry is None:
         return "not run"
     if running:
-        return f"running ({duration(entry['seconds'])} into this call)"
+        return f"running ({duration(entry['seconds'] + _since(entry['finished']))} into this call)"
     return "stopped (resumes)" if entry.get("stopped") else "finished"
+
+
+def _since(iso: str) -> float:
+    """Seconds from an ISO 8601 time to now (0 where it does not read or lies ahead)."""
+    try:
+        then = datetime.datetime.fromisoformat(iso)
+    except ValueError:
+        return 0.0
+    return max(0.0, (datetime.datetime.now(datetime.timezone.utc) - then).total_seconds())
 
 
 def _local(iso: str) -> str:
