@@ -19,13 +19,14 @@ from metadagger.evaluation.report.run import duration
 from metadagger.evaluation.report.tables import markdown_table
 from metadagger.metal_dagger.store import PairStore
 from metadagger.pipeline.run_config import RunConfig
+from metadagger.pipeline.stages import STAGES as REPRODUCE_STAGES
 from metadagger.runfolder.driver import RowLog
 from metadagger.runfolder.layout import RunLayout
 from metadagger.runfolder.lock import LOCK_FILE
 from metadagger.utils.io import read_json
 
-#: The stages ``reproduce`` runs, in its order (the report is built from their files).
-STAGES = ("pistar", "pairs", "mappers", "evaluate", "mdi", "benchmark", "diagnose")
+#: The stages ``reproduce`` runs that write a run's artifacts, in its order (the report is built from their files).
+STAGES = tuple(stage for stage in REPRODUCE_STAGES if stage != "report")
 
 
 def run_status(layout: RunLayout, config: RunConfig) -> list[str]:

@@ -83,6 +83,9 @@ class StageCall:
         self.layout, self.stage, self.start = layout, stage, time.perf_counter()
         self.before = self._times().get(stage, {})
         self.earlier = float(self.before.get("total_seconds", 0.0))
+        # what made this call, found once (each heartbeat writes the same)
+        self.commits = _once(self.before.get("commits", []), source_revision() or "unknown")
+        self.cpus = _once(self.before.get("cpus", []), machine_description()["cpu"])
 
     def _times(self) -> dict[str, Any]:
         path = self.layout.stage_times
@@ -96,8 +99,8 @@ class StageCall:
             "seconds": round(seconds, 3),
             "total_seconds": round(self.earlier + seconds, 3),
             "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "commits": _once(self.before.get("commits", []), source_revision() or "unknown"),
-            "cpus": _once(self.before.get("cpus", []), machine_description()["cpu"]),
+            "commits": self.commits,
+            "cpus": self.cpus,
             **({} if finished else {"stopped": True, "earlier_seconds": round(self.earlier, 3)}),
         }
         write_json(self.layout.stage_times, times)
