@@ -272,7 +272,7 @@ def _keep_in_cache(task: Task, config: PiStarConfig, layout: RunLayout, *, secon
     earlier = float(times.get("earlier_seconds", times.get("total_seconds", 0.0)))  # the calls' before this one
     made: dict[str, Any] = {
         "run": str(layout.root.resolve()),
-        "seconds": round(earlier + seconds, 1) if seconds is not None else (earlier or None),
+        "seconds": round(earlier + seconds, 3) if seconds is not None else (earlier or None),
         "commits": times.get("commits") if seconds is None else [source_revision() or "unknown"],
         "cpus": times.get("cpus") if seconds is None else [machine_description()["cpu"]],
         "finished": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
