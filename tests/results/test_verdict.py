@@ -31,8 +31,11 @@ def test_a_method_above_every_reference_is_named_with_its_intervals(tmp_path):
     assert unseen.startswith(
         f"{link}, 20 unseen seeds {SHOWS}: above every one of its references: MDM Ridge at demonstration +5%"
     )
-    for reference in ("mean-DA", "pi*'s head", "BC refitted", "DAgger, SafeDAgger gate"):
-        assert f"against {reference} +100 points (+100 to +100)" in unseen
+    # references with the same interval share it
+    assert (
+        "against mean-DA, pi*'s head, BC refitted and DAgger, SafeDAgger gate, each +100 points (+100 to +100)"
+        in unseen
+    )
     # the confirmation seeds' reading, and the one on both sets, are items nested under the run's
     assert confirmation.startswith(f"  - 20 confirmation seeds {SHOWS}: none above all its references")
     assert "closest: MDM Ridge" in confirmation and "against mean-DA +0 points (+0 to +0)" in confirmation
@@ -66,3 +69,17 @@ def test_a_stale_run_is_judged_from_its_rows_and_marked(tmp_path):
 def test_a_run_not_in_the_registry_says_how_to_add_it(tmp_path):
     line = verdict(BlockContext({}, tmp_path), "fetch-paper")
     assert line.startswith("- `fetch-paper`: *Not in the registry yet: `metadagger reproduce --task fetch")
+
+
+def test_a_constant_twin_is_named_as_the_twin_and_other_intervals_stand_alone(tmp_path):
+    made = [
+        *rows("bc", "", 0, 500),
+        *rows("dagger", "3", 10, 3000),
+        *rows("bc-refit", "3", 0, 500),
+        *rows("disagree-ridge", "0.8", 20, 1000),
+        *rows("disagree-mean-da", "0.8", 10, 1000),
+        *rows("disagree-pistar-head", "0.8", 0, 1000),
+    ]
+    line = verdict(registry_context(tmp_path, NAME, made), NAME)
+    assert "against its mean-DA twin +" in line and "against its pi*-head twin and BC refitted, each +" in line
+    assert "DAgger, gate: disagreement with mean-DA (control)" not in line

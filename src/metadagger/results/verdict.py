@@ -18,9 +18,11 @@ from __future__ import annotations
 from typing import Any
 
 from metadagger.evaluation.benchmark.labels import method_label
+from metadagger.evaluation.benchmark.methods import metal_family, metal_twins
 from metadagger.evaluation.paired import smallest_shown_difference
 from metadagger.results.tables import (
     SEED_SETS,
+    SHORT_NAMES,
     BlockContext,
     missing_run,
     rows_reading,
@@ -31,6 +33,9 @@ from metadagger.results.tables import (
 )
 
 Curve = tuple[str, float]
+
+#: A constant twin by the head in the mapper's place.
+TWIN_NAMES = {"mean-da": "mean-DA", "pistar-head": "pi*-head", "zero": "zero-head"}
 
 
 def verdict(context: BlockContext, names: str = "") -> str:
@@ -98,13 +103,26 @@ def _place(key: Reading) -> str:
 
 
 def _reading(key: Reading, comparisons: list[dict[str, Any]]) -> str:
+    """A curve at a reading against each reference; references with the same interval share one."""
+    groups: dict[str, list[str]] = {}
+    for c in comparisons:
+        numbers = f"{100 * c['difference']:+.0f} points ({100 * c['ci_low']:+.0f} to {100 * c['ci_high']:+.0f})"
+        groups.setdefault(numbers, []).append(_against(c))
     parts = [
-        f"against {_against(c)} {100 * c['difference']:+.0f} points ({100 * c['ci_low']:+.0f} to "
-        f"{100 * c['ci_high']:+.0f})"
-        for c in comparisons
+        f"against {names[0]} {numbers}" if len(names) == 1 else f"against {_listed(names)}, each {numbers}"
+        for numbers, names in groups.items()
     ]
     return f"{_place(key)}, " + ", ".join(parts)
 
 
+def _listed(names: list[str]) -> str:
+    return ", ".join(names[:-1]) + " and " + names[-1]
+
+
 def _against(comparison: dict[str, Any]) -> str:
-    return with_share(short_label(comparison["against"]), comparison["against_demo_fraction"])
+    """A reference as a line names it; a constant twin (not a control itself) as ``its mean-DA twin``."""
+    against = comparison["against"]
+    family = metal_family(against)
+    if against not in SHORT_NAMES and against in metal_twins(comparison["method"]) and family is not None:
+        return f"its {TWIN_NAMES.get(family[1], family[1])} twin"
+    return with_share(short_label(against), comparison["against_demo_fraction"])
