@@ -40,9 +40,9 @@ from metadagger.results.tables import (
     best_entry,
     difference_points,
     last_dagger,
+    reference_label,
     run_names,
     seed_set_item,
-    short_label,
     whole_entries,
     with_share,
 )
@@ -189,7 +189,8 @@ def _coverage(found: RegistryRun, folder: str) -> str | None:
     read = []
     for c in ranked:
         low, high = rank_interval(c["rho"], c["seeds"]) or (float("nan"), float("nan"))
-        pair = f"{with_share(method_label(c['method']), c['demo_fraction'])} against {short_label(c['against'])}"
+        against = reference_label(c["method"], c["against"], 1.0)
+        pair = f"{with_share(method_label(c['method']), c['demo_fraction'])} against {against}"
         read.append((c["rho"], f"{c['rho']:+.2f} ({low:+.2f} to {high:+.2f}), {pair}", low, high))
     above = sum(low > 0 for _, _, low, _ in read)
     below = sum(high < 0 for _, _, _, high in read)

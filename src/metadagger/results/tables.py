@@ -30,7 +30,14 @@ from typing import Any, Mapping, Sequence
 
 from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.evaluation.benchmark.methods import BC_REFIT, MDI_METHODS, gated_methods, metal_twins, reference_methods
+from metadagger.evaluation.benchmark.methods import (
+    BC_REFIT,
+    MDI_METHODS,
+    gated_methods,
+    metal_family,
+    metal_twins,
+    reference_methods,
+)
 from metadagger.evaluation.benchmark.summary import budget_reading
 from metadagger.evaluation.report.tables import markdown_table, pct
 from metadagger.evaluation.rows import read_csv
@@ -47,6 +54,19 @@ SHORT_NAMES = {CONTROLS[0]: "pi*'s head", CONTROLS[1]: "mean-DA", BC_REFIT: "BC 
 def short_label(method: str) -> str:
     """A method's name in a findings line: a reference's short name, else its label."""
     return SHORT_NAMES.get(method, method_label(method))
+
+
+#: A constant twin by the head in the mapper's place.
+TWIN_NAMES = {"mean-da": "mean-DA", "pistar-head": "pi*-head", "zero": "zero-head"}
+
+
+def reference_label(method: str, against: str, fraction: float) -> str:
+    """What ``method`` was compared with, as a findings line names it: a constant twin of it (one
+    that is not a control itself) as ``its mean-DA twin``, any other reference by its short name."""
+    family = metal_family(against)
+    if against not in SHORT_NAMES and against in metal_twins(method) and family is not None:
+        return f"its {TWIN_NAMES.get(family[1], family[1])} twin"
+    return with_share(short_label(against), fraction)
 
 
 #: The paper's own figures for the at-a-glance table (Tables 1 and 7 of the paper), by task; the

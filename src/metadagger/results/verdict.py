@@ -18,24 +18,19 @@ from __future__ import annotations
 from typing import Any
 
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.evaluation.benchmark.methods import metal_family, metal_twins
 from metadagger.evaluation.paired import smallest_shown_difference
 from metadagger.results.tables import (
     SEED_SETS,
-    SHORT_NAMES,
     BlockContext,
     missing_run,
+    reference_label,
     rows_reading,
     run_names,
     seed_set_item,
-    short_label,
     with_share,
 )
 
 Curve = tuple[str, float]
-
-#: A constant twin by the head in the mapper's place.
-TWIN_NAMES = {"mean-da": "mean-DA", "pistar-head": "pi*-head", "zero": "zero-head"}
 
 
 def verdict(context: BlockContext, names: str = "") -> str:
@@ -120,9 +115,4 @@ def _listed(names: list[str]) -> str:
 
 
 def _against(comparison: dict[str, Any]) -> str:
-    """A reference as a line names it; a constant twin (not a control itself) as ``its mean-DA twin``."""
-    against = comparison["against"]
-    family = metal_family(against)
-    if against not in SHORT_NAMES and against in metal_twins(comparison["method"]) and family is not None:
-        return f"its {TWIN_NAMES.get(family[1], family[1])} twin"
-    return with_share(short_label(against), comparison["against_demo_fraction"])
+    return reference_label(comparison["method"], comparison["against"], comparison["against_demo_fraction"])
