@@ -4,6 +4,7 @@ block that differs; the repository's own README and docs are current."""
 
 from __future__ import annotations
 
+import gzip
 import itertools
 import json
 import os
@@ -63,6 +64,9 @@ def test_an_added_run_keeps_small_artifacts_and_a_manifest_of_what_made_it(regis
     )
     assert manifest["wall_seconds"] > 0
     assert {"config.yaml", "eval/mdm.csv", "benchmark/summary.json", "report/report.md"} <= set(manifest["files"])
+    # the query ledger is kept gzipped, whole
+    ledger = gzip.decompress((root / "benchmark" / "labels.jsonl.gz").read_bytes())
+    assert ledger and "benchmark/labels.jsonl" not in manifest["files"] and ledger.count(b"\n") > 10
     assert not list(root.rglob("*.safetensors")) and not (root / "pairs" / "pairs.jsonl").exists()
     assert set(load_registry(registry, [CI_RUN.name])) == {CI_RUN.name}
 
