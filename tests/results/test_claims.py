@@ -46,6 +46,13 @@ def test_the_mapper_line_names_its_paired_intervals_and_what_they_show(tmp_path,
     assert line.endswith(": better than pi*'s head, BC refitted; not shown better than mean-DA.")
 
 
+def test_a_mapper_below_a_reference_is_said_to_be_below_it(tmp_path, run_rows):
+    made = [r for r in run_rows if not r["method"].startswith("mdm-")]
+    made += [*rows("mdm-ridge", "", 0, 500), *rows("mdm-mean-da", "", 0, 500), *rows("mdm-pistar-head", "", 0, 500)]
+    line = _line(registry_context(tmp_path, NAME, made), "mappers")
+    assert line.endswith(": not shown better than pi*'s head, mean-DA; below BC refitted.")
+
+
 def test_refits_and_labels_read_against_bc_and_bc_refitted(tmp_path, run_rows):
     context = registry_context(tmp_path, NAME, run_rows)
     refits = _line(context, "refits")
@@ -111,14 +118,17 @@ def test_the_findings_page_and_the_readme_stay_short():
     assert not long, long
 
 
-def test_the_coverage_line_counts_the_rank_correlations_and_gives_the_extremes_with_their_intervals(tmp_path):
+def _gap_rows(*, gain_with_gap: bool = True) -> list[dict]:
+    """Plain DAgger with a gap growing over the seeds; MDM Ridge solving the seeds with the larger
+    gaps only (or the smaller ones); its twins failing every seed; the same three from half the
+    demonstration failing every seed (no rank)."""
     dagger = rows("dagger", "3", 20, 3000)
     for i, row in enumerate(dagger):
         row["coverage_gap"] = i / 20  # the later seeds, the larger gaps
     ridge = rows("mdm-ridge", "", 20, 500)
     for i, row in enumerate(ridge):
-        row["success"] = i >= 10  # the mapper solves the seeds with the larger gaps only
-    half = [  # from half the demonstration, the mapper and its twins fail every seed: no rank
+        row["success"] = (i >= 10) == gain_with_gap
+    half = [
         {**row, "demo_fraction": 0.5}
         for row in (
             *rows("mdm-ridge", "", 0, 250),
@@ -126,7 +136,7 @@ def test_the_coverage_line_counts_the_rank_correlations_and_gives_the_extremes_w
             *rows("mdm-pistar-head", "", 0, 250),
         )
     ]
-    made = [
+    return [
         *rows("bc", "", 0, 500),
         *dagger,
         *ridge,
@@ -134,13 +144,28 @@ def test_the_coverage_line_counts_the_rank_correlations_and_gives_the_extremes_w
         *rows("mdm-pistar-head", "", 0, 500),
         *half,
     ]
-    line = _line(registry_context(tmp_path, NAME, made), "coverage")
+
+
+def test_the_coverage_line_counts_the_rank_correlations_and_gives_the_extremes_with_their_intervals(tmp_path):
+    line = _line(registry_context(tmp_path, NAME, _gap_rows()), "coverage")
     rho = "+0.87 (+0.64 to +0.95)"  # the gains are 0 on the first ten seeds, 1 on the last ten
     assert line == (
         f"- [`{NAME}`](../results/{NAME}/report/report.md): over 20 seeds, rho above 0 in 2 of 2 comparisons, "
         "below in 0 (0.1 each way by chance; 2 more without a rank); "
         f"highest {rho}, MDM Ridge against pi*'s head; lowest {rho}, MDM Ridge against mean-DA."
     )
+
+
+def test_the_coverage_claim_names_the_comparisons_above_0_on_both_seed_sets(tmp_path):
+    context = registry_context(tmp_path, NAME, _gap_rows(), confirm=_gap_rows())
+    *_, both = claim(context, "coverage", NAME).splitlines()
+    assert (
+        both == "  - both seed sets: rho above 0 on both in 2 comparisons, each of MDM Ridge against a constant twin."
+    )
+    reversed_gain = registry_context(tmp_path / "other", NAME, _gap_rows(), confirm=_gap_rows(gain_with_gap=False))
+    *_, confirmation, both = claim(reversed_gain, "coverage", NAME).splitlines()
+    assert "rho above 0 in 0 of 2 comparisons, below in 2" in confirmation
+    assert both == "  - both seed sets: rho above 0 on both in no comparison."
 
 
 def test_a_coverage_comparison_from_part_of_the_demonstration_is_named_so(tmp_path):

@@ -17,7 +17,8 @@ what they show, worded from the intervals alone:
   the run's report).
 
 A run with confirmation seeds (``benchmark/confirm/``) gets a second item nested under its first,
-the same claim read on them. The runs without the rows a claim reads (or not in the registry yet)
+the same claim read on them; for ``coverage`` a third, the comparisons whose rho is above 0 on
+both. The runs without the rows a claim reads (or not in the registry yet)
 are named in one line.
 """
 
@@ -82,6 +83,9 @@ def claim(context: BlockContext, kind: str, names: str = "") -> str:
             if text is not None:
                 named = "" if folder == SEED_SETS[0][1] else seeds
                 made.append(f"{seed_set_item(context, found, first=not made, named=named)}: {text}")
+        both = ON_BOTH[kind](found) if kind in ON_BOTH and len(made) == 2 else None
+        if both is not None:
+            made.append(f"{seed_set_item(context, found, first=False, named='both seed sets')}: {both}")
         if not made:
             without.append(f"`{name}`" + ("" if found else " (not in the registry yet)"))
         lines += made
@@ -113,6 +117,10 @@ def _found(summary: dict[str, Any], entry: dict[str, Any], against: str) -> dict
     return None
 
 
+#: How a mapper claim words each paired verdict against a reference, in the order it names them.
+_VERDICTS = {"better": "better than", "no difference shown": "not shown better than", "worse": "below"}
+
+
 def _mappers(found: RegistryRun, folder: str) -> str | None:
     summary = found.json(f"{folder}/summary.json")
     mapped = [
@@ -125,11 +133,10 @@ def _mappers(found: RegistryRun, folder: str) -> str | None:
     best = min(mapped, key=lambda e: (-e["success_rate"], e["method"]))
     made = {a: c for a in (*CONTROLS, BC_REFIT) if (c := _found(summary, best, a)) is not None}
     parts = [f"against {SHORT_NAMES[a]} {difference_points(c)}" for a, c in made.items()]
-    missed = [SHORT_NAMES[a] for a, c in made.items() if verdict(c) != "better"]
-    beaten = [SHORT_NAMES[a] for a, c in made.items() if verdict(c) == "better"]
-    says = "better than every one" if not missed else f"not shown better than {', '.join(missed)}"
-    if beaten and missed:
-        says = f"better than {', '.join(beaten)}; {says}"
+    read = {kind: [SHORT_NAMES[a] for a, c in made.items() if verdict(c) == kind] for kind in _VERDICTS}
+    says = "; ".join(f"{words} {', '.join(read[kind])}" for kind, words in _VERDICTS.items() if read[kind])
+    if not read["no difference shown"] and not read["worse"]:
+        says = "better than every one"
     return (
         f"best mapper {method_label(best['method'])} {_count(best, queries=False)}, " + "; ".join(parts) + f": {says}."
     )
@@ -181,17 +188,14 @@ def _oracle(found: RegistryRun, folder: str) -> str | None:
 
 
 def _coverage(found: RegistryRun, folder: str) -> str | None:
-    coverage = found.json(f"{folder}/summary.json").get("coverage")
-    compared = (coverage or {}).get("methods", [])
-    ranked = [c for c in compared if c["rho"] is not None]
+    compared = _compared(found, folder)
+    ranked = _ranked(compared)
     if not ranked:
         return None
     read = []
-    for c in ranked:
-        low, high = rank_interval(c["rho"], c["seeds"]) or (float("nan"), float("nan"))
-        against = reference_label(c["method"], c["against"], 1.0)
-        pair = f"{with_share(method_label(c['method']), c['demo_fraction'])} against {against}"
-        read.append((c["rho"], f"{c['rho']:+.2f} ({low:+.2f} to {high:+.2f}), {pair}", low, high))
+    for (method, fraction, twin), (rho, low, high) in ranked.items():
+        pair = f"{with_share(method_label(method), fraction)} against {reference_label(method, twin, 1.0)}"
+        read.append((rho, f"{rho:+.2f} ({low:+.2f} to {high:+.2f}), {pair}", low, high))
     above = sum(low > 0 for _, _, low, _ in read)
     below = sum(high < 0 for _, _, _, high in read)
     unranked = len(compared) - len(ranked)
@@ -201,7 +205,37 @@ def _coverage(found: RegistryRun, folder: str) -> str | None:
     )
     extremes = sorted(read, key=lambda r: r[0])
     shown = extremes[-1][1] if len(read) == 1 else f"highest {extremes[-1][1]}; lowest {extremes[0][1]}"
-    return f"over {ranked[0]['seeds']} seeds, {counted}; {shown}."
+    return f"over {compared[0]['seeds']} seeds, {counted}; {shown}."
+
+
+def _coverage_on_both(found: RegistryRun) -> str | None:
+    """The comparisons whose rho lies above 0 on both seed sets, by method; None without both."""
+    sets = [_ranked(_compared(found, folder)) for _, folder in SEED_SETS]
+    if not all(sets):
+        return None
+    both = [key for key, (_, low, _) in sets[0].items() if low > 0 and key in sets[1] and sets[1][key][1] > 0]
+    if not both:
+        return "rho above 0 on both in no comparison."
+    methods = dict.fromkeys(with_share(method_label(method), fraction) for method, fraction, _ in both)
+    plural = "s, each" if len(both) > 1 else ","
+    return f"rho above 0 on both in {len(both)} comparison{plural} of {' or '.join(methods)} against a constant twin."
+
+
+def _compared(found: RegistryRun, folder: str) -> list[dict[str, Any]]:
+    """A seed set's coverage comparisons (a MetaL curve against a constant twin); [] without."""
+    if not found.path(f"{folder}/summary.json").is_file():
+        return []
+    return (found.json(f"{folder}/summary.json").get("coverage") or {}).get("methods", [])
+
+
+def _ranked(compared: list[dict[str, Any]]) -> dict[tuple[str, float, str], tuple[float, float, float]]:
+    """rho with its 95% interval, by (method, demonstration share, twin), for the comparisons with a rank."""
+    ranked = {}
+    for c in compared:
+        if c["rho"] is not None:
+            low, high = rank_interval(c["rho"], c["seeds"]) or (float("nan"), float("nan"))
+            ranked[(c["method"], float(c["demo_fraction"]), c["against"])] = (c["rho"], low, high)
+    return ranked
 
 
 #: The claims by kind.
@@ -212,3 +246,6 @@ CLAIMS: dict[str, Reader] = {
     "oracle": _oracle,
     "coverage": _coverage,
 }
+
+#: The claims that read a run's two seed sets together, in an item nested after theirs.
+ON_BOTH: dict[str, Callable[[RegistryRun], "str | None"]] = {"coverage": _coverage_on_both}
