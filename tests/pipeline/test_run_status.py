@@ -60,6 +60,26 @@ def test_a_run_being_written_names_its_writer_its_running_stage_and_the_seeds_lo
     assert _row(lines, "mdi") == "| mdi | not in this config | - | - | - |"
 
 
+def test_a_running_per_seed_stage_says_about_how_long_is_left_at_its_rate_so_far(tmp_path):
+    run = tmp_path / "run"
+    config = init_run(run, "carracing", "ci")
+    just_now = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    # 10 minutes over two calls, one seed of two logged: 10 minutes a seed
+    running = {
+        "seconds": 240.0,
+        "total_seconds": 600.0,
+        "finished": just_now,
+        "stopped": True,
+        "earlier_seconds": 360.0,
+    }
+    _times(run, benchmark=running)
+    _lock(run, os.getpid())
+    assert len(config.benchmark.seeds) == 2 and not config.benchmark.confirm_seeds
+    RowLog(RunLayout(run).benchmark_log).append({"seed": config.benchmark.seeds[0], "entries": {"bc": []}}, {"bc": {}})
+    row = _row(run_status(RunLayout(run), load_run(run)), "benchmark")
+    assert re.match(r"\| benchmark \| running \(4 min 0\d s into this call\); about 10 min 0\d s left \|", row), row
+
+
 def test_a_stage_whose_writer_is_gone_is_stopped_and_resumes(tmp_path):
     run = tmp_path / "run"
     init_run(run, "carracing", "ci")

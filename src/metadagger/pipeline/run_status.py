@@ -40,13 +40,17 @@ def run_status(layout: RunLayout, config: RunConfig) -> list[str]:
         if not _configured(config, stage):
             rows.append((stage, "not in this config", "-", "-", "-"))
             continue
+        seeds = _seeds_logged(layout, config, stage)
+        state = _state(entry, running=stage == running)
+        if stage == running and entry is not None:
+            state += _left(entry, seeds)
         rows.append(
             (
                 stage,
-                _state(entry, running=stage == running),
+                state,
                 duration(entry["total_seconds"]) if entry else "-",
                 _local(entry["finished"]) if entry else "-",
-                _seeds_logged(layout, config, stage),
+                ", ".join(f"{done}/{asked}{f' {name}' if name else ''}" for name, done, asked in seeds) or "-",
             )
         )
     head = f"run {layout.root}: task {config.task}, preset {config.preset}"
@@ -116,27 +120,41 @@ def _local(iso: str) -> str:
         return iso
 
 
-def _seeds_logged(layout: RunLayout, config: RunConfig, stage: str) -> str:
-    """``done/asked`` seeds of a per-seed stage's resume log (both seed sets of the benchmark); "-"
-    for a stage that works on the whole run at once."""
+Logged = list[tuple[str, int, int]]
+"""A stage's seed sets: (name, seeds logged, seeds asked); the benchmark's are named."""
+
+
+def _seeds_logged(layout: RunLayout, config: RunConfig, stage: str) -> Logged:
+    """The seeds a per-seed stage's resume log holds, of those asked (both seed sets of the
+    benchmark); [] for a stage that works on the whole run at once."""
     if stage == "pairs":
-        return _count(_pair_seeds(layout), config.pairs.seeds)
+        return [_count("", _pair_seeds(layout), config.pairs.seeds)]
     if stage == "evaluate":
-        return _count(_logged(layout.eval_log("mdm")), config.evaluate.seeds)
+        return [_count("", _logged(layout.eval_log("mdm")), config.evaluate.seeds)]
     if stage == "mdi" and config.mdi is not None:
-        return _count(_logged(layout.eval_log("mdi")), config.mdi.seeds)
+        return [_count("", _logged(layout.eval_log("mdi")), config.mdi.seeds)]
     if stage == "benchmark" and config.benchmark is not None:
-        text = f"{_count(_logged(layout.benchmark_log), config.benchmark.seeds)} unseen"
+        sets = [_count("unseen", _logged(layout.benchmark_log), config.benchmark.seeds)]
         if config.benchmark.confirm_seeds:
             confirm = _logged(layout.confirmation().benchmark_log)
-            text += f", {_count(confirm, config.benchmark.confirm_seeds)} confirmation"
-        return text
-    return "-"
+            sets.append(_count("confirmation", confirm, config.benchmark.confirm_seeds))
+        return sets
+    return []
 
 
-def _count(logged: set[int], asked: Iterable[int]) -> str:
+def _count(name: str, logged: set[int], asked: Iterable[int]) -> tuple[str, int, int]:
     asked = list(asked)
-    return f"{sum(seed in logged for seed in asked)}/{len(asked)}"
+    return name, sum(seed in logged for seed in asked), len(asked)
+
+
+def _left(entry: dict[str, Any], seeds: Logged) -> str:
+    """``; about N left`` for a running per-seed stage, at the rate its logged seeds took so far (all
+    calls, this one's time to now included); "" before its first seed is logged."""
+    done, asked = sum(d for _, d, _ in seeds), sum(a for _, _, a in seeds)
+    if not done or done >= asked:
+        return ""
+    spent = entry["total_seconds"] + _since(entry["finished"])
+    return f"; about {duration(spent / done * (asked - done))} left"
 
 
 def _logged(path: Path) -> set[int]:
