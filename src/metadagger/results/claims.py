@@ -18,8 +18,7 @@ what they show, worded from the intervals alone:
 
 A run with confirmation seeds (``benchmark/confirm/``) gets a second item nested under its first,
 the same claim read on them; for ``coverage`` a third, the comparisons whose rho is above 0 on
-both. The runs without the rows a claim reads (or not in the registry yet)
-are named in one line.
+both. The runs without the rows a claim reads (or not in the registry yet) are named in one line.
 """
 
 from __future__ import annotations
@@ -32,20 +31,16 @@ from metadagger.evaluation.benchmark.methods import BC_REFIT, MDM_PREFIX, gated_
 from metadagger.evaluation.benchmark.summary import refit_check
 from metadagger.evaluation.paired import verdict
 from metadagger.evaluation.rows import read_csv
+from metadagger.results.names import CONTROLS, SHORT_NAMES, difference_points, reference_label, with_share
 from metadagger.results.registry import RegistryRun
 from metadagger.results.tables import (
-    CONTROLS,
     SEED_SETS,
-    SHORT_NAMES,
     BlockContext,
     best_entry,
-    difference_points,
     last_dagger,
-    reference_label,
     run_names,
     seed_set_item,
     whole_entries,
-    with_share,
 )
 
 #: What a claim reads of one run's seed set (its benchmark folder, ``benchmark`` or
@@ -134,9 +129,10 @@ def _mappers(found: RegistryRun, folder: str) -> str | None:
     made = {a: c for a in (*CONTROLS, BC_REFIT) if (c := _found(summary, best, a)) is not None}
     parts = [f"against {SHORT_NAMES[a]} {difference_points(c)}" for a, c in made.items()]
     read = {kind: [SHORT_NAMES[a] for a, c in made.items() if verdict(c) == kind] for kind in _VERDICTS}
-    says = "; ".join(f"{words} {', '.join(read[kind])}" for kind, words in _VERDICTS.items() if read[kind])
-    if not read["no difference shown"] and not read["worse"]:
+    if len(read["better"]) == len(made):
         says = "better than every one"
+    else:
+        says = "; ".join(f"{words} {', '.join(read[kind])}" for kind, words in _VERDICTS.items() if read[kind])
     return (
         f"best mapper {method_label(best['method'])} {_count(best, queries=False)}, " + "; ".join(parts) + f": {says}."
     )

@@ -30,44 +30,13 @@ from typing import Any, Mapping, Sequence
 
 from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.evaluation.benchmark.methods import (
-    BC_REFIT,
-    MDI_METHODS,
-    gated_methods,
-    metal_family,
-    metal_twins,
-    reference_methods,
-)
+from metadagger.evaluation.benchmark.methods import BC_REFIT, MDI_METHODS, gated_methods, metal_twins, reference_methods
 from metadagger.evaluation.benchmark.summary import budget_reading
 from metadagger.evaluation.report.tables import markdown_table, pct
 from metadagger.evaluation.rows import read_csv
+from metadagger.results.names import CONTROLS, difference_points, with_share
 from metadagger.results.registry import CANONICAL_RUNS, RegistryRun, canonical_run
 from metadagger.results.staleness import stale_summary
-
-#: The controls, by benchmark method: zero-query heads every mapper must beat.
-CONTROLS = ("mdm-pistar-head", "mdm-mean-da")
-
-#: The references by the short names the findings' lines use.
-SHORT_NAMES = {CONTROLS[0]: "pi*'s head", CONTROLS[1]: "mean-DA", BC_REFIT: "BC refitted", "dagger": "DAgger"}
-
-
-def short_label(method: str) -> str:
-    """A method's name in a findings line: a reference's short name, else its label."""
-    return SHORT_NAMES.get(method, method_label(method))
-
-
-#: A constant twin by the head in the mapper's place.
-TWIN_NAMES = {"mean-da": "mean-DA", "pistar-head": "pi*-head", "zero": "zero-head"}
-
-
-def reference_label(method: str, against: str, fraction: float) -> str:
-    """What ``method`` was compared with, as a findings line names it: a constant twin of it (one
-    that is not a control itself) as ``its mean-DA twin``, any other reference by its short name."""
-    family = metal_family(against)
-    if against not in SHORT_NAMES and against in metal_twins(method) and family is not None:
-        return f"its {TWIN_NAMES.get(family[1], family[1])} twin"
-    return with_share(short_label(against), fraction)
-
 
 #: The paper's own figures for the at-a-glance table (Tables 1 and 7 of the paper), by task; the
 #: paper reports neither queries nor task families.
@@ -448,20 +417,6 @@ def _by_area(reading: dict[str, Any]) -> tuple[str, str, str, str]:
         f"{area[(best['method'], float(best['demo_fraction']))]:.2f}",
         difference_points(against[0]) if against else "=",
         f"{max(oracle):.2f}" if oracle else "-",
-    )
-
-
-def with_share(label: str, share: float) -> str:
-    """A method's name with the share of the demonstration it starts from, where that is not all of
-    it: ``MDM Ridge (50% of the demonstration)``."""
-    return label if float(share) == 1.0 else f"{label} ({float(share):.0%} of the demonstration)"
-
-
-def difference_points(comparison: dict[str, Any]) -> str:
-    """A paired difference in points with its 95% interval: ``+5 points (-3 to +13)``."""
-    return (
-        f"{100 * comparison['difference']:+.0f} points ({100 * comparison['ci_low']:+.0f} to "
-        f"{100 * comparison['ci_high']:+.0f})"
     )
 
 

@@ -19,16 +19,8 @@ from typing import Any
 
 from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.paired import smallest_shown_difference
-from metadagger.results.tables import (
-    SEED_SETS,
-    BlockContext,
-    missing_run,
-    reference_label,
-    rows_reading,
-    run_names,
-    seed_set_item,
-    with_share,
-)
+from metadagger.results.names import difference_points, reference_label, with_share
+from metadagger.results.tables import SEED_SETS, BlockContext, missing_run, rows_reading, run_names, seed_set_item
 
 Curve = tuple[str, float]
 
@@ -101,8 +93,7 @@ def _reading(key: Reading, comparisons: list[dict[str, Any]]) -> str:
     """A curve at a reading against each reference; references with the same interval share one."""
     groups: dict[str, list[str]] = {}
     for c in comparisons:
-        numbers = f"{100 * c['difference']:+.0f} points ({100 * c['ci_low']:+.0f} to {100 * c['ci_high']:+.0f})"
-        groups.setdefault(numbers, []).append(_against(c))
+        groups.setdefault(difference_points(c), []).append(_against(c))
     parts = [
         f"against {names[0]} {numbers}" if len(names) == 1 else f"against {_listed(names)}, each {numbers}"
         for numbers, names in groups.items()
