@@ -25,8 +25,8 @@ def test_each_seed_set_has_its_rows_and_the_best_at_each_budget(tmp_path):
     assert len(unseen) == len(confirmation) == 4  # three budgets, then the area
     assert unseen[2] == f"| `{NAME}` | +25% | DAgger, SafeDAgger gate | 100.0% | = | - |"
     # the gate solves nothing on the second set: plain DAgger is best there, read against the gate
-    assert confirmation[2] == f"| `{NAME}`, confirmation seeds | +25% | DAgger | 0.0% | +0 points (+0 to +0) | - |"
-    assert confirmation[3] == f"| `{NAME}`, confirmation seeds | area | DAgger | 0.06 | +6 points (+6 to +6) | - |"
+    assert confirmation[2] == f"| `{NAME}`, confirmation seeds | +25% | DAgger | 0.0% | +0 (+0 to +0) | - |"
+    assert confirmation[3] == f"| `{NAME}`, confirmation seeds | area | DAgger | 0.06 | +6 (+6 to +6) | - |"
 
 
 def test_a_run_without_confirmation_seeds_has_rows_for_its_unseen_seeds_alone(tmp_path):

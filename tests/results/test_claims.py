@@ -41,8 +41,8 @@ def test_the_mapper_line_names_its_paired_intervals_and_what_they_show(tmp_path,
     line = _line(registry_context(tmp_path, NAME, run_rows, stale=True), "mappers")
     assert line.startswith("- [`carracing-paper`](../results/carracing-paper/report/report.md) (stale): ")
     assert "best mapper MDM Ridge 18/20" in line
-    assert "against pi*'s head +80 points (+" in line  # 18 against 2 of 20
-    assert "against mean-DA +5 points (" in line and "against BC refitted +40 points (+" in line
+    assert "against pi*'s head +80 (+" in line  # 18 against 2 of 20
+    assert "against mean-DA +5 (" in line and "against BC refitted +40 (+" in line
     assert line.endswith(": better than pi*'s head, BC refitted; not shown better than mean-DA.")
 
 
@@ -56,17 +56,17 @@ def test_a_mapper_below_a_reference_is_said_to_be_below_it(tmp_path, run_rows):
 def test_refits_and_labels_read_against_bc_and_bc_refitted(tmp_path, run_rows):
     context = registry_context(tmp_path, NAME, run_rows)
     refits = _line(context, "refits")
-    assert "BC refitted after 3 rounds +0 points (+0 to +0) against BC, not shown below BC" in refits
-    assert "DAgger after 3 rounds +50 points (+" in refits and refits.endswith("above BC.")
+    assert "BC refitted after 3 rounds +0 (+0 to +0) against BC, not shown below BC" in refits
+    assert "DAgger after 3 rounds +50 (+" in refits and refits.endswith("above BC.")
     labels = _line(context, "labels")
-    assert "DAgger after 3 rounds 20/20 at 3,000 queries, BC refitted 10/20 at 500 queries: +50 points" in labels
+    assert "DAgger after 3 rounds 20/20 at 3,000 queries, BC refitted 10/20 at 500 queries: +50 (" in labels
     assert labels.endswith("the labels add to the training.")
 
 
 def test_a_refit_that_loses_what_bc_had_is_said_so(tmp_path, run_rows):
     made = [r for r in run_rows if r["method"] != "dagger"] + rows("dagger", "3", 0, 3000)
     line = _line(registry_context(tmp_path, NAME, made), "refits")
-    assert "; DAgger after 3 rounds -50 points (-" in line and line.endswith(") against BC, loses what BC had.")
+    assert "; DAgger after 3 rounds -50 (-" in line and line.endswith(") against BC, loses what BC had.")
 
 
 def test_the_oracle_is_read_against_the_best_gate(tmp_path, run_rows):
@@ -146,12 +146,20 @@ def _gap_rows(*, gain_with_gap: bool = True) -> list[dict]:
     ]
 
 
-def test_the_coverage_line_counts_the_rank_correlations_and_gives_the_extremes_with_their_intervals(tmp_path):
+def test_the_coverage_line_counts_the_rank_correlations_and_gives_the_highest_with_its_interval(tmp_path):
     line = _line(registry_context(tmp_path, NAME, _gap_rows()), "coverage")
     rho = "+0.87 (+0.64 to +0.95)"  # the gains are 0 on the first ten seeds, 1 on the last ten
     assert line == (
         f"- [`{NAME}`](../results/{NAME}/report/report.md): over 20 seeds, rho above 0 in 2 of 2 comparisons, "
-        "below in 0 (0.1 each way by chance; 2 more without a rank); "
+        f"below in 0 (0.1 each way by chance; 2 more without a rank); highest {rho}, MDM Ridge against pi*'s head."
+    )
+
+
+def test_the_coverage_line_gives_the_lowest_rho_only_where_some_lie_below_0(tmp_path):
+    line = _line(registry_context(tmp_path, NAME, _gap_rows(gain_with_gap=False)), "coverage")
+    rho = "-0.87 (-0.95 to -0.64)"  # the gains are 1 on the first ten seeds, 0 on the last ten
+    assert line.endswith(
+        f"rho above 0 in 0 of 2 comparisons, below in 2 (0.1 each way by chance; 2 more without a rank); "
         f"highest {rho}, MDM Ridge against pi*'s head; lowest {rho}, MDM Ridge against mean-DA."
     )
 

@@ -13,8 +13,8 @@ what they show, worded from the intervals alone:
 - ``oracle``: the learner's-mistakes rule (the oracle, a reference) against the best gate.
 - ``coverage``: whether the seeds' coverage gap predicts a MetaL method's gain over its constant
   twin (Spearman's rho with its 95% interval): how many comparisons have an interval above 0 and
-  below, how many each way chance alone would give, and the highest and lowest rho (each one is in
-  the run's report).
+  below, how many each way chance alone would give, the highest rho and, where some lie below 0,
+  the lowest (each one is in the run's report).
 
 A run with confirmation seeds (``benchmark/confirm/``) gets a second item nested under its first,
 the same claim read on them; for ``coverage`` a third, the comparisons whose rho is above 0 on
@@ -200,7 +200,8 @@ def _coverage(found: RegistryRun, folder: str) -> str | None:
         f"({0.025 * len(read):.1f} each way by chance" + (f"; {unranked} more without a rank)" if unranked else ")")
     )
     extremes = sorted(read, key=lambda r: r[0])
-    shown = extremes[-1][1] if len(read) == 1 else f"highest {extremes[-1][1]}; lowest {extremes[0][1]}"
+    lowest = f"; lowest {extremes[0][1]}" if below else ""  # it decides nothing where none lies below 0
+    shown = extremes[-1][1] if len(read) == 1 else f"highest {extremes[-1][1]}{lowest}"
     return f"over {compared[0]['seeds']} seeds, {counted}; {shown}."
 
 

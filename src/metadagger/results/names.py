@@ -41,8 +41,9 @@ def with_share(label: str, share: float) -> str:
 
 
 def difference_points(comparison: dict[str, Any]) -> str:
-    """A paired difference in points with its 95% interval: ``+5 points (-3 to +13)``."""
+    """A paired difference in points with its 95% interval: ``+5 (-3 to +13)`` (where it shows, the unit is said
+    once: a findings page's "How to read a claim", a table's note)."""
     return (
-        f"{100 * comparison['difference']:+.0f} points ({100 * comparison['ci_low']:+.0f} to "
+        f"{100 * comparison['difference']:+.0f} ({100 * comparison['ci_low']:+.0f} to "
         f"{100 * comparison['ci_high']:+.0f})"
     )

@@ -78,7 +78,7 @@ def _judged(reading: dict[str, Any] | None, seeds: str) -> tuple[str, list[Readi
         return f"{head}: above every one of its references: {text}.", above
     closest = max(groups, key=lambda key: min(c["ci_low"] for c in groups[key]))
     closest_reading = _reading(closest, groups[closest])
-    return f"{head}: none above all its references at any budget or by area; closest: {closest_reading}.", []
+    return f"{head}: none above all its references; closest: {closest_reading}.", []
 
 
 def _place(key: Reading) -> str:
