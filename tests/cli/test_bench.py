@@ -84,9 +84,22 @@ def test_bench_fit_times_pistars_fit_on_the_cpu_and_a_gpu_where_there_is_one():
 
     from metadagger.cli.bench import bench_fit
 
-    result = bench_fit("carracing", preset="ci", steps=2)
+    result = bench_fit("carracing", preset="ci", steps=2, shards=(2, 1))
     assert result["task"] == "carracing" and result["steps"] == 2 and result["cpu_s_per_step"] > 0
     assert ("gpu_speedup" in result) == torch.cuda.is_available()
+    assert list(result["cpu_s_per_step_at_shards"]) == ["1", "2"]  # in order, the speed-ups over 1 shard
+    assert result["speedup_over_fewest_shards"]["1"] == 1.0
+    shares = result["cpu_time_shares"]
+    assert set(shares) == {"convolutions_forward", "convolutions_backward", "rest"}
+    assert sum(shares.values()) == pytest.approx(1.0) and shares["convolutions_backward"] > 0
+    assert "load_avg_1min" in result["machine"]
+
+
+def test_bench_fit_refuses_a_shard_count_below_1_before_any_work():
+    from metadagger.cli.bench import bench_fit
+
+    with pytest.raises(UserError, match="--shards must be integers >= 1, got 0"):
+        bench_fit("carracing", preset="ci", steps=2, shards=(0,))
 
 
 def test_bench_prior_times_prior_fits_beside_plain_ones():

@@ -258,3 +258,41 @@ def test_a_lanes_record_without_its_widths_is_one_error_line(tmp_path):
         tmp_path, "bench-lanes bare.json"
     )
     assert "bench-lanes needs at least one record" in _error_line(tmp_path, "bench-lanes")
+
+
+FIT = {
+    "task": "carracing",
+    "preset": "quick",
+    "batch_size": 64,
+    "batch_shards": 1,
+    "cpu_s_per_step": 0.0354,
+    "cpu_s_per_step_at_shards": {"1": 0.0333, "2": 0.0163},
+    "cpu_time_shares": {"convolutions_forward": 0.24, "convolutions_backward": 0.52, "rest": 0.24},
+}
+
+
+def test_a_fit_block_has_a_row_per_record_with_each_shards_step_its_shares_and_the_gpus_step(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "fit.json").write_text(json.dumps(FIT))
+    gpu = {**FIT, "task": "fetch", "batch_shards": 2, "gpu_s_per_step": 0.002, "gpu_speedup": 17.7}
+    del gpu["cpu_s_per_step_at_shards"], gpu["cpu_time_shares"]
+    (bench / "gpu.json").write_text(json.dumps(gpu))
+    page = _page(tmp_path, "bench-fit fit.json gpu.json")
+    build(tmp_path, registry=tmp_path / "results")
+    rows = [line for line in page.read_text().splitlines() if line.startswith("| [`")]
+    fit, on_gpu = "[`fit.json`](../results/bench/fit.json)", "[`gpu.json`](../results/bench/gpu.json)"
+    assert rows == [
+        f"| {fit} | `carracing` quick | 64 | 1 | 33.3 at 1 (1.00x), 16.3 at 2 (2.04x) | 24% | 52% | 24% | - |",
+        f"| {on_gpu} | `fetch` quick | 64 | 2 | 35.4 at 2 (1.00x) | - | - | - | 2.0 (17.7x the CPU's) |",
+    ]
+
+
+def test_a_fit_record_without_its_step_is_one_error_line(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    (bench / "bare.json").write_text(json.dumps({"task": "fetch"}))
+    assert "results/bench/bare.json lacks one of task, preset, batch_size, batch_shards, cpu_s_per_step" in (
+        _error_line(tmp_path, "bench-fit bare.json")
+    )
+    assert "bench-fit needs at least one record" in _error_line(tmp_path, "bench-fit")

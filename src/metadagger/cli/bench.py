@@ -1,6 +1,7 @@
-"""Benchmarks that write JSON: ``bench_bc`` times a full BC fit against a head refit, ``bench_fit`` and
-``bench_prior`` the head fits, ``bench_pairs`` the pair stage, ``bench_kernels`` the kernel pins (``bench
-env`` is :mod:`metadagger.cli.bench_env`, ``bench lanes`` :mod:`metadagger.cli.bench_lanes`)."""
+"""Benchmarks that write JSON: ``bench_bc`` times a full BC fit against a head refit, ``bench_fit``
+pi*'s whole-network fit, ``bench_prior`` the head fits with a prior, ``bench_pairs`` the pair stage,
+``bench_kernels`` the kernel pins (``bench env`` is :mod:`metadagger.cli.bench_env`, ``bench lanes``
+:mod:`metadagger.cli.bench_lanes`)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import cv2
 import gymnasium as gym
@@ -201,10 +202,43 @@ def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:
     }
 
 
-def bench_fit(task_name: str = "fetch", *, preset: str = "paper", steps: int = 200, seed: int = 0) -> dict:
+def _fit_part(op: str) -> str:
+    """The part of a whole-network fit a profiled op belongs to: the convolutions' forward or
+    backward kernels (oneDNN's or ATen's own), or the rest."""
+    if "conv" not in op:
+        return "rest"
+    return "convolutions_backward" if "backward" in op else "convolutions_forward"
+
+
+def fit_time_shares(fit: Callable[[], object]) -> dict[str, float]:
+    """Where a whole-network fit's CPU time goes: the share of its ops' own CPU time spent in the
+    convolutions' forward kernels, in their backward kernels (weights' and inputs' gradients) and
+    in everything else (the other layers, the loss, Adam, gathering the batch)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as profiled:
+        fit()
+    seconds = dict.fromkeys(("convolutions_forward", "convolutions_backward", "rest"), 0.0)
+    for event in profiled.key_averages():
+        seconds[_fit_part(event.key)] += event.self_cpu_time_total
+    total = sum(seconds.values())
+    return {part: value / total for part, value in seconds.items()}
+
+
+def bench_fit(
+    task_name: str = "fetch",
+    *,
+    preset: str = "paper",
+    steps: int = 200,
+    shards: Sequence[int] = (),
+    seed: int = 0,
+) -> dict:
     """pi*'s whole-network fit (the preset's ``pistar.bc``: network, batch, augmentation,
     Adam) for ``steps`` Adam steps on random frames of the task's shape: seconds per step on the
-    CPU (one thread, as a stage computes) and, where torch sees a GPU, on it, side by side."""
+    CPU (one thread, as a stage computes) and, where torch sees a GPU, on it, side by side; the
+    CPU's seconds again at each of ``shards`` (``batch_shards``: threads that split a batch's
+    gradient, another sum and so another pi*), and where a CPU step's time goes
+    (:func:`fit_time_shares`, on at most 20 steps)."""
     import dataclasses
 
     import torch
@@ -216,6 +250,9 @@ def bench_fit(task_name: str = "fetch", *, preset: str = "paper", steps: int = 2
     from metadagger.tasks import make_task
     from metadagger.utils.device import current_device, use_device
 
+    for count in shards:
+        if not isinstance(count, int) or count < 1:
+            raise UserError(f"--shards must be integers >= 1, got {count!r}; e.g. --shards 1 --shards 2")
     task = make_task(task_name)
     bc = dataclasses.replace(resolve_config(task_name, preset).pistar.bc, epochs=1, seed=seed)
     shape = tuple(make_policy(task, seed=seed).arch["obs_shape"])
@@ -228,23 +265,39 @@ def bench_fit(task_name: str = "fetch", *, preset: str = "paper", steps: int = 2
         labels = rng.standard_normal((n, dim)).astype(np.float32)
     data = Dataset(obs=rng.integers(0, 256, (n, *shape), dtype=np.uint8), labels=labels)
     warm_up = Dataset(obs=data.obs[: 2 * bc.batch_size], labels=labels[: 2 * bc.batch_size])
+    profiled = Dataset(obs=data.obs[: 20 * bc.batch_size], labels=labels[: 20 * bc.batch_size])
 
-    def seconds_per_step(device: str) -> float:
+    def seconds_per_step(device: str, batch_shards: int = bc.batch_shards) -> float:
         before = current_device()
         use_device(device)
+        config = dataclasses.replace(bc, batch_shards=batch_shards)
         try:
-            fit_bc(make_policy(task, seed=seed), warm_up, bc)
-            return fit_bc(make_policy(task, seed=seed), data, bc)["seconds"] / steps
+            fit_bc(make_policy(task, seed=seed), warm_up, config)
+            return fit_bc(make_policy(task, seed=seed), data, config)["seconds"] / steps
         finally:
             use_device(before)
 
     torch.set_num_threads(1)
-    result: dict[str, Any] = {"task": task_name, "preset": preset, "steps": steps, "batch_size": bc.batch_size}
+    result: dict[str, Any] = {
+        "task": task_name,
+        "preset": preset,
+        "steps": steps,
+        "batch_size": bc.batch_size,
+        "batch_shards": bc.batch_shards,
+    }
     result["cpu_s_per_step"] = seconds_per_step("cpu")
+    if shards:
+        at = {str(count): seconds_per_step("cpu", count) for count in sorted(set(shards))}
+        result["cpu_s_per_step_at_shards"] = at
+        result["speedup_over_fewest_shards"] = {count: at[min(at, key=int)] / value for count, value in at.items()}
+    result["cpu_time_shares"] = fit_time_shares(
+        lambda: fit_bc(make_policy(task, seed=seed), profiled, dataclasses.replace(bc, batch_shards=1))
+    )
     if torch.cuda.is_available():
         result["gpu"] = torch.cuda.get_device_name(0)
         result["gpu_s_per_step"] = seconds_per_step("cuda")
         result["gpu_speedup"] = result["cpu_s_per_step"] / result["gpu_s_per_step"]
+    result["machine"] = machine_block()
     return result
 
 

@@ -80,12 +80,16 @@ def bench_fit_cmd(
     task: str = typer.Option("fetch", "--task", help="Task whose pi* network and preset fit are timed."),
     preset: str = typer.Option("paper", "--preset", help="Preset whose pistar.bc settings are used."),
     steps: int = typer.Option(200, "--steps", min=1, help="Adam steps timed on each device."),
+    shards: list[int] = typer.Option(
+        [], "--shards", min=1, help="Also time the CPU fit at this batch_shards (repeat it: --shards 1 --shards 2)."
+    ),
     out: Path = typer.Option(Path("runs/bench/fit.json"), "--out", help="JSON file to write."),
 ) -> None:
-    """pi*'s whole-network fit: seconds per Adam step on the CPU and, where there is one, on the GPU."""
+    """pi*'s whole-network fit: seconds per Adam step on the CPU and, where there is one, on the GPU;
+    the CPU's at each --shards; the share of a CPU step in the convolutions."""
     from metadagger.cli.bench import bench_fit
 
-    _measure_and_write(out, "--out", lambda: bench_fit(task, preset=preset, steps=steps))
+    _measure_and_write(out, "--out", lambda: bench_fit(task, preset=preset, steps=steps, shards=shards))
 
 
 @bench_app.command("prior")

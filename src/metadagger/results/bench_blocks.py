@@ -227,3 +227,62 @@ def step_table(context: BlockContext, file: str) -> str:
         + "*"
     )
     return "\n".join(markdown_table(header, rows) + ["", note])
+
+
+#: The parts of a whole-network fit's CPU time a ``bench fit`` record holds, in a table's order.
+FIT_PARTS = (
+    ("convolutions_forward", "convolutions forward"),
+    ("convolutions_backward", "convolutions backward"),
+    ("rest", "the rest"),
+)
+
+
+def _fit_steps(record: dict[str, Any]) -> str:
+    """A fit's milliseconds per Adam step at each batch_shards timed, the speed-up over the first."""
+    at = record.get("cpu_s_per_step_at_shards") or {str(record["batch_shards"]): record["cpu_s_per_step"]}
+    counts = sorted(at, key=int)
+    return ", ".join(f"{at[c] * 1000:.1f} at {c} ({at[counts[0]] / at[c]:.2f}x)" for c in counts)
+
+
+def fit_table(context: BlockContext, *files: str) -> str:
+    """``bench fit`` records, a row each: pi*'s whole-network fit of a task's preset, its batch and
+    batch_shards, the CPU's milliseconds per Adam step at each batch_shards timed (with the speed-up
+    over the first), where a CPU step's time goes, and the GPU's step where the record has one."""
+    if not files:
+        raise ValueError("bench-fit needs at least one record")
+    rows = []
+    for file in files:
+        path, record = _record(context, file, "fit record")
+        record = _fields(record, file, ("task", "preset", "batch_size", "batch_shards", "cpu_s_per_step"))
+        shares = record.get("cpu_time_shares") or {}
+        gpu = (
+            f"{record['gpu_s_per_step'] * 1000:.1f} ({record['gpu_speedup']:.1f}x the CPU's)"
+            if "gpu_s_per_step" in record
+            else "-"
+        )
+        rows.append(
+            (
+                _link(context, path),
+                f"`{record['task']}` {record['preset']}",
+                record["batch_size"],
+                record["batch_shards"],
+                _fit_steps(record),
+                *(f"{shares[key]:.0%}" if key in shares else "-" for key, _ in FIT_PARTS),
+                gpu,
+            )
+        )
+    header = (
+        "record",
+        "pi*'s fit",
+        "batch",
+        "preset's shards",
+        "CPU ms per step at shards (speed-up)",
+        *(name for _, name in FIT_PARTS),
+        "GPU ms per step",
+    )
+    note = (
+        "*Adam steps on random frames of the task's shape, each batch_shards timed one after the other on one "
+        "machine, one torch thread a shard; the shares are of the op time of a fit at one shard (torch's "
+        "profiler, at most 20 steps); the record's `machine` block holds the load.*"
+    )
+    return "\n".join(markdown_table(header, rows) + ["", note])

@@ -54,6 +54,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "bench-compare": bench_blocks.compare_table,
     "bench-step": bench_blocks.step_table,
     "bench-lanes": bench_blocks.lanes_table,
+    "bench-fit": bench_blocks.fit_table,
 }
 
 #: The column at which generated prose is wrapped (tables, headings and images are never wrapped).
