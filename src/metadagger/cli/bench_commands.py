@@ -85,8 +85,10 @@ def bench_fit_cmd(
     ),
     out: Path = typer.Option(Path("runs/bench/fit.json"), "--out", help="JSON file to write."),
 ) -> None:
-    """pi*'s whole-network fit: seconds per Adam step on the CPU and, where there is one, on the GPU;
-    the CPU's at each --shards; the share of a CPU step in the convolutions."""
+    """pi*'s whole-network fit: seconds per Adam step on the CPU and, where there is one, on the GPU.
+
+    With --shards, the CPU's step again at each batch_shards; always, the share of a CPU step spent
+    in the convolutions' forward and backward kernels."""
     from metadagger.cli.bench import bench_fit
 
     _measure_and_write(out, "--out", lambda: bench_fit(task, preset=preset, steps=steps, shards=shards))
