@@ -205,9 +205,10 @@ def bench_bc(*, images: int = 2000, epochs: int = 3, seed: int = 0) -> dict:
 def _fit_part(op: str) -> str:
     """The part of a whole-network fit a profiled op belongs to: the convolutions' forward or
     backward kernels (oneDNN's or ATen's own), or the rest."""
-    if "conv" not in op:
+    name = op.lower()  # autograd's nodes are named "ConvolutionBackward0"
+    if "conv" not in name:
         return "rest"
-    return "convolutions_backward" if "backward" in op else "convolutions_forward"
+    return "convolutions_backward" if "backward" in name else "convolutions_forward"
 
 
 def fit_time_shares(fit: Callable[[], object]) -> dict[str, float]:
