@@ -267,6 +267,7 @@ FIT = {
     "batch_shards": 1,
     "cpu_s_per_step": 0.0354,
     "cpu_s_per_step_at_shards": {"1": 0.0333, "2": 0.0163},
+    "speedup_over_fewest_shards": {"1": 1.0, "2": 2.043},
     "cpu_time_shares": {"convolutions_forward": 0.24, "convolutions_backward": 0.52, "rest": 0.24},
 }
 
@@ -276,7 +277,7 @@ def test_a_fit_block_has_a_row_per_record_with_each_shards_step_its_shares_and_t
     bench.mkdir(parents=True)
     (bench / "fit.json").write_text(json.dumps(FIT))
     gpu = {**FIT, "task": "fetch", "batch_shards": 2, "gpu_s_per_step": 0.002, "gpu_speedup": 17.7}
-    del gpu["cpu_s_per_step_at_shards"], gpu["cpu_time_shares"]
+    del gpu["cpu_s_per_step_at_shards"], gpu["speedup_over_fewest_shards"], gpu["cpu_time_shares"]
     (bench / "gpu.json").write_text(json.dumps(gpu))
     page = _page(tmp_path, "bench-fit fit.json gpu.json")
     build(tmp_path, registry=tmp_path / "results")

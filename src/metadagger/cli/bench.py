@@ -288,7 +288,10 @@ def bench_fit(
     }
     result["cpu_s_per_step"] = seconds_per_step("cpu")
     if shards:
-        at = {str(count): seconds_per_step("cpu", count) for count in sorted(set(shards))}
+        at = {  # the preset's own count is the step timed above
+            str(count): result["cpu_s_per_step"] if count == bc.batch_shards else seconds_per_step("cpu", count)
+            for count in sorted(set(shards))
+        }
         result["cpu_s_per_step_at_shards"] = at
         result["speedup_over_fewest_shards"] = {count: at[min(at, key=int)] / value for count, value in at.items()}
     result["cpu_time_shares"] = fit_time_shares(

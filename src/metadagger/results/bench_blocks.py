@@ -238,16 +238,17 @@ FIT_PARTS = (
 
 
 def _fit_steps(record: dict[str, Any]) -> str:
-    """A fit's milliseconds per Adam step at each batch_shards timed, the speed-up over the first."""
+    """A fit's milliseconds per Adam step at each batch_shards timed, with the record's speed-up over
+    the fewest (1.00x where it timed the preset's count alone)."""
     at = record.get("cpu_s_per_step_at_shards") or {str(record["batch_shards"]): record["cpu_s_per_step"]}
-    counts = sorted(at, key=int)
-    return ", ".join(f"{at[c] * 1000:.1f} at {c} ({at[counts[0]] / at[c]:.2f}x)" for c in counts)
+    speedups = record.get("speedup_over_fewest_shards") or {}
+    return ", ".join(f"{at[c] * 1000:.1f} at {c} ({speedups.get(c, 1.0):.2f}x)" for c in sorted(at, key=int))
 
 
 def fit_table(context: BlockContext, *files: str) -> str:
     """``bench fit`` records, a row each: pi*'s whole-network fit of a task's preset, its batch and
     batch_shards, the CPU's milliseconds per Adam step at each batch_shards timed (with the speed-up
-    over the first), where a CPU step's time goes, and the GPU's step where the record has one."""
+    over the fewest), where a CPU step's time goes, and the GPU's step where the record has one."""
     if not files:
         raise ValueError("bench-fit needs at least one record")
     rows = []
