@@ -10,6 +10,7 @@ from metadagger.imitation.gate_registry import gate_declarations, gated_names, m
 from metadagger.imitation.gate_view import Episode, GateMemory, Labelled, LearnerView
 from metadagger.imitation.gates import EnsembleGate, NoveltyGate, RandomGate, SafeGate, above_quantile
 from metadagger.imitation.memory_gates import ConformalGate, ThriftyGate, conformal_threshold
+from metadagger.utils.kernels import mkl_vector_math_calls
 
 F = 32
 N_NEAR = N_FAR = 100
@@ -404,3 +405,17 @@ def test_gates_of_class_distributions_are_refused_on_action_vectors_naming_those
         "benchmark method(s) dagger-margin, dagger-entropy read the learner's class distribution, but task fetch acts "
         "with action vectors; drop them, or use a gate that serves it: dagger-random, dagger-ensemble, dagger-safe"
     )
+
+
+@both
+@pytest.mark.parametrize("name", sorted(gate_declarations()))
+def test_no_gate_calls_a_kernel_whose_bits_depend_on_the_cpu(name, discrete):
+    """A gate's scores decide which states are labelled, so each gate (the oracle too) computes them
+    with kernels the pins fix on every x86-64 CPU: none of MKL's vector math (docs/determinism.md)."""
+    declaration = gate_declarations()[name]
+    if declaration.gate.needs_classes and not discrete:
+        return  # refused on action vectors: test_each_gate_returns_a_bool_mask_per_state
+    features, learner, labelled = mismatch_scene(discrete)
+    reads = {"expert_labels": learner.clone()} if declaration.reference else {}
+    gate = make_gate(name, declaration.grid[1])
+    assert mkl_vector_math_calls(lambda: gate.choose(view(features, learner, labelled, gen(), **reads))) == []

@@ -15,6 +15,7 @@ from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.head_fits import HeadFit, Prior, fit_heads
 from metadagger.imitation.lanes import Lanes, run_chains
 from metadagger.policies import Policy, PolicyNet
+from metadagger.utils.kernels import mkl_vector_math_calls
 
 OUT, DIM = 5, 16
 
@@ -147,3 +148,16 @@ def test_a_prior_shaped_otherwise_than_the_head_is_refused_naming_the_fit():
     fit = _fit(5, 0)
     with pytest.raises(ValueError, match="fit 0: a prior's mean .* must be shaped as the head"):
         _with_prior(fit, torch.zeros(3), torch.zeros(3))
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+@pytest.mark.parametrize("prior", [False, True])
+def test_batched_fits_call_no_kernel_whose_bits_depend_on_the_cpu(discrete, prior):
+    """Every kernel of a batched fit (with weight decay, with a prior, heads ending at other steps)
+    is one the pins fix on every x86-64 CPU: none of MKL's vector math, whose square roots and
+    exponentials differ between an Intel Xeon and an AMD EPYC (docs/determinism.md)."""
+    fits = [dataclasses.replace(_fit(n, seed, discrete=discrete), weight_decay=1e-2) for seed, n in enumerate([9, 4])]
+    if prior:
+        size = fits[0].head.numel()
+        fits = [_with_prior(fit, torch.full((size,), 0.1), torch.full((size,), 0.3)) for fit in fits]
+    assert mkl_vector_math_calls(lambda: fit_heads(fits, out_dim=OUT, discrete=discrete)) == []

@@ -14,6 +14,7 @@ from metadagger.imitation.features import FeatureCache
 from metadagger.imitation.lanes import SHAPE_STEP, EpisodeRequest, Lanes, run_chains
 from metadagger.imitation.rollouts import Trajectory, rollout
 from metadagger.policies import make_policy
+from metadagger.utils.kernels import mkl_vector_math_calls
 
 SEEDS = (0, 1, 2, 3, 4, 5)
 
@@ -250,3 +251,20 @@ def test_every_packaged_width_gives_a_row_the_same_bits_in_any_place(task_name):
             rows = lanes._features(probe)
             reversed_rows = lanes._features(probe[::-1].copy())
         assert torch.equal(reversed_rows, rows.flip(0)), f"{task_name}: width {width}"
+
+
+@pytest.mark.parametrize("task_name", ["carracing", "fetch"])
+def test_laned_episodes_call_no_kernel_whose_bits_depend_on_the_cpu(task_name):
+    """The lanes' steps on each packaged task (its trunk on a padded batch, each lane's head on its
+    row, the expert driving a lane, lanes ending and refilled) reach none of MKL's vector math,
+    whose bits depend on the CPU (docs/determinism.md)."""
+    from metadagger.tasks import make_task
+
+    if task_name.startswith("fetch"):
+        pytest.importorskip("mujoco", reason="the fetch extra is not installed")
+    task = make_task(task_name)
+    policy = make_policy(task, seed=0)
+    heads = [None, policy.head_vector().numpy(), make_policy(task, seed=1).head_vector().numpy()]
+    requests = [EpisodeRequest(seed, head, max_steps=3 + seed) for seed, head in enumerate(heads)]
+    with Lanes(task, policy.net, width=2) as lanes:
+        assert mkl_vector_math_calls(lambda: lanes.run(requests)) == []

@@ -18,6 +18,7 @@ from metadagger.mapping.mappers import Mapper, load_mapper
 from metadagger.mapping.registry import kind_names
 from metadagger.mapping.train import CURVE_COLUMNS, MapperJob, evaluate_mapping, train_mapper, train_mappers
 from metadagger.runfolder.driver import StageOptions
+from metadagger.utils.kernels import mkl_vector_math_calls
 
 KINDS = kind_names()
 STAGES = {
@@ -286,3 +287,16 @@ def test_a_diverging_mapper_is_one_line_and_nothing_is_saved(tmp_path, split, ki
     ):
         train_mapper(split, config, tmp_path / kind, progress=False)
     assert not list((tmp_path / kind).glob("*.safetensors"))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_training_and_mapping_call_no_kernel_whose_bits_depend_on_the_cpu(split, pistar_head, tmp_path, kind):
+    """A mapper's training and its map reach none of MKL's vector math, whose bits depend on the CPU
+    (docs/determinism.md): a mapper is the same on every x86-64 CPU."""
+
+    def train_and_map() -> None:
+        config = tiny_config(kind, epochs=2, ae_epochs=2)
+        mapper = train_mapper(split, config, tmp_path, pistar_head=pistar_head, progress=False)
+        mapper.map_batch(split.w_bc_val, split.context_val)
+
+    assert mkl_vector_math_calls(train_and_map) == []

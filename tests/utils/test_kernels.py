@@ -119,3 +119,31 @@ def test_a_ray_worker_gets_the_pins_or_the_native_switch(monkeypatch):
             monkeypatch.delenv(name)
         pin_cpu_kernels()
         assert pinned_environment() == KERNEL_ENV
+
+
+def _scripted_root(x):
+    return x.sqrt()
+
+
+def test_the_vector_math_audit_names_mkl_calls_in_python_and_torchscript_and_nothing_else():
+    import torch
+
+    from metadagger.utils.kernels import mkl_vector_math_calls
+
+    x = torch.rand(64, dtype=torch.float64) + 0.5
+    assert mkl_vector_math_calls(lambda: (x.exp(), x.clone().log_(), torch.tanh(x), x**0.5)) == [
+        "aten::exp",
+        "aten::log_",
+        "aten::pow",
+        "aten::tanh",
+    ]
+    scripted = torch.jit.script(_scripted_root)
+    assert mkl_vector_math_calls(lambda: scripted(x.float())) == ["aten::sqrt"]
+    # ATen's own vectorised kernels, which the pins fix: softmax and its log, sigmoid, Adam's fused step
+    p = torch.zeros(64)
+    fused = torch.optim.Adam([p], lr=0.1, fused=True)
+    p.grad = torch.ones(64)
+    assert (
+        mkl_vector_math_calls(lambda: (x.softmax(0), x.log_softmax(0), x.sigmoid(), x.square(), x**-0.5, fused.step()))
+        == []
+    )

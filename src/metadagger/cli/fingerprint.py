@@ -4,7 +4,7 @@
 machine), each kind of computation a run does, in the order pi*'s first BC step meets them: numpy
 and OpenCV, then one training step of the CarRacing policy network op by op (convolutions on
 oneDNN and on ATen's own path, the fully-connected layers, the loss, every gradient, Adam), then
-the lanes' kernels (a padded trunk forward, batched head fits), then a CarRacing episode's
+the lanes' kernels (a padded trunk forward, batched head fits), the gates' scores, then a CarRacing episode's
 frames. Each gives the sha256 of its output. Two machines' fingerprints, compared with
 :func:`compare_fingerprints`, name the first computation whose bits differ: the kernel to pin, or
 to report.
@@ -121,7 +121,7 @@ def _lanes(ops: dict[str, Callable[[], Any]]) -> None:
     """The lanes' kernels: one trunk forward of a padded batch of lanes, and batched head-only fits."""
     import torch
 
-    from metadagger.imitation.head_fits import HeadFit, fit_heads
+    from metadagger.imitation.head_fits import HeadFit, Prior, fit_heads
     from metadagger.policies import PolicyNet
 
     width, live = 32, 27
@@ -134,26 +134,51 @@ def _lanes(ops: dict[str, Callable[[], Any]]) -> None:
         with torch.inference_mode():
             return net.trunk(net.preprocess(torch.from_numpy(frames)))
 
-    def fits() -> list[torch.Tensor]:
+    def fits(discrete: bool) -> list[torch.Tensor]:
+        out_dim = _CLASSES if discrete else 3
         heads = []
         for k, n in enumerate((40, 25, 10)):  # fits of unequal length: heads drop out as they end
             orders = np.argsort(_integers(3 * n, 10 + k).reshape(3, n), axis=1, kind="stable")
+            targets = _integers(n, 40 + k) % _CLASSES
+            head = torch.from_numpy(_uniform((out_dim * 513,), 20 + k))
             heads.append(
                 HeadFit(
-                    head=torch.from_numpy(_uniform((_CLASSES * 513,), 20 + k)),
+                    head=head,
                     features=torch.from_numpy(_uniform((n, 512), 30 + k)),
-                    targets=torch.from_numpy((_integers(n, 40 + k) % _CLASSES).astype(np.int64)),
+                    targets=torch.from_numpy(targets.astype(np.int64) if discrete else _uniform((n, out_dim), 50 + k)),
                     orders=torch.from_numpy(orders),
                     lr=1e-3,
                     weight_decay=1e-4,
                     batch_size=10,
                     called=f"fingerprint fit {k}",
+                    prior=None if discrete else Prior(mean=head.flip(0), weight=torch.full_like(head, 0.25)),
                 )
             )
-        return [fitted.head for fitted in fit_heads(heads, out_dim=_CLASSES, discrete=True)]
+        return [fitted.head for fitted in fit_heads(heads, out_dim=out_dim, discrete=discrete)]
 
     ops["lanes: trunk forward (32 rows, 5 padded)"] = forward
-    ops["lanes: batched head fits"] = fits
+    ops["lanes: batched head fits"] = lambda: fits(discrete=True)
+    ops["lanes: batched head fits (action vectors, a prior)"] = lambda: fits(discrete=False)
+
+
+def _gates(ops: dict[str, Callable[[], Any]]) -> None:
+    """The scores of the gates that compute more than a comparison: neighbour distances, the
+    ensemble's disagreement and the learner's entropy, on a round of 200 states, 300 labelled."""
+    import torch
+
+    from metadagger.imitation.gate_registry import make_gate
+    from metadagger.imitation.gate_view import Labelled, LearnerView
+
+    features = torch.from_numpy(_uniform((200, 64), 60))
+    labels = torch.from_numpy((_integers(300, 61) % _CLASSES).astype(np.int64))
+    labelled = Labelled(torch.from_numpy(_uniform((300, 64), 62)), labels, labels.clone())
+    head = torch.from_numpy(_uniform((_CLASSES * 65,), 63)) * 8
+
+    def scores() -> list[torch.Tensor]:
+        view = LearnerView.of(features, head, labelled, generator=torch.Generator().manual_seed(0))
+        return [make_gate(name, 0.5).scores(view) for name in ("novelty", "ensemble", "entropy")]
+
+    ops["gates: novelty, ensemble and entropy scores"] = scores
 
 
 def _carracing_episode(ops: dict[str, Callable[[], Any]]) -> None:
@@ -185,6 +210,7 @@ def fingerprint_kernels() -> dict[str, Any]:
     _numpy_and_opencv(ops)
     _policy_step(ops)
     _lanes(ops)
+    _gates(ops)
     _carracing_episode(ops)
     digests: list[dict[str, Any]] = []
     for name, op in ops.items():

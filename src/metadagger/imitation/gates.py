@@ -220,7 +220,7 @@ class EnsembleGate(ScoreGate):
         if not view.discrete:
             return variance
         votes = torch.nn.functional.one_hot(outputs.argmax(dim=2), outputs.shape[2]).double().mean(dim=0)
-        entropy = -(votes * votes.clamp_min(1e-12).log()).sum(dim=1)
+        entropy = -torch.special.xlogy(votes, votes).sum(dim=1)  # libm's log: Tensor.log's bits depend on the CPU
         # rank by (entropy, variance): unique(dim=0) sorts rows lexicographically, equal pairs share a rank
         return torch.unique(torch.stack([entropy, variance], dim=1), dim=0, return_inverse=True)[1].double()
 
@@ -306,4 +306,7 @@ def neighbour_distance(features: Tensor, labelled: Labelled, k: int, owner: str)
     """Euclidean distance [N] of each state to its ``k``-th nearest labelled state."""
     if k > len(labelled.features):
         raise UserError(f"{owner}.k = {k} needs at least {k} labelled states, got {len(labelled.features)}; lower k")
-    return torch.cdist(features, labelled.features).kthvalue(k, dim=1).values
+    # each distance summed and rooted pair by pair (the CPU's correctly rounded root): cdist's
+    # matrix-product form roots with MKL's vector math, whose bits depend on the CPU
+    distances = torch.cdist(features, labelled.features, compute_mode="donot_use_mm_for_euclid_dist")
+    return distances.kthvalue(k, dim=1).values

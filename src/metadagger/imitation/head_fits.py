@@ -4,7 +4,8 @@ A head-only fit (:func:`~metadagger.imitation.bc.fit_bc` with ``head_only``) tak
 Adam steps on batches of ten feature rows, each step a dozen kernels too small to keep a core
 busy. :func:`fit_heads` steps many heads together instead: at step ``t`` every head takes the
 ``t``-th step of its own fit (its own data, its own batch order, its own number of steps), all
-of them in one batched matrix product, one softmax and one elementwise Adam update.
+of them in one batched matrix product, one softmax and one fused Adam update (ATen's, as the
+one-head path takes: only kernels whose bits do not depend on the CPU, docs/determinism.md).
 
 Every head's batch has the fit's ``batch_size`` rows, a short last batch padded with zero rows
 that a mask takes out of the loss; a head whose fit has ended keeps its weights. At this fixed
@@ -23,7 +24,6 @@ losses reported are the data's alone.
 from __future__ import annotations
 
 import functools
-import math
 import warnings
 from dataclasses import dataclass
 from typing import Callable, List, Optional, Sequence
@@ -87,8 +87,15 @@ class FittedHead:
     """Mean training loss of each epoch."""
 
 
+#: ATen's fused Adam takes a tensor in units of this many floats (a cache line), each in vector code
+#: but a last short one, whose tail it computes in scalar code that rounds otherwise. Every head is
+#: padded to whole units, so each of its weights is updated by the same code wherever it lies.
+_ADAM_UNIT = 16
+
+
 def _batched_adam_steps(
     params: torch.Tensor,
+    out_dim: int,
     exp_avg: torch.Tensor,
     exp_avg_sq: torch.Tensor,
     features: torch.Tensor,
@@ -104,45 +111,63 @@ def _batched_adam_steps(
 ) -> torch.Tensor:
     """Every head's steps, in lockstep, updating ``params``, ``exp_avg`` and ``exp_avg_sq`` in place.
 
-    ``params`` is (B, out_dim, d + 1): each head's weight with its bias as a last column, which the
-    ones column of ``features`` multiplies. Heads are ordered by their number of steps, longest
+    ``params`` is (B, P): each head's weight with its bias as a last column, (out_dim, d + 1) flat,
+    which the ones column of ``features`` multiplies, then zeros up to P, a multiple of
+    :data:`_ADAM_UNIT` (Adam's moments alike). Heads are ordered by their number of steps, longest
     first, so step ``t``'s heads are the first ``live[t]``; ``rows[t, b]`` are head ``b``'s rows of
     that step (indices into ``features`` and ``targets``; padding points at a zero row) and
     ``share[t, b]`` each row's weight in the batch's mean (0 for padding); ``prior_mean`` and
-    ``prior_weight``, shaped as ``params``, a Gaussian prior's gradient ``weight * (w - mean)``
+    ``prior_weight``, (B, out_dim, d + 1), a Gaussian prior's gradient ``weight * (w - mean)``
     (both None: no prior). Returns each step's per-row losses (T, B, batch), unweighted. Compiled
     by TorchScript (:func:`_compiled_steps`).
     """
     beta1, beta2, eps = 0.9, 0.999, 1e-8  # torch.optim.Adam's defaults, as fit_bc's
     steps, n_heads, batch = rows.shape
+    inputs = features.shape[1]
+    size = out_dim * inputs
     row_losses = torch.zeros(steps, n_heads, batch, device=params.device)
+    grads = torch.zeros_like(params)  # the padding's gradient stays 0, so its weights stay 0
     for t in range(steps):
         k = live[t]
         x = features[rows[t, :k]]  # (k, batch, d + 1)
-        weight, avg, avg_sq = params[:k], exp_avg[:k], exp_avg_sq[:k]
+        weight = params[:k, :size].view(k, out_dim, inputs)
         outputs = torch.bmm(x, weight.transpose(1, 2))  # (k, batch, out)
         if discrete:
             labels = targets[rows[t, :k]].unsqueeze(2)
-            log_probs = torch.log_softmax(outputs, 2)
-            row_losses[t, :k] = log_probs.gather(2, labels).squeeze(2).neg()
-            grad_outputs = log_probs.exp().scatter_add_(2, labels, torch.full(labels.shape, -1.0, device=params.device))
+            row_losses[t, :k] = torch.log_softmax(outputs, 2).gather(2, labels).squeeze(2).neg()
+            # softmax, not exp of the log-probabilities: Tensor.exp is MKL's vector math, whose bits
+            # depend on the CPU; ATen's softmax kernel is its own (docs/determinism.md)
+            probs = torch.softmax(outputs, 2)
+            grad_outputs = probs.scatter_add_(2, labels, torch.full(labels.shape, -1.0, device=params.device))
         else:
             grad_outputs = outputs - targets[rows[t, :k]]
             row_losses[t, :k] = (grad_outputs * grad_outputs).mean(2)
             grad_outputs = grad_outputs * (2.0 / outputs.shape[2])
         grad_outputs.mul_(share[t, :k].unsqueeze(2))
         grad = torch.bmm(grad_outputs.transpose(1, 2), x)
-        if weight_decay != 0.0:
-            grad = grad.add(weight, alpha=weight_decay)
         if prior_mean is not None and prior_weight is not None:
             grad = grad.addcmul(prior_weight[:k], weight - prior_mean[:k])
-        # torch.optim.Adam's arithmetic; every live head is at step t + 1
-        correction1 = 1.0 - beta1 ** (t + 1)
-        correction2 = 1.0 - beta2 ** (t + 1)
-        avg.lerp_(grad, 1.0 - beta1)
-        avg_sq.mul_(beta2).addcmul_(grad, grad, value=1.0 - beta2)
-        denom = (avg_sq.sqrt() / math.sqrt(correction2)).add_(eps)
-        weight.addcdiv_(avg, denom, value=-lr / correction1)
+        grads[:k, :size].copy_(grad.view(k, size))
+        # ATen's fused Adam step, as the one-head path takes (utils/optim.py): its square root is the
+        # CPU's correctly rounded one, where Tensor.sqrt's is MKL's. Every live head is at step t + 1.
+        new_params, _, new_avg, new_avg_sq, _ = torch.ops.aten._fused_adam(
+            [params[:k]],
+            [grads[:k]],
+            [exp_avg[:k]],
+            [exp_avg_sq[:k]],
+            [],
+            [torch.full((), float(t + 1), device=params.device)],
+            lr=lr,
+            beta1=beta1,
+            beta2=beta2,
+            weight_decay=weight_decay,
+            eps=eps,
+            amsgrad=False,
+            maximize=False,
+        )
+        params[:k].copy_(new_params[0])
+        exp_avg[:k].copy_(new_avg[0])
+        exp_avg_sq[:k].copy_(new_avg_sq[0])
     return row_losses
 
 
@@ -200,7 +225,10 @@ def _fit_group(
     live = (share[:, :, 0] > 0).sum(1).tolist()  # step t's heads: every fit that has a step t
     device = compute_device()  # the whole problem on it; the heads and losses back on the CPU
     share = share.to(device)
-    params = torch.stack([_with_bias_column(fits[b].head, out_dim) for b in order]).to(device)
+    size = out_dim * features.shape[1]
+    params = torch.zeros(len(fits), -(-size // _ADAM_UNIT) * _ADAM_UNIT)
+    params[:, :size] = torch.stack([_with_bias_column(fits[b].head, out_dim).reshape(-1) for b in order])
+    params = params.to(device)
     exp_avg, exp_avg_sq = torch.zeros_like(params), torch.zeros_like(params)
     prior_mean = prior_weight = None
     if fits[0].prior is not None:  # a group's fits all have one, or none has
@@ -210,6 +238,7 @@ def _fit_group(
     with torch.no_grad():
         row_losses = _compiled_steps()(
             params,
+            out_dim,
             exp_avg,
             exp_avg_sq,
             features.to(device),
@@ -228,7 +257,8 @@ def _fit_group(
     fitted: list[FittedHead | None] = [None] * len(fits)
     for slot, b in enumerate(order):
         n_steps = len(schedules[b][0])
-        head = torch.cat([params[slot, :, :-1].reshape(-1), params[slot, :, -1]])
+        weight = params[slot, :size].view(out_dim, -1)
+        head = torch.cat([weight[:, :-1].reshape(-1), weight[:, -1]])
         fitted[b] = _finish(fits[b], head, step_losses[:n_steps, slot], schedules[b][1])
     return fitted  # type: ignore[return-value]
 

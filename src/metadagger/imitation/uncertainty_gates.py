@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, ClassVar
 
+import torch
 from torch import Tensor
 
 from metadagger.imitation.gate_view import LearnerView
@@ -40,7 +41,8 @@ def margin(probabilities: Tensor) -> Tensor:
 
 def entropy(probabilities: Tensor) -> Tensor:
     """The entropy -sum p log p of each row [N], in nats (0 log 0 = 0)."""
-    return -(probabilities * probabilities.clamp_min(1e-300).log()).sum(dim=1)
+    # xlogy takes libm's log, element by element: Tensor.log is MKL's vector math, whose bits depend on the CPU
+    return -torch.special.xlogy(probabilities, probabilities).sum(dim=1)
 
 
 @dataclass(frozen=True)

@@ -53,7 +53,11 @@ def function_error(
 def memorisation(predicted: torch.Tensor, truth: torch.Tensor, train_targets: torch.Tensor) -> torch.Tensor:
     """Per validation row: distance to the nearest training w_DA over distance to its own w_DA
     (near 0: the prediction is a training example; rows ``[N, d]``, ``[N, d]``, ``[M, d]``)."""
-    nearest = torch.cdist(predicted.to(torch.float64), train_targets.to(torch.float64)).min(dim=1).values
+    # each pair rooted on its own (the CPU's correctly rounded root), not by MKL's vector math
+    distances = torch.cdist(
+        predicted.to(torch.float64), train_targets.to(torch.float64), compute_mode="donot_use_mm_for_euclid_dist"
+    )
+    nearest = distances.min(dim=1).values
     own = (predicted - truth).to(torch.float64).norm(dim=1)
     return nearest / own.clamp_min(1e-12)
 

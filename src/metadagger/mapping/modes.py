@@ -43,6 +43,12 @@ def build_modes(dim: int, **_: object) -> dict[str, nn.Module]:
     return {"modes": GroupMeans(dim)}
 
 
+def _distances(y: torch.Tensor, centres: torch.Tensor) -> torch.Tensor:
+    """Euclidean distances [N, k], each summed and rooted pair by pair: cdist's matrix-product form
+    roots with MKL's vector math, whose bits depend on the CPU (docs/determinism.md)."""
+    return torch.cdist(y, centres, compute_mode="donot_use_mm_for_euclid_dist")
+
+
 def _kmeans(y: torch.Tensor, k: int) -> torch.Tensor:
     """Group labels of the rows of ``y`` (float64) into ``k`` groups; deterministic."""
     generator = torch.Generator().manual_seed(0)
@@ -50,7 +56,7 @@ def _kmeans(y: torch.Tensor, k: int) -> torch.Tensor:
     for _ in range(RESTARTS):
         centres = y[torch.randint(len(y), (1,), generator=generator)]
         while len(centres) < k:  # k-means++: the next centre far from the chosen ones
-            distance = torch.cdist(y, centres).min(dim=1).values.pow(2)
+            distance = _distances(y, centres).min(dim=1).values.pow(2)
             pick = (
                 torch.multinomial(distance / distance.sum(), 1, generator=generator)
                 if distance.sum() > 0
@@ -58,7 +64,7 @@ def _kmeans(y: torch.Tensor, k: int) -> torch.Tensor:
             )
             centres = torch.cat([centres, y[pick]])
         for _ in range(ITERATIONS):
-            labels = torch.cdist(y, centres).argmin(dim=1)
+            labels = _distances(y, centres).argmin(dim=1)
             moved = torch.stack([y[labels == j].mean(dim=0) if (labels == j).any() else centres[j] for j in range(k)])
             if torch.equal(moved, centres):
                 break

@@ -40,7 +40,7 @@ import functools
 import os
 import platform
 import sys
-from typing import Any
+from typing import Any, Callable
 
 from metadagger.utils.device import device_stamp
 
@@ -60,13 +60,55 @@ NATIVE_SWITCH = "METADAGGER_KERNELS"
 
 #: Bumped by every change to metadagger's code that changes a number a stage makes; it is part
 #: of every stage's stamp (:func:`kernel_stamp`), so such a change marks finished work stale.
-NUMERICS = 3
+NUMERICS = 4
 
 #: Libraries that read their pin when they load, by module name and variable.
 _READ_AT_LOAD = {"numpy": "NPY_DISABLE_CPU_FEATURES", "cv2": "OPENCV_CPU_DISABLE"}
 
 #: The libraries this process loaded before it pinned their kernels (see :func:`pin_cpu_kernels`).
 _loaded_unpinned: set[str] = set()
+
+
+#: ATen operations whose floating-point CPU kernels call MKL's vector math library (ATen's
+#: ``cpu/vml.h``). No variable pins those: their bits depend on the CPU (and on ``MKL_CBWR``), so no
+#: computation on a run's path may call them (docs/determinism.md, "Kernels no variable pins").
+#: ``pow`` joins them at an exponent of 0.5, which ATen computes as ``sqrt``.
+MKL_VECTOR_MATH_OPS = frozenset(
+    (
+        "acos",
+        "asin",
+        "atan",
+        "cos",
+        "erf",
+        "erfc",
+        "erfinv",
+        "exp",
+        "log",
+        "log10",
+        "log2",
+        "sin",
+        "sqrt",
+        "tan",
+        "tanh",
+    )
+)
+
+
+def mkl_vector_math_calls(run: Callable[[], Any]) -> list[str]:
+    """The ATen operations of :data:`MKL_VECTOR_MATH_OPS` (in-place forms too, and ``pow`` at an
+    exponent of 0.5) that ``run()`` calls, by name, sorted; TorchScript's calls are seen as well.
+    Empty: every elementwise kernel it reached is ATen's own, which the pins fix on every x86-64 CPU."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as profiler:
+        run()
+    found = set()
+    for event in profiler.events():
+        op = event.name[len("aten::") :].rstrip("_") if event.name.startswith("aten::") else ""
+        exponent = (event.concrete_inputs or [None, None])[1] if op == "pow" else None
+        if op in MKL_VECTOR_MATH_OPS or exponent == 0.5:
+            found.add(event.name)
+    return sorted(found)
 
 
 def _is_x86() -> bool:

@@ -3,7 +3,7 @@
 ``torch.optim.Adam``'s default CPU path computes its denominator with ``Tensor.sqrt``, which ATen
 hands to MKL's vector math library; those square roots are not correctly rounded, and which of them
 are off by a unit in the last place depends on the CPU (an Intel Xeon and an AMD EPYC part, even
-under ``MKL_CBWR=COMPATIBLE``; docs/determinism.md, "Adam's square root"). The fused kernel takes
+under ``MKL_CBWR=COMPATIBLE``; docs/determinism.md, "Kernels no variable pins"). The fused kernel takes
 the square root with the CPU's own correctly rounded instruction, in ATen's vector code that
 :mod:`metadagger.utils.kernels` pins, so an Adam step gives the same bits on every x86-64 CPU.
 
