@@ -231,16 +231,14 @@ def _run_cell(context: BlockContext, name: str) -> str:
 
 
 def _stale_names(context: BlockContext, names: list[str] | None = None) -> list[str]:
-    """For a table of many runs: one line naming its stale runs (of ``names``, default every run of
-    the registry), whose departures the runs table and ``metadagger results status`` give; nothing
-    when all are current."""
-    stale = [f"`{n}`" for n in (names if names is not None else context.runs) if context.stale.get(n)]
-    if not stale:
+    """For a table of many runs whose rows mark the stale ones (:func:`_run_cell`): one line saying
+    what the mark means, where any run of ``names`` (default every run of the registry) is stale."""
+    if not any(context.stale.get(n) for n in (names if names is not None else context.runs)):
         return []
     return [
         "",
-        f"*Stale, each made by a config or numerics other than today's (what departed: the runs table in "
-        f"docs/results.md, or `metadagger results status`): {', '.join(stale)}.*",
+        "*(stale): made by a config or numerics other than today's; the runs table in docs/results.md and "
+        "`metadagger results status` say what departed.*",
     ]
 
 
