@@ -240,6 +240,53 @@ def test_gated_queries_match_what_the_gates_selected(toy_run, monkeypatch, gate,
     ]
 
 
+def test_a_gates_view_is_one_episodes_states_in_step_order_with_lanes_or_without(toy_run, monkeypatch):
+    """Each round hands a gate the states of one rollout, in step order: round 1 the trunk features of
+    w_BC's own episode, step by step, and with lanes (several gates' episodes stepped together) the
+    same views as without."""
+    from metadagger.imitation.lanes import current_lane
+
+    real = bench.make_gate
+    seen: dict[str, list[torch.Tensor]] = {}
+    in_lane: list[bool] = []
+
+    def recording(name, setting, **options):
+        gate = real(name, setting, **options)
+
+        class Recording:
+            reads_expert = reads_reference = False
+
+            def choose(self, view):
+                seen.setdefault(name, []).append(view.features.clone())
+                in_lane.append(current_lane() is not None)
+                return gate.choose(view)
+
+        return Recording()
+
+    monkeypatch.setattr(bench, "make_gate", recording)
+    keys = tuple(GateKey(f"dagger-{g}", "0.5", gate=g, value=0.5) for g in ("random", "novelty", "safe"))
+
+    def views(lanes: int) -> dict[str, list[torch.Tensor]]:
+        seen.clear()
+        in_lane.clear()
+        job = _one_key_job(toy_run, keys[0], SEEDS[0], dataclasses.replace(CONFIG, lanes=lanes))
+        bench.benchmark_seed(dataclasses.replace(job, methods=tuple(k.id for k in keys), keys=keys))
+        assert in_lane and all(in_lane) == (lanes > 1) and any(in_lane) == (lanes > 1)
+        return dict(seen)
+
+    alone, laned = views(1), views(4)
+    seed = SEEDS[0]
+    with SeedLearner(CorridorTask(), str(toy_run.pistar), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
+        rollout = learner.roll(bc_head(learner, demonstration(learner).to_dataset(), seeded(BC, seed)))
+        w_bc_episode = learner.cache.features_of(rollout.to_dataset())
+    assert sorted(alone) == sorted(laned) == ["novelty", "random", "safe"]
+    for gate in alone:
+        assert len(alone[gate]) == len(laned[gate]) == ROUNDS
+        assert torch.allclose(alone[gate][0], w_bc_episode, atol=1e-5)
+        for by_itself, in_lanes in zip(alone[gate], laned[gate]):
+            assert by_itself.shape == in_lanes.shape and torch.allclose(by_itself, in_lanes, atol=1e-5)
+
+
 def test_resume_and_widening_add_only_the_missing_rows(toy_run, rows, tmp_path):
     layout = RunLayout(tmp_path)
     shutil.copytree(toy_run.pistar_dir, layout.pistar_dir)
@@ -656,6 +703,22 @@ def test_only_a_method_that_succeeds_as_often_as_dagger_repays_meta_training(tmp
     # DAgger solving nothing: an MDM method solving nothing does not repay anything either
     lines = _section(tmp_path / "b", [_entry("dagger", "1", 0.0, 80), _entry("mdm-dm", "", 0.0, 40)])
     assert "| MDM DM | 0.0% | 40.0 | never (success 0%) |" in lines
+
+
+def test_a_benchmark_of_gates_alone_has_no_amortised_cost_of_metal_dagger(tmp_path):
+    gates = [
+        _entry("bc", "", 0.1, 100),
+        _entry("dagger", "3", 0.8, 1400),
+        _entry("dagger-random", "0.5", 0.6, 700),
+        _entry("dagger-novelty", "0.8", 0.7, 400),
+    ]
+    text = "\n".join(_section(tmp_path / "gates", gates))
+    assert "Cheapest setting reaching" in text and "Amortised cost" not in text and "Meta-training" not in text
+    # any method that reads the pairs or a mapper brings the section back, even without an MDM row
+    for method in ("disagree-ridge", "prior-zero", "dagger-mdi"):
+        text = "\n".join(_section(tmp_path / method, [*gates, _entry(method, "", 0.5, 500)]))
+        assert "### Amortised cost of MetaL DAgger" in text
+        assert "Meta-training spent 25000 expert queries: 5000 on pi* and 20000 on the pairs." in text
 
 
 def test_query_ticks_and_dodge():

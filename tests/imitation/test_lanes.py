@@ -268,3 +268,18 @@ def test_laned_episodes_call_no_kernel_whose_bits_depend_on_the_cpu(task_name):
     requests = [EpisodeRequest(seed, head, max_steps=3 + seed) for seed, head in enumerate(heads)]
     with Lanes(task, policy.net, width=2) as lanes:
         assert mkl_vector_math_calls(lambda: lanes.run(requests)) == []
+
+
+def test_a_perturbed_expert_episode_in_a_lane_is_the_one_rolled_out_alone():
+    from metadagger.imitation.rollouts import ActionNoise
+
+    task = CorridorTask(discrete=True)
+    net = make_policy(task, seed=3).net
+    noise = [ActionNoise(0.3, stream=(seed, 0)) for seed in SEEDS[:3]]
+    with Lanes(task, net, width=2) as lanes:
+        laned = lanes.run([EpisodeRequest(seed, None, noise=n) for seed, n in zip(SEEDS, noise)])
+    env = task.make_env()
+    for seed, n, episode in zip(SEEDS, noise, laned):
+        _same(episode, rollout(env, seed=seed, policy=None, noise=n), features=False, images=False)
+    env.close()
+    assert any((e.learner_actions != e.expert_labels).any() for e in laned)

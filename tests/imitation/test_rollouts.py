@@ -133,3 +133,39 @@ def test_episodes_in_lanes_do_not_depend_on_the_pool_nor_on_their_lane_mates(tas
         np.testing.assert_array_equal(a.obs[0], d.obs[0])  # the same seed's episode, acted on at another batch shape
     with pytest.raises(ValueError, match="early stop"):
         collect(task, seeds, policy=policy, lanes=4, early_stop_factory=CosineEarlyStop)
+
+
+def test_dart_noise_perturbs_what_the_expert_executes_not_what_it_labels(task):
+    """With classes, about ``scale`` of the steps execute another class; with vectors, every
+    coordinate is off by noise of that scale (within the action space); each state's label is the
+    expert's own action there; the same stream gives the same episode, another stream another one."""
+    from metadagger.imitation.rollouts import ActionNoise
+
+    env = task.make_env()
+    clean = rollout(env, seed=0, policy=None)
+    noisy = rollout(env, seed=0, policy=None, noise=ActionNoise(0.3, stream=(0, 0)))
+    again = rollout(env, seed=0, policy=None, noise=ActionNoise(0.3, stream=(0, 0)))
+    other = rollout(env, seed=0, policy=None, noise=ActionNoise(0.3, stream=(0, 1)))
+    quiet = rollout(env, seed=0, policy=None, noise=ActionNoise(0.0, stream=(0, 0)))
+    np.testing.assert_array_equal(noisy.learner_actions, again.learner_actions)
+    assert not np.array_equal(noisy.learner_actions, other.learner_actions)
+    np.testing.assert_array_equal(quiet.learner_actions, clean.learner_actions)
+    off = noisy.learner_actions != noisy.expert_labels
+    if task.is_discrete:
+        assert 0.1 < off.mean() < 0.5, off.mean()
+    else:
+        space = env.action_space
+        inside = ((noisy.learner_actions > space.low) & (noisy.learner_actions < space.high)).all(axis=1)
+        assert inside.mean() > 0.5 and off[inside].all()  # noise on every coordinate but where clipped
+        assert (noisy.learner_actions >= space.low).all() and (noisy.learner_actions <= space.high).all()
+    # replaying the executed actions visits the same states, where the expert's label is the one recorded
+    _, info = env.reset(seed=0)
+    for label, executed in zip(noisy.expert_labels, noisy.learner_actions):
+        np.testing.assert_array_equal(info["expert_label"], label)
+        info = env.step(executed)[4]
+    env.close()
+    with pytest.raises(ValueError, match="pass policy=None"):
+        rollout(task.make_env(), seed=0, policy=make_policy(task, seed=0, **TOY_ARCH), noise=ActionNoise(0.1, (0,)))
+    if task.is_discrete:
+        with pytest.raises(ValueError, match="a probability in \\[0, 1\\], got 1.5"):
+            rollout(task.make_env(), seed=0, policy=None, noise=ActionNoise(1.5, (0,)))

@@ -1,8 +1,9 @@
 """What a gate is handed for one DAgger round (:class:`LearnerView`) and what it hands back (:class:`Selection`).
 
 A gate sees the round the way the learner lived it: the trunk features of the states its last
-rollout visited, in step order; its outputs there (class logits for a classification head, the
-action vectors otherwise) and the actions it took; its current head; every state labelled so far
+rollout visited, one episode in step order (with lanes or without: a lane hands its chain each
+episode whole); its outputs there (class logits for a classification head, the action vectors
+otherwise) and the actions it took; its current head; every state labelled so far
 (:class:`Labelled`); the run's generator and the gate's :class:`GateMemory`. Two things only a
 gate that declares them receives: a reference head (``reads_reference``, MetaL DAgger's
 disagreement rule) and the expert's labels of the round's states (``reads_expert``, the oracle,
@@ -98,8 +99,8 @@ class LearnerView:
     """
 
     features: Tensor
-    """Trunk features of the round's N visited states, in step order, float32 [N, F]: the ones the
-    learner computed to act on them."""
+    """Trunk features of the round's N visited states, one episode in step order, float32 [N, F]:
+    the ones the learner computed to act on them."""
     outputs: Tensor
     """The learner's outputs there, float32: class logits [N, C] for a classification head, action
     vectors [N, d] otherwise."""

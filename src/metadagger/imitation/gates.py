@@ -4,8 +4,9 @@ Plain DAgger asks the expert to label every state the learner visited in a round
 only about some of them (each label is one expert query) and is judged by the return it reaches
 for the queries it spends. Every gate answers the same question through :meth:`Gate.choose`:
 given the round as the learner lived it (:class:`~metadagger.imitation.gate_view.LearnerView`:
-its visited states' trunk features, its outputs and actions there, its head, every state
-labelled so far), a boolean mask of the states to label.
+the trunk features of the states of its one rollout, in step order, its outputs and actions
+there, its head, every state labelled so far), a boolean mask of the states to label. A gate
+implements :meth:`Gate.select`; :meth:`Gate.choose` checks what it returns.
 
 The gates:
 
@@ -114,8 +115,10 @@ class Gate(ABC):
     """A query rule of gated DAgger: which of a round's visited states get an expert label.
 
     A gate of your own subclasses this (or :class:`ScoreGate`), names the field its sweep sets in
-    ``setting``, implements ``_select`` on the round's :class:`~metadagger.imitation.gate_view.LearnerView`
+    ``setting``, implements :meth:`select` on the round's :class:`~metadagger.imitation.gate_view.LearnerView`
     and is declared once in :mod:`metadagger.imitation.gate_registry` (docs/benchmark.md, "Adding a gate").
+    Callers ask :meth:`choose`, which checks the view against what the gate reads and what
+    :meth:`select` returns against the round's states.
     """
 
     setting: ClassVar[str]
@@ -128,7 +131,8 @@ class Gate(ABC):
     """Whether the gate reads the learner's class distribution, so serves classification heads alone."""
 
     def choose(self, view: LearnerView) -> Selection:
-        """The states of this round to label, with the scores the choice was made on.
+        """The states of this round to label, with the scores the choice was made on: :meth:`select`'s
+        answer, checked and wrapped in a :class:`Selection`.
 
         Args:
             view: the round as the learner lived it; it must carry what the gate declares it reads.
@@ -143,7 +147,7 @@ class Gate(ABC):
             raise UserError(f"{name} compares the learner's head with a reference head: build the view with reference")
         if self.needs_classes and not view.discrete:
             raise UserError(f"{name} reads the learner's class distribution, but it acts with action vectors here")
-        chosen = self._select(view)
+        chosen = self.select(view)
         chosen = chosen if isinstance(chosen, Selection) else Selection(chosen)
         n = len(view.features)
         if chosen.mask.dtype != torch.bool or tuple(chosen.mask.shape) != (n,):
@@ -153,8 +157,9 @@ class Gate(ABC):
         return chosen
 
     @abstractmethod
-    def _select(self, view: LearnerView) -> Tensor | Selection:
-        """The states to label: a bool mask [N], or a :class:`Selection` with the scores behind it."""
+    def select(self, view: LearnerView) -> Tensor | Selection:
+        """The states of one episode to label (``view.features``' rows, in step order): a bool mask [N],
+        or a :class:`Selection` with the scores behind it. A gate implements this; callers ask :meth:`choose`."""
 
 
 @dataclass(frozen=True)
@@ -169,7 +174,8 @@ class RandomGate(Gate):
         if not 0.0 <= self.p <= 1.0:
             raise UserError(f"RandomGate.p must be in [0, 1], got {self.p!r}")
 
-    def _select(self, view: LearnerView) -> Tensor:
+    def select(self, view: LearnerView) -> Tensor:
+        """Each state independently with probability ``p``."""
         return torch.rand(len(view.features), generator=view.generator) < self.p
 
 
@@ -179,7 +185,8 @@ class ScoreGate(Gate):
     setting: ClassVar[str] = "quantile"
     quantile: float
 
-    def _select(self, view: LearnerView) -> Selection:
+    def select(self, view: LearnerView) -> Selection:
+        """The states scored strictly above the ``quantile``-quantile of the round's scores."""
         scores = self.scores(view)
         return Selection(above_quantile(scores, self.quantile), scores)
 
@@ -264,10 +271,11 @@ class SafeGate(ScoreGate):
         check_quantile("SafeGate", self.quantile)
         check_ridge("SafeGate", self.ridge)
 
-    def _select(self, view: LearnerView) -> Tensor | Selection:
+    def select(self, view: LearnerView) -> Tensor | Selection:
+        """The score gate's choice; every state while the labelled states hold one kind of target only."""
         if len(_mismatch(view.labelled).unique()) < 2:
             return torch.ones(len(view.features), dtype=torch.bool)
-        return super()._select(view)
+        return super().select(view)
 
     def scores(self, view: LearnerView) -> Tensor:
         """Predicted mismatch of the learner's action at each state [N]."""

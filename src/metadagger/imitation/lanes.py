@@ -37,7 +37,7 @@ import torch.nn.functional as F
 from metadagger.errors import UserError
 from metadagger.imitation.early_stop import CosineEarlyStop
 from metadagger.imitation.head_fits import FittedHead, HeadFit, fit_heads
-from metadagger.imitation.rollouts import EpisodeRecorder, Trajectory
+from metadagger.imitation.rollouts import ActionNoise, EpisodeRecorder, Trajectory
 from metadagger.policies import PolicyNet
 from metadagger.tasks.base import Task
 from metadagger.utils.device import compute_device
@@ -97,6 +97,8 @@ class EpisodeRequest:
     keep_images: bool = False
     """Keep the acted-on images in the trajectory; by default only their features are kept (the
     trajectory's ``obs`` is a stand-in, :func:`~metadagger.imitation.data.unkept_images`)."""
+    noise: ActionNoise | None = None
+    """Where the expert drives: how its executed action is perturbed (DART); None: not at all."""
 
 
 class _FeatureRows:
@@ -127,7 +129,12 @@ class _Lane:
         self.request = request
         stop = None if request.early_stop is None else CosineEarlyStop(threshold=request.early_stop)
         self.episode = EpisodeRecorder(
-            env, seed=request.seed, max_steps=request.max_steps, early_stop=stop, keep_images=request.keep_images
+            env,
+            seed=request.seed,
+            max_steps=request.max_steps,
+            early_stop=stop,
+            keep_images=request.keep_images,
+            noise=request.noise,
         )
         self.weight: torch.Tensor | None = None
         self.bias: torch.Tensor | None = None
@@ -238,9 +245,10 @@ class Lanes:
         return ended
 
     def _act(self, lane: _Lane, features: torch.Tensor) -> Any:
-        """The lane's action on its row of features: the expert's label, or its head's output."""
+        """The lane's action on its row of features: the expert's (perturbed where the episode has
+        noise), or its head's output."""
         if lane.weight is None:
-            return lane.episode.label
+            return lane.episode.expert_action()
         # nn.Linear's own kernel, on one row: a lane of width 1 acts exactly as Policy does
         out = F.linear(features, lane.weight, lane.bias)
         if self.discrete:

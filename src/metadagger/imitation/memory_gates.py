@@ -62,7 +62,8 @@ class ThriftyGate(Gate):
         check_ridge("ThriftyGate", self.ridge)
         check_ridge("ThriftyGate.risk", self.risk_ridge)
 
-    def _select(self, view: LearnerView) -> Tensor:
+    def select(self, view: LearnerView) -> Tensor:
+        """The states novel or risky by the run's thresholds, this round's estimates added to the record."""
         record = view.memory.notes.setdefault("thrifty", {"novelty": [], "risk": []})
         heads = bootstrap_outputs(view.features, view.labelled, self.K, self.ridge, view.generator)
         novelty = heads.var(dim=0, unbiased=False).sum(dim=1)
@@ -115,7 +116,8 @@ class ConformalGate(Gate):
         check_share("ConformalGate.alpha", self.alpha)
         check_count("ConformalGate.k", self.k, 1)
 
-    def _select(self, view: LearnerView) -> Selection:
+    def select(self, view: LearnerView) -> Selection:
+        """The states farther from everything labelled than the threshold the run's first round set."""
         scores = neighbour_distance(view.features, view.labelled, self.k, "ConformalGate")
         notes = view.memory.notes
         if "conformal" not in notes:

@@ -49,7 +49,8 @@ class OracleGate(Gate):
     def __post_init__(self) -> None:
         check_quantile("OracleGate", self.quantile)
 
-    def _select(self, view: LearnerView) -> Selection:
+    def select(self, view: LearnerView) -> Selection:
+        """The wrong states whose error is at least the ``quantile``-quantile of the round's positive errors."""
         errors = learner_error(view.actions, view.expert_labels)
         wrong = errors > 0
         if not wrong.any():
@@ -87,6 +88,7 @@ class DisagreementGate(Gate):
     def __post_init__(self) -> None:
         check_quantile("DisagreementGate", self.quantile)
 
-    def _select(self, view: LearnerView) -> Selection:
+    def select(self, view: LearnerView) -> Selection:
+        """The states where the two heads act apart strictly above the round's ``quantile``."""
         scores = head_disagreement(view)
         return Selection(above_quantile(scores, self.quantile), scores)

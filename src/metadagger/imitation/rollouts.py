@@ -77,6 +77,24 @@ def stack_labels(values: list[Any] | np.ndarray, discrete: bool) -> np.ndarray:
     return np.asarray(values, dtype=np.float32).reshape(len(values), -1)
 
 
+@dataclass(frozen=True)
+class ActionNoise:
+    """DART's perturbation of the action the expert executes (Laskey et al. 2017, "DART: Noise
+    Injection for Robust Imitation Learning"); each visited state is still labelled with the
+    expert's own, unperturbed action. With classes, the executed class is another one, drawn
+    uniformly, with probability ``scale``; with action vectors, Gaussian noise of standard
+    deviation ``scale`` is added to each coordinate (clipped to the action space)."""
+
+    scale: float
+    """The perturbation's probability (classes, in [0, 1]) or standard deviation (vectors, >= 0)."""
+    stream: tuple[int, ...]
+    """Seeds the episode's own perturbations (e.g. its env seed and its index among the seed's episodes)."""
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.scale) and self.scale >= 0):
+            raise ValueError(f"a DART noise scale must be finite and >= 0, got {self.scale!r}")
+
+
 class EpisodeRecorder:
     """One episode in the making: the env reset with its seed, then one :meth:`step` per action.
 
@@ -91,6 +109,8 @@ class EpisodeRecorder:
         early_stop: stops the episode as a failure when its ``update`` returns True.
         keep_images: keep every acted-on image in the trajectory; False gives a stand-in
             (:func:`~metadagger.imitation.data.unkept_images`) for an episode whose features are all that is read later.
+        noise: where the expert drives, how its executed action is perturbed (:class:`ActionNoise`,
+            DART); None: it executes its own label.
     """
 
     def __init__(
@@ -101,12 +121,17 @@ class EpisodeRecorder:
         max_steps: int | None = None,
         early_stop: EarlyStop | None = None,
         keep_images: bool = True,
+        noise: ActionNoise | None = None,
     ) -> None:
         if max_steps is not None and max_steps <= 0:
             raise ValueError(f"max_steps must be positive or None, got {max_steps}")
         self.env, self.seed, self.max_steps, self.early_stop = env, int(seed), max_steps, early_stop
         self.keep_images = keep_images
         self.discrete = isinstance(env.action_space, gym.spaces.Discrete)
+        if noise is not None and self.discrete and noise.scale > 1:
+            raise ValueError(f"a DART noise scale on classes is a probability in [0, 1], got {noise.scale!r}")
+        self.noise = noise
+        self._noise_rng = None if noise is None else np.random.default_rng(list(noise.stream))
         self.obs, self.info = env.reset(seed=seed)
         self.variation = self.info.get("variation")
         if early_stop is not None:
@@ -122,6 +147,22 @@ class EpisodeRecorder:
     def label(self) -> Any:
         """The expert's label of the observation the next action acts on."""
         return self.info["expert_label"]
+
+    def expert_action(self) -> Any:
+        """What the expert executes on the current observation: its label, perturbed where the
+        episode has :class:`ActionNoise`."""
+        label = self.info["expert_label"]
+        if self.noise is None or self._noise_rng is None:
+            return label
+        space, rng = self.env.action_space, self._noise_rng
+        if self.discrete:
+            if space.n < 2 or rng.random() >= self.noise.scale:
+                return label
+            other = int(rng.integers(space.n - 1))  # uniform over the other classes
+            return other + int(other >= int(label))
+        label = np.asarray(label, dtype=np.float32)
+        noisy = label + rng.normal(0.0, self.noise.scale, size=label.shape).astype(np.float32)
+        return np.clip(noisy, space.low, space.high).astype(np.float32)
 
     def step(self, action: Any) -> bool:
         """Take ``action`` on the current observation; True when the episode has ended."""
@@ -172,6 +213,7 @@ def rollout(
     policy: Policy | None,
     max_steps: int | None = None,
     early_stop: EarlyStop | None = None,
+    noise: ActionNoise | None = None,
 ) -> Trajectory:
     """Run one episode from ``env.reset(seed=seed)``.
 
@@ -181,11 +223,14 @@ def rollout(
         policy: the learner; ``None`` lets the expert act with its own labels (a demonstration).
         max_steps: stop after this many steps even if the env has not ended (not a success).
         early_stop: stops the episode as a failure when its ``update`` returns True.
+        noise: where the expert acts, how its executed action is perturbed (DART); its labels stay its own.
 
     Returns:
         The trajectory; every visited observation is labelled by the expert.
     """
-    episode = EpisodeRecorder(env, seed=seed, max_steps=max_steps, early_stop=early_stop)
-    while not episode.step(episode.label if policy is None else policy(episode.obs)):
+    if noise is not None and policy is not None:
+        raise ValueError("noise perturbs the expert's executed action: pass policy=None with it")
+    episode = EpisodeRecorder(env, seed=seed, max_steps=max_steps, early_stop=early_stop, noise=noise)
+    while not episode.step(episode.expert_action() if policy is None else policy(episode.obs)):
         pass
     return episode.trajectory()

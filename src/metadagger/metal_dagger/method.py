@@ -10,6 +10,8 @@ own (:class:`SeedLearner`), driving the seed's env. The steps (docs/method.md):
    a mapper that reads one, the seed's context): MDM, no further query (paper 4.1).
 4. :func:`dagger_rounds` -- roll out, choose the states to label (every one, or a gate's
    choice), label them, aggregate, refit the head; one :class:`Round` after each refit.
+   :func:`dart_rounds` is its control: the same labels spent on more demonstrations, the
+   expert's executed action perturbed (DART), refitted as often.
 5. :func:`one_shot` -- a head refitted on the demonstration from an initialisation: MDI's
    one-shot head (paper 4.2, Table 6 step 5).
 
@@ -41,7 +43,7 @@ from metadagger.imitation.gate_view import Episode, GateMemory, Labelled, Learne
 from metadagger.imitation.gates import Gate
 from metadagger.imitation.head_fits import Prior, fit_heads, head_outputs
 from metadagger.imitation.lanes import EpisodeRequest, Lane, Lanes, current_lane, run_chains
-from metadagger.imitation.rollouts import Trajectory, rollout
+from metadagger.imitation.rollouts import ActionNoise, Trajectory, rollout
 from metadagger.metal_dagger.pistar import cached_pistar, head_from_pistar
 from metadagger.policies import Policy
 from metadagger.tasks.base import Task
@@ -109,11 +111,12 @@ class SeedLearner:
         stop = None if early_stop is None else CosineEarlyStop(threshold=early_stop)
         return rollout(self.env, seed=self.seed, policy=self.policy, early_stop=stop)
 
-    def demonstrate(self) -> Trajectory:
-        """One episode of the seed driven by the expert."""
+    def demonstrate(self, noise: ActionNoise | None = None) -> Trajectory:
+        """One episode of the seed driven by the expert (its executed action perturbed by ``noise``,
+        DART's, where one is given; every state labelled with its own action)."""
         if self._lane is not None:
-            return self._in_lane(EpisodeRequest(self.seed, None))
-        return rollout(self.env, seed=self.seed, policy=None)
+            return self._in_lane(EpisodeRequest(self.seed, None, noise=noise))
+        return rollout(self.env, seed=self.seed, policy=None, noise=noise)
 
     def _in_lane(self, request: EpisodeRequest) -> Trajectory:
         # the trajectory carries the features the lane acted on: every later fit, gate and context
@@ -394,6 +397,83 @@ def _gate_mask(
 
 def _tensor(values: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(values))
+
+
+@dataclass(frozen=True)
+class DartRound:
+    """DART at one of DAgger's budgets: the head refitted on the demonstration and the perturbed
+    episodes' labels up to the budget, and its rollout."""
+
+    index: int
+    """The DAgger round whose cumulative labels are the budget (1-based)."""
+    head: np.ndarray
+    rollout: Trajectory
+    queries: int
+    """Expert queries, the demonstration's included: the budget, or fewer where ``episodes`` ran out."""
+    episodes: list[int]
+    """The labelled steps of each perturbed episode so far (the first of each, the last one cut at the budget)."""
+
+
+def dart_rounds(
+    learner: SeedLearner,
+    *,
+    start: np.ndarray,
+    demo: Trajectory,
+    budgets: Sequence[int],
+    scale: float,
+    fit: BCConfig,
+    early_stop: float | None = None,
+    origin: np.ndarray | None = None,
+) -> Iterator[DartRound]:
+    """DAgger's control at equal labels (DART, Laskey et al. 2017): at each of ``budgets`` (DAgger's
+    cumulative queries after each round, ascending), the expert has driven further episodes of the
+    seed, its executed action perturbed (:class:`~metadagger.imitation.rollouts.ActionNoise` at
+    ``scale``; episode k's perturbations seeded by the seed and k), every visited state labelled with
+    its unperturbed action, until the demonstration and those labels hold the budget, the last
+    episode cut there. The head is refitted from ``start`` on all of it, as often as DAgger has
+    refitted by then (the round's index, each a refit as BC refitted's), and rolled out.
+
+    Args:
+        learner: the seed's learner.
+        start: the head every budget's refits begin from (w_BC).
+        demo: the demonstration.
+        budgets: cumulative expert queries, the demonstration's included, one per round.
+        scale: the perturbation (a probability with classes, a standard deviation with vectors).
+        fit: the refit of every round (DAgger's), its batches seeded.
+        early_stop: the cosine early stop of each budget's rollout.
+        origin: the head a refit starts from where ``fit.refit_from`` says so (the seed's fresh head).
+    """
+    demonstration_data = demo.to_dataset()
+    stream: list[Dataset] = []  # the perturbed episodes so far, in the order driven
+    held = 0
+    for index, budget in enumerate(budgets, start=1):
+        while len(demonstration_data) + held < budget:
+            episode = learner.demonstrate(ActionNoise(scale, stream=(learner.seed, len(stream))))
+            stream.append(episode.to_dataset())
+            held += len(stream[-1])
+        room, taken = max(0, budget - len(demonstration_data)), []
+        for episode_data in stream:
+            if room == 0:
+                break
+            taken.append(min(room, len(episode_data)))
+            room -= taken[-1]
+        data = Aggregate([demonstration_data, *(_first_rows(d, n) for d, n in zip(stream, taken))])
+        learner.load(start)
+        for refit in range(1, index + 1):
+            learner.start_refit(fit, origin)
+            learner.fit(data, fit, called=f"DART's refit {refit} at round {index}'s labels")
+        head = learner.head()
+        yield DartRound(index, head, learner.roll(head, early_stop=early_stop), len(data), taken)
+
+
+def _first_rows(data: Dataset, n: int) -> Dataset:
+    """The first ``n`` rows of ``data``."""
+    keep = np.arange(len(data)) < n
+    return Dataset(
+        obs=take_rows(data.obs, keep),
+        labels=data.labels[:n],
+        features=None if data.features is None else data.features[:n],
+    )
 
 
 def one_shot(learner: SeedLearner, init: np.ndarray, demo: Dataset, fit: BCConfig) -> np.ndarray:

@@ -86,10 +86,12 @@ def run_task(config: RunConfig, *, checked: bool = False) -> Task:
     """The task a run was configured with; ``checked``: its code passed the cheap checks
     (:func:`~metadagger.tasks.checks.check_task_code`), so that no wrong observation is ever
     trained on and a mistake in it is one line before any work. A benchmark gate that cannot serve
-    the task (a class distribution read on action vectors) is one line too."""
+    the task (a class distribution read on action vectors), or DART's noise that is no probability
+    on classes, is one line too."""
     task = make_task(config.task, **config.task_kwargs)
     if config.benchmark is not None:
         check_gates_serve(config.benchmark.gated(), discrete=task.is_discrete, task=config.task)
+        config.benchmark.check_serves(discrete=task.is_discrete, task=config.task)
     if checked:
         check_task_code(task)
     return task

@@ -100,7 +100,8 @@ class LazyGate(Gate):
         """The quantile of the round's scores below which the expert hands back: ``low``, or half of ``quantile``."""
         return self.quantile / 2 if self.low is None else float(self.low)
 
-    def _select(self, view: LearnerView) -> Selection:
+    def select(self, view: LearnerView) -> Selection:
+        """The steps the expert drives along the round's episode, with the safe gate's scores."""
         plain = SafeGate(self.quantile, ridge=self.ridge).choose(view)
         if plain.scores is None:  # no classifier to fit yet: the safe gate labels every state
             return plain

@@ -8,6 +8,7 @@ from typing import Any, ClassVar
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark.methods import (
     BC_REFIT,
+    DART,
     benchmark_methods,
     check_methods,
     gated_methods,
@@ -57,10 +58,23 @@ class BenchmarkConfig:
     """Shares of the demonstration's steps that BC, the learned MDM kinds and the gated settings
     start from, in (0, 1], 1 (the whole demonstration) among them; plain DAgger and MDI always
     start from the whole one."""
+    dart_noise: float = field(default=0.2, metadata=STAMPED_UNLESS_DEFAULT)
+    """DART's perturbation of the expert's executed action (method ``dart``): the probability of
+    another class, drawn uniformly, with classes; the standard deviation of Gaussian noise on each
+    coordinate with action vectors. Chosen per task on the pair seeds (docs/benchmark.md, "DART")."""
     lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
     """Episodes of a seed stepped in lockstep, one trunk forward per step for all of them, at this
     batch shape (:mod:`metadagger.imitation.lanes`); 1 rolls each episode out alone. The numbers
     depend on it (a batch of one rounds the last bits otherwise), never on the workers."""
+
+    def check_serves(self, *, discrete: bool, task: str) -> None:
+        """Raise a :class:`UserError` where ``dart`` runs on a task with classes at a noise that is no
+        probability (its ``dart_noise`` above 1)."""
+        if discrete and DART in self.methods and self.dart_noise > 1:
+            raise UserError(
+                f"benchmark.dart_noise is {self.dart_noise}, but {task} acts with classes, where it is the probability "
+                "of another class: give one in [0, 1], e.g. 0.2"
+            )
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -94,6 +108,16 @@ class BenchmarkConfig:
                 f"{list(self.demo_fractions)}; e.g. [0.25, 0.5, 1.0]"
             )
         check_lanes("benchmark.lanes", self.lanes)
+        if (
+            isinstance(self.dart_noise, bool)
+            or not isinstance(self.dart_noise, (int, float))
+            or not (0.0 <= self.dart_noise < float("inf"))
+        ):
+            raise UserError(f"benchmark.dart_noise must be a number >= 0, got {self.dart_noise!r}; e.g. 0.2")
+        if DART in self.methods and "dagger" not in self.methods:
+            raise UserError(
+                "benchmark.methods has dart, whose budgets are plain DAgger's labels after each round; add dagger"
+            )
         if self.ensemble_heads < 2 or self.novelty_k < 1:
             raise UserError(
                 f"benchmark.ensemble_heads must be >= 2 and benchmark.novelty_k >= 1, got "

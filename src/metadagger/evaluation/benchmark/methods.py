@@ -43,6 +43,8 @@ PRIOR_METHODS = ("prior", "prior-dagger", "prior-gated")
 DISAGREE_GRID = (0.5, 0.8, 0.95)
 #: The control that refits w_BC as DAgger does, with no new label.
 BC_REFIT = "bc-refit"
+#: The control that spends DAgger's labels on more demonstrations, perturbed (DART).
+DART = "dart"
 #: The MDI protocol's two tests and their settings in the benchmark.
 MDI_SHOTS = {"oneshot": "one-shot", "twoshot": "two-shot"}
 #: The mapper kind of the MDI rows: whichever the run's ``mdi.mapper`` names.
@@ -59,6 +61,8 @@ class StampInputs:
     """The MDI protocol's settings as stamped, where the run has one."""
     priors: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Each prior's strength and precision as stamped, by its mean (a mapper kind or ``zero``)."""
+    dart_noise: float | None = None
+    """DART's perturbation (``benchmark.dart_noise``)."""
 
 
 @dataclass(frozen=True)
@@ -204,6 +208,22 @@ class RoundKey(MethodKey):
 
 
 @dataclass(frozen=True)
+class DartKey(MethodKey):
+    """DART at plain DAgger's cumulative labels after ``round`` rounds: the expert's perturbed
+    episodes of the seed labelled up to that budget, w_BC refitted on them and the demonstration
+    (a control: more demonstrations instead of labels on the learner's states)."""
+
+    round: int
+
+    @property
+    def chain(self) -> str:
+        return f"dagger@demo{self.demo_fraction:g}"  # made by DAgger's chain, which knows its budgets
+
+    def own_stamp(self, inputs: StampInputs) -> dict[str, Any]:
+        return {**super().own_stamp(inputs), "dart_noise": inputs.dart_noise}
+
+
+@dataclass(frozen=True)
 class RefitKey(MethodKey):
     """w_BC refitted ``rounds`` times on the demonstration alone: DAgger's training, no new label."""
 
@@ -330,6 +350,10 @@ def _dagger(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], 
     return [RoundKey("dagger", str(r), round=r) for r in range(1, rounds + 1)]
 
 
+def _dart(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
+    return [DartKey(DART, str(r), round=r) for r in range(1, rounds + 1)]
+
+
 def _bc_refit(rounds: int, kinds: tuple[str, ...], grids: dict[str, list[float]], mdi: bool) -> list[MethodKey]:
     return [RefitKey(BC_REFIT, str(rounds), rounds=rounds)]
 
@@ -357,6 +381,13 @@ _BUILT_IN = (
         "BC refitted as DAgger, no new label (control)",
         "w_BC refitted as often and as long as DAgger refits it, on the demonstration alone (a control)",
         _bc_refit,
+    ),
+    BenchmarkMethod(
+        DART,
+        "DART at DAgger's labels (control)",
+        "the expert's episodes, executed action perturbed (benchmark.dart_noise), labelled up to DAgger's labels "
+        "after each round, w_BC refitted on them as DAgger refits (a control; needs dagger)",
+        _dart,
     ),
     BenchmarkMethod(
         "prior",

@@ -122,6 +122,7 @@ def benchmark_stamps(
         config.options_of,
         None if mdi is None else stamp_of(mdi, drop=("seeds", "controls")),
         {mean: prior_stamp(prior) for mean, prior in (priors or {}).items()},
+        config.dart_noise,
     )
     for key in keys:
         own = key.own_stamp(inputs)

@@ -25,6 +25,7 @@ from metadagger.evaluation.benchmark.methods import (
     MDI_MAPPER,
     MDI_METHODS,
     BCKey,
+    DartKey,
     DisagreeKey,
     GateKey,
     MapperKey,
@@ -51,6 +52,7 @@ from metadagger.metal_dagger.method import (
     SeedLearner,
     bc_head,
     dagger_rounds,
+    dart_rounds,
     demonstration,
     demonstration_share,
     map_head,
@@ -259,19 +261,53 @@ def _rounds(
 
 
 def _dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    # each row also carries the coverage gap of the states DAgger visited up to its round
+    """Plain DAgger's rows, each with the coverage gap of the states DAgger visited up to its round;
+    then DART's (:class:`DartKey`), at the labels DAgger held after each round."""
     demo = learner.cache.features_of(start.demo.to_dataset())
     visited: list[torch.Tensor] = []
+    budgets: list[int] = []
 
     def with_gap(rounds: Iterator[Round]) -> Iterator[Round]:
         for r in rounds:
             assert r.labelled is not None  # plain DAgger labels every visited state
             visited.append(learner.cache.features_of(r.labelled))
+            budgets.append(r.queries)
             yield r
 
-    rows = _round_rows(job, start, keys, with_gap(_rounds(job, start, learner, None)))
+    dart = [key for key in keys if isinstance(key, DartKey)]
+    rounds = [key for key in keys if isinstance(key, RoundKey)]
+    rows = _round_rows(job, start, rounds, with_gap(_rounds(job, start, learner, None)))
     for key, row in rows.items():
         row["coverage_gap"] = coverage_gap(demo, torch.cat(visited[: key.round]))  # type: ignore[attr-defined]
+    if dart:
+        rows.update(_dart_rows(job, start, dart, budgets, learner))
+    return rows
+
+
+def _dart_rows(job: BenchmarkJob, start: _Start, keys: list[DartKey], budgets: list[int], learner: SeedLearner) -> Rows:
+    """DART's row after each round that ``keys`` name, at DAgger's ``budgets``; each perturbed
+    episode is a takeover of its own in the ledger, filed under the round whose budget it was driven for."""
+    by_round = {key.round: key for key in keys}
+    rows: Rows = {}
+    fit = seeded(job.dagger_bc, job.seed)
+    made = dart_rounds(
+        learner,
+        start=start.w_bc,
+        demo=start.demo,
+        budgets=budgets[: max(by_round)],
+        scale=job.config.dart_noise,
+        fit=fit,
+        early_stop=job.early_stop,
+        origin=start.fresh,
+    )
+    filed: list[int] = []  # the round each episode was first drawn on
+    for r in made:
+        filed += [r.index] * (len(r.episodes) - len(filed))
+        if r.index in by_round:
+            labels = start.labels() + [
+                round_record(index, np.arange(steps), None) for index, steps in zip(filed, r.episodes)
+            ]
+            rows[by_round[r.index]] = benchmark_row(by_round[r.index], job.seed, r.rollout, r.queries, labels)
     return rows
 
 
@@ -338,6 +374,7 @@ CHAINS: dict[type, Callable[[BenchmarkJob, _Start, list[MethodKey], SeedLearner]
     PriorKey: _prior_row,
     PriorRoundKey: _prior_dagger_rows,
     RoundKey: _dagger_rows,
+    DartKey: _dagger_rows,
     GateKey: _gate_row,
     PriorGateKey: _prior_gate_row,
     DisagreeKey: _disagree_row,

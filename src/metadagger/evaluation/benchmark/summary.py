@@ -29,7 +29,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from metadagger.evaluation.benchmark.coverage import VARIANCE_SHARE, gap_against_gain
-from metadagger.evaluation.benchmark.methods import BC_REFIT, MDM_PREFIX, gated_methods, metal_twins, reference_methods
+from metadagger.evaluation.benchmark.methods import (
+    BC_REFIT,
+    DART,
+    MDM_PREFIX,
+    gated_methods,
+    metal_twins,
+    reference_methods,
+)
 from metadagger.evaluation.paired import paired_comparison, paired_difference
 from metadagger.imitation.metrics import summarize, wilson_interval
 from metadagger.mapping.registry import control_names
@@ -109,15 +116,18 @@ def refit_check(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _controls() -> set[str]:
-    return {MDM_PREFIX + name for name in control_names()} | {BC_REFIT}
+    return {MDM_PREFIX + name for name in control_names()} | {BC_REFIT, DART}
 
 
 def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """What every method is compared with: each MDM control, BC refitted as DAgger (``bc-refit``),
-    and the best gate (the gated DAgger setting with the highest success, the fewest queries on a
-    tie; the oracle is a reference, not a gate), as ``method``/``setting``/``demo_fraction``."""
+    DART at DAgger's final labels (its last round), and the best gate (the gated DAgger setting with
+    the highest success, the fewest queries on a tie; the oracle is a reference, not a gate), as
+    ``method``/``setting``/``demo_fraction``."""
     controls, gated = _controls(), gated_methods()
-    refs = [e for e in entries if e["method"] in controls]
+    dart = [e for e in entries if e["method"] == DART]
+    last_dart = max(dart, key=lambda e: int(e["setting"])) if dart else None
+    refs = [e for e in entries if e["method"] in controls and (e["method"] != DART or e is last_dart)]
     gates = [e for e in entries if e["method"] in gated]
     if gates:
         refs.append(max(gates, key=lambda e: (e["success_rate"], -e["mean_queries"])))
@@ -256,13 +266,14 @@ def budget_reading(rows: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 def _metal_pairs(ran: list[Curve], best_gate: Curve | None) -> list[tuple[Curve, Curve]]:
     """Each MetaL DAgger curve that reads a learned mapper (:func:`metal_twins`) with each of its
-    references that ran: its constant twins, BC refitted and ``best_gate``."""
+    references that ran: its constant twins, BC refitted, DART and ``best_gate``."""
     pairs = []
     for curve in ran:
         twins = metal_twins(curve[0])
         if not twins:
             continue
-        refs = [(t, curve[1]) for t in twins] + [(BC_REFIT, 1.0)] + ([best_gate] if best_gate is not None else [])
+        refs = [(t, curve[1]) for t in twins] + [(BC_REFIT, 1.0), (DART, 1.0)]
+        refs += [best_gate] if best_gate is not None else []
         pairs += [(curve, ref) for ref in refs if ref in ran and ref != curve]
     return pairs
 

@@ -1,9 +1,9 @@
 """The benchmark section of a report ("Success against expert queries"), built only from
 ``benchmark/summary.json``: every (method, setting) with its success interval and queries, the
 paired comparisons of every method with the controls and the best gate, the
-cheapest setting of each method that reaches 90% of DAgger's final success, and what
-meta-training cost in expert queries against what MDM saves per new seed where it succeeds as
-often as DAgger."""
+cheapest setting of each method that reaches 90% of DAgger's final success, and, where the
+benchmark runs a MetaL DAgger method, what meta-training cost in expert queries against what MDM
+saves per new seed where it succeeds as often as DAgger."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from metadagger.evaluation.benchmark.coverage import rank_interval
 from metadagger.evaluation.benchmark.coverage_figure import has_twins, plot_coverage
 from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.evaluation.benchmark.methods import MDM_PREFIX, reference_methods
+from metadagger.evaluation.benchmark.methods import MDI_METHODS, MDM_PREFIX, metal_family, reference_methods
 from metadagger.evaluation.benchmark.summary import refit_check
 from metadagger.evaluation.paired import smallest_shown_difference, verdict
 from metadagger.evaluation.report.tables import figure_lines, markdown_table, pct
@@ -424,10 +424,19 @@ def _matching(entries: list[dict[str, Any]]) -> list[str]:
     )
 
 
+def _reads_meta_training(method: str) -> bool:
+    """Whether ``method`` reads what meta-training made, the pairs or a mapper's head: MDM, the
+    priors, the disagreement gate and MDI, their controls included."""
+    return metal_family(method) is not None or method in MDI_METHODS
+
+
 def _amortisation(entries: list[dict[str, Any]], meta: dict[str, int]) -> list[str]:
     """Queries spent on pi* and the pairs, and after how many new seeds each MDM method's saving
     against DAgger's final round repays them: only where the method succeeds, and at least as
-    often as that round (a saving bought with lost successes repays nothing)."""
+    often as that round (a saving bought with lost successes repays nothing). [] for a benchmark
+    without a MetaL DAgger method (gates alone, say): there is no meta-training to repay."""
+    if not any(_reads_meta_training(e["method"]) for e in entries):
+        return []
     final = _dagger_final(entries)
     spent = int(meta.get("pistar", 0)) + int(meta.get("pairs", 0))
     lines = [
