@@ -306,7 +306,7 @@ def test_reproduce_with_unknown_task_names_the_known_ones(tmp_path):
     _fails_cleanly(
         ["reproduce", "--task", "cartpole", "--out", str(tmp_path / "r")],
         "unknown task 'cartpole'",
-        "carracing, carracing-family, fetch, fetch-family",
+        "carracing, carracing-echo, carracing-family, fetch, fetch-family",
     )
     assert not (tmp_path / "r" / "config.yaml").exists()
 

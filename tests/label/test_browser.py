@@ -2,10 +2,11 @@
 
 The person answers each state the page shows with the task's scripted expert's label of it (read
 from the scripted expert's session of the same gate), after a set delay, by the arrow keys and
-Enter or by a click on the class. The command is stopped mid-round and run again; the session it
-finishes must make the scripted session's heads and rows, byte for byte, with the delays as the
-ledger's seconds. Needs Debian's chromium and chromium-driver and the browser extra (selenium);
-``.ci/run`` installs them, and without them this test is skipped. With
+Enter or by a click on the class. The command is stopped mid-round and run again on the same
+port; the tab left open says its session ended, and the session finished at the new URL must make
+the scripted session's heads and rows, byte for byte, with the delays as the ledger's seconds.
+Needs Debian's chromium and chromium-driver and the browser extra (selenium); ``.ci/run``
+installs them, and without them this test is skipped. With
 ``METADAGGER_DOCS_SCREENSHOT=docs/figures/label-page.png`` it also writes the screenshot docs/label.md shows.
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import socket
 import time
 from pathlib import Path
 
@@ -120,9 +122,11 @@ class Person:
             self.last = shown
             state = tuple(int(x) for x in shown.split("/"))
             if len(self.given) == SHOT:  # a look at the steps around the state, and the screenshot
+                classes = self.driver.find_element(By.ID, "classes").rect
                 ActionChains(self.driver).send_keys("a").perform()
                 time.sleep(0.3)
                 self.driver.save_screenshot(str(self.screenshot))
+                assert self.driver.find_element(By.ID, "classes").rect == classes  # the buttons stay put
             time.sleep(answer_at - time.monotonic())
             target = self.answers[state]
             if len(self.given) % 2 == 0:  # the keys: move the choice to the class, then Enter
@@ -143,8 +147,11 @@ def test_a_person_in_chromium_makes_the_scripted_experts_heads_and_rows(run, cor
     scripted = run.label_session(SCRIPTED, "dagger-safe", "0.5", SEED)
     answers = {(r["round"], r["step"]): r["label"] for r in read_lines(scripted.labels, called="label")}
     person = Person(browser, answers, tmp_path / "label-page.png")
+    with socket.socket() as probe:  # a fixed port, as one forwarded over ssh
+        probe.bind(("127.0.0.1", 0))
+        port = str(probe.getsockname()[1])
 
-    first = command(corridor_site, *session_args(run.root))
+    first = command(corridor_site, *session_args(run.root, "--port", port))
     browser.get(_url(first))
     person.label(4)
     first.send_signal(signal.SIGTERM)  # the command stopped mid-session, the page left open
@@ -153,12 +160,19 @@ def test_a_person_in_chromium_makes_the_scripted_experts_heads_and_rows(run, cor
     session = run.label_session(PERSON, "dagger-safe", "0.5", SEED)
     assert len(read_lines(session.labels, called="label")) == 4
 
-    second = command(corridor_site, *session_args(run.root))
-    browser.get(_url(second))  # the new URL: a new token
+    second = command(corridor_site, *session_args(run.root, "--port", port))  # the same port, at once
+    url = _url(second)
+    deadline = time.monotonic() + 10
+    while "session has ended" not in browser.find_element("id", "message").text:  # the tab left open
+        assert time.monotonic() < deadline, browser.find_element("id", "message").text
+        time.sleep(0.1)
+    assert "Open the URL it printed last" in browser.find_element("id", "message").text
+    browser.get(url)  # the new URL: a new token
     person.label(-1)
     _, err = second.communicate(timeout=60)
     assert second.returncode == 0, err
     assert "done: 3 rounds" in browser.find_element("id", "message").text
+    assert not browser.find_element("id", "frame").is_displayed()  # nothing left to show, no broken image
 
     assert session.rows.read_bytes() == scripted.rows.read_bytes()
     for index in (1, 2, 3):

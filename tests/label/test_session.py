@@ -15,8 +15,18 @@ from toy_task import CorridorTask
 from metadagger.errors import CheckpointError, UserError
 from metadagger.evaluation.benchmark.ledger import LABEL_FIELDS, SCRIPTED, effort, label_record
 from metadagger.evaluation.rows import read_csv
-from metadagger.label.forms import DISPLACEMENT, STEERING, LabelForm, Refused, Slider, default_form, label_form
-from metadagger.label.session import plan_of_run, run_label
+from metadagger.label import session as session_module
+from metadagger.label.forms import (
+    DISPLACEMENT,
+    STEERING,
+    LabelForm,
+    Refused,
+    Slider,
+    default_form,
+    label_form,
+    shown,
+)
+from metadagger.label.session import benchmark_gap, finished_rows, plan_of_run, run_label
 from metadagger.label.store import LabelStore
 from metadagger.pipeline.run_config import load_run
 from metadagger.tasks.carracing.task import STEERING_VALUES, CarRacingTask
@@ -32,6 +42,19 @@ def test_carracing_is_labelled_by_its_20_steering_classes_left_to_right():
     assert form.classes[10] == "right 0.02" and form.classes[-1] == "right 0.40"
     assert [name.startswith("left") for name in form.classes] == list(STEERING_VALUES < 0)
     assert form.check(0) == 0 and form.check(19) == 19
+
+
+def test_the_carracing_page_says_what_is_asked_and_names_straight():
+    page = STEERING.as_json()
+    assert page["marks"] == {"9": "straight", "10": "straight"}  # the two classes nearest zero, +-0.021
+    assert abs(STEERING_VALUES[[9, 10]]).max() < 0.022
+    asks = page["asks"]
+    assert asks.startswith("Steering only (the scripted expert drives gas and brake)")
+    assert "radians, from left 0.40 (full left) to right 0.40 (full right), 0.042 apart" in asks
+    assert "the two marked straight (±0.021) are the nearest" in asks
+    assert label_form(CorridorTask()).as_json()["asks"].startswith("Choose the class the expert would choose")
+    with pytest.raises(UserError, match=r"label form marks \[3\] name no class"):
+        LabelForm(classes=("a", "b", "c"), marks=((3, "straight"),))
 
 
 def test_a_vector_task_gets_a_slider_per_dimension():
@@ -53,12 +76,15 @@ def test_a_vector_task_gets_a_slider_per_dimension():
         (DISPLACEMENT, [0, 0], "label [0, 0] refused: expected a list of 3 numbers"),
         (DISPLACEMENT, [0, 1.5, 0], "label [0, 1.5, 0] refused: y must be a number in [-1, 1]"),
         (DISPLACEMENT, [0, "1", 0], "label [0, '1', 0] refused: y must be a number in [-1, 1]"),
+        (DISPLACEMENT, [0, 10**400, 0], f"label {shown([0, 10**400, 0])} refused: y must be a number in [-1, 1]"),
+        (STEERING, [7] * 1000, "label [7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7,"),
     ],
 )
 def test_a_label_out_of_range_is_refused_in_one_line(form, value, says):
     with pytest.raises(Refused) as refused:
         form.check(value)
-    assert str(refused.value) == says and refused.value.status == 400
+    assert str(refused.value).startswith(says) and refused.value.status == 400
+    assert len(str(refused.value)) < 200  # the value shown cut short, whatever its length
 
 
 def test_a_task_declares_its_own_form_and_a_form_that_does_not_fit_is_named():
@@ -118,9 +144,25 @@ def test_a_session_resumes_from_its_labels_and_asks_only_for_the_missing_ones(ru
     heads = {p.name: p.read_bytes() for p in (session.root / "heads").iterdir()}
     lines = session.labels.read_bytes().splitlines(keepends=True)
     session.labels.write_bytes(b"".join(lines[:5]) + lines[5][:17])  # killed while appending the sixth label
+    killed_in = json.loads(lines[5])["round"]  # the rows of the rounds before it were written
+    rows = session.rows.read_bytes().splitlines(keepends=True)
+    session.rows.write_bytes(b"".join(rows[: killed_in - 1]))
+    assert finished_rows(run, _plan(run), SCRIPTED) is None
     assert run_label(run, _plan(run), expert=SCRIPTED) == first
     assert session.labels.read_bytes().splitlines(keepends=True) == lines  # the torn line is given again, once
     assert {p.name: p.read_bytes() for p in (session.root / "heads").iterdir()} == heads
+
+
+def test_a_finished_session_run_again_is_not_replayed(run, monkeypatch):
+    first = run_label(run, _plan(run), expert=SCRIPTED)
+    assert finished_rows(run, _plan(run), SCRIPTED) == first
+    assert finished_rows(run, _plan(run)) is None  # a person's session of it is not begun
+
+    def replayed(*args, **kwargs):
+        raise AssertionError("a finished session was replayed")
+
+    monkeypatch.setattr(session_module, "label_seed", replayed)
+    assert run_label(run, _plan(run), expert=SCRIPTED) == first
 
 
 def test_a_session_begun_from_other_inputs_is_refused(run):
@@ -135,15 +177,29 @@ def test_a_session_begun_from_other_inputs_is_refused(run):
     [
         (200, GATE, SETTING, "--seed 200 was used for pi* or the pairs; label an unseen seed"),
         (SEED, "oracle", 0.5, "gate 'oracle' is a reference that reads the scripted expert's labels"),
-        (SEED, "lazy", 0.5, "unknown gate 'lazy': expected one of random, ensemble"),
+        (SEED, "lazy", 0.5, "unknown gate 'lazy': expected one of random, ensemble, safe, novelty, least-confidence"),
         (SEED, "safe", 1.5, "SafeGate"),
     ],
 )
 def test_a_session_that_cannot_run_is_one_line_before_any_work(run, seed, gate, setting, says):
     with pytest.raises(UserError) as error:
         _plan(run, seed, gate, setting)
-    assert says in str(error.value) and "\n" not in str(error.value)
+    assert says in str(error.value) and "\n" not in str(error.value) and "oracle, " not in str(error.value)
     assert not run.label_dir.exists()
+
+
+@pytest.mark.parametrize(
+    "seed, gate, setting, says",
+    [
+        (SEED, GATE, SETTING, None),
+        (SEED, GATE, 0.8, "--setting 0.8 is not in the run's grid of dagger-safe (0.5), so the benchmark has no row"),
+        (SEED, "random", 0.5, "the run's benchmark does not run dagger-random (benchmark.methods)"),
+        (301, GATE, SETTING, "--seed 301 is not one of the run's benchmark.seeds (or confirm_seeds), so the benchmark"),
+    ],
+)
+def test_a_session_the_benchmark_has_no_row_of_is_named(run, seed, gate, setting, says):
+    gap = benchmark_gap(load_run(run.root), _plan(run, seed, gate, setting))
+    assert gap == says if says is None else gap.startswith(says)
 
 
 def test_the_store_refuses_a_second_label_and_a_foreign_line(tmp_path):

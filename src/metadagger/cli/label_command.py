@@ -16,7 +16,7 @@ label_app = typer.Typer()
 def _gates() -> list[str]:
     from metadagger.imitation.gate_registry import gated_names
 
-    return gated_names()
+    return gated_names()  # the oracle, a reference that reads the scripted expert's labels, is no gate a session takes
 
 
 @label_app.command()
@@ -26,7 +26,10 @@ def label(
     seed: int = typer.Option(..., "--seed", help="The seed to label: an unseen one, e.g. one of benchmark.seeds."),
     gate: str = typer.Option(..., "--gate", help=f"The gate that chooses the states: {listed(_gates)}."),
     setting: float = typer.Option(
-        ..., "--setting", help="The gate's setting, one value of its sweep (`metadagger config methods` lists them)."
+        ...,
+        "--setting",
+        help="The gate's setting: one value of the run's grid (benchmark.grids), so that the benchmark has the row "
+        "to compare with.",
     ),
     expert: str = typer.Option(
         "person",
@@ -41,7 +44,7 @@ def label(
     The page shows each state the gate chose and takes the label; the loop refits and rolls out the next round by
     itself. Every label is kept as it is given: run the same command again to resume (docs/label.md)."""
     from metadagger.evaluation.benchmark.ledger import effort
-    from metadagger.label.session import plan_of_run, run_label
+    from metadagger.label.session import benchmark_gap, finished_rows, plan_of_run, run_label
     from metadagger.pipeline.stages import load_run
     from metadagger.runfolder.layout import RunLayout
     from metadagger.utils.device import use_device
@@ -51,6 +54,10 @@ def label(
     config = load_run(out, [])
     use_device(config.device)
     plan = plan_of_run(layout, config, seed=seed, gate=gate, setting=setting)
+    gap = benchmark_gap(config, plan)
+    if gap:
+        typer.echo(f"warning: {gap}", err=True)
+    finished = finished_rows(layout, plan, expert) is not None
 
     def announce(url: str) -> None:
         port = urlsplit(url).port
@@ -63,8 +70,13 @@ def label(
     session = plan.session(layout, expert)
     spent = effort(read_lines(session.labels, called="label record"), len(rows))
     last = rows[-1]
+    if finished:
+        typer.echo(
+            f"session {session.root} is finished: nothing is left to label (move its folder away to begin again)"
+        )
     typer.echo(
         f"round {len(rows)}: {'success' if last['success'] else 'failure'} at {last['expert_queries']} queries, "
         f"{spent['labels']} labelled by {spent['labelled_by']} in {spent['seconds']:g} s"
     )
-    typer.echo(f"wrote {session.root} (labels.jsonl, rows.jsonl, heads/); `metadagger report --out {out}` shows it")
+    written = "holds" if finished else "wrote"
+    typer.echo(f"{written} {session.root} (labels.jsonl, rows.jsonl, heads/); `metadagger report --out {out}` shows it")

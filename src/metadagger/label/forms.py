@@ -20,6 +20,9 @@ from metadagger.errors import UserError
 from metadagger.tasks.base import Task
 from metadagger.tasks.carracing.task import STEERING_VALUES, CarRacingTask
 
+#: The most characters of a refused value a refusal shows: a request may hold any value, a refusal stays one line.
+SHOWN = 80
+
 
 class Refused(Exception):
     """A label or request the page must refuse, with one line saying why; ``status`` is its HTTP code."""
@@ -27,6 +30,16 @@ class Refused(Exception):
     def __init__(self, message: str, status: int = 400) -> None:
         super().__init__(message)
         self.status = status
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` for a refusal, cut as :func:`clipped` cuts it."""
+    return clipped(repr(value))
+
+
+def clipped(text: str) -> str:
+    """``text`` cut to :data:`SHOWN` characters, with its whole length named where it is cut."""
+    return text if len(text) <= SHOWN else f"{text[: SHOWN - 3]}... ({len(text)} characters)"
 
 
 @dataclass(frozen=True)
@@ -45,16 +58,29 @@ class Slider:
 @dataclass(frozen=True)
 class LabelForm:
     """What the page offers a person for a state: ``classes`` (a discrete task, one name per class index,
-    in the order shown: left to right) or ``sliders`` (an action vector, one per dimension)."""
+    in the order shown: left to right) or ``sliders`` (an action vector, one per dimension).
+
+    ``asks`` says in a sentence or two what a label is (the page shows it above the form; empty: a
+    line of the form's kind); ``marks`` names classes a person looks for, as ``(index, word)``
+    pairs shown under their buttons (CarRacing's two classes nearest straight).
+    """
 
     classes: tuple[str, ...] = ()
     sliders: tuple[Slider, ...] = field(default=())
+    asks: str = ""
+    marks: tuple[tuple[int, str], ...] = ()
 
     def __post_init__(self) -> None:
         if bool(self.classes) == bool(self.sliders):
             raise UserError(
                 f"a label form has either classes or sliders, got {len(self.classes)} classes and "
                 f"{len(self.sliders)} sliders"
+            )
+        wrong = [index for index, _ in self.marks if not 0 <= index < len(self.classes)]
+        if wrong:
+            raise UserError(
+                f"label form marks {wrong} name no class: a mark is (class index, word) with an index in "
+                f"[0, {len(self.classes) - 1}], and only classes take marks"
             )
 
     @property
@@ -67,23 +93,34 @@ class LabelForm:
         one that is out of range or of the wrong kind is :class:`Refused`."""
         if self.classes:
             if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < len(self.classes):
-                raise Refused(f"label {value!r} refused: expected a class index in [0, {len(self.classes) - 1}]")
+                raise Refused(f"label {shown(value)} refused: expected a class index in [0, {len(self.classes) - 1}]")
             return int(value)
         if not isinstance(value, list) or len(value) != len(self.sliders):
-            raise Refused(f"label {value!r} refused: expected a list of {len(self.sliders)} numbers")
+            raise Refused(f"label {shown(value)} refused: expected a list of {len(self.sliders)} numbers")
         for slider, x in zip(self.sliders, value):
-            number = isinstance(x, (int, float)) and not isinstance(x, bool)
-            if not number or not math.isfinite(x) or not slider.low <= x <= slider.high:
+            if not _finite(x) or not slider.low <= x <= slider.high:
                 raise Refused(
-                    f"label {value!r} refused: {slider.name} must be a number in [{slider.low:g}, {slider.high:g}]"
+                    f"label {shown(value)} refused: {slider.name} must be a number in [{slider.low:g}, {slider.high:g}]"
                 )
         return [float(x) for x in np.asarray(value, dtype=np.float32)]
 
     def as_json(self) -> dict[str, Any]:
-        """The form as the page reads it."""
+        """The form as the page reads it: its classes or sliders, what it asks, and its marks."""
         if self.classes:
-            return {"classes": list(self.classes)}
-        return {"sliders": [{"name": s.name, "low": s.low, "high": s.high} for s in self.sliders]}
+            asks = self.asks or "Choose the class the expert would choose in the state shown."
+            return {"classes": list(self.classes), "asks": asks, "marks": {str(i): word for i, word in self.marks}}
+        asks = self.asks or "Set each dimension to the action the expert would take in the state shown."
+        return {"sliders": [{"name": s.name, "low": s.low, "high": s.high} for s in self.sliders], "asks": asks}
+
+
+def _finite(x: Any) -> bool:
+    """Whether ``x`` is a JSON number (not a boolean) with a finite float value."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:  # an integer beyond float's range
+        return False
 
 
 def default_form(space: gym.Space) -> LabelForm:
@@ -102,7 +139,17 @@ def default_form(space: gym.Space) -> LabelForm:
 
 
 #: CarRacing's 20 steering classes, left to right (the env turns the wheels towards -action[0]: + steers right).
-STEERING = LabelForm(classes=tuple(f"{'left' if v < 0 else 'right'} {abs(float(v)):.2f}" for v in STEERING_VALUES))
+#: The count is even, so no class is exactly straight: the two nearest zero (+-0.021 rad) are marked so.
+STEERING = LabelForm(
+    classes=tuple(f"{'left' if v < 0 else 'right'} {abs(float(v)):.2f}" for v in STEERING_VALUES),
+    asks=(
+        "Steering only (the scripted expert drives gas and brake): the angle the front wheels turn to, in radians, "
+        f"from left {-float(STEERING_VALUES[0]):.2f} (full left) to right {float(STEERING_VALUES[-1]):.2f} (full "
+        f"right), {float(STEERING_VALUES[1] - STEERING_VALUES[0]):.3f} apart. No class is exactly straight: the two "
+        f"marked straight (±{float(np.abs(STEERING_VALUES).min()):.3f}) are the nearest."
+    ),
+    marks=tuple((int(i), "straight") for i in sorted(np.argsort(np.abs(STEERING_VALUES))[:2])),
+)
 #: Fetch's gripper displacement, one slider per axis.
 DISPLACEMENT = LabelForm(sliders=tuple(Slider(axis, -1.0, 1.0) for axis in ("x", "y", "z")))
 

@@ -1,4 +1,5 @@
 // The labelling page: polls the command for the state asked now, shows it, and sends the person's label.
+// While the page is visible and shows a state, each poll says so ("shows"): the state's clock runs only then.
 "use strict";
 
 const token = document.body.dataset.token;
@@ -11,19 +12,56 @@ let formKind = "";      // "classes" or "sliders", once built
 let selected = null;    // the class chosen with the arrow keys
 let clip = { id: -1, image: null, frames: 0, at: 0 };
 let sending = false;
+let ended = false;      // the command that served this page is gone for good (a new run has a new token)
+
+// "round/step" of the state this page shows a person now: loaded, visible, not paused; else "".
+function showing() {
+  const ready = $("state").dataset.ready === "1";
+  return ready && !document.hidden && view && view.status === "asking" ? shown : "";
+}
 
 async function poll() {
   try {
-    const response = await fetch(api("view"));
+    const now = showing();
+    const response = await fetch(api("view", now ? { shows: now } : {}));
+    if (response.status === 403) {
+      ended = true;
+      end("This page's session has ended: the command was stopped and run again, with a new token. Open the URL " +
+        "it printed last (every label given is kept).");
+      return;
+    }
     if (!response.ok) throw new Error(await response.text());
     show(await response.json());
   } catch (error) {
-    $("message").textContent = "no connection to the command: if it ended or was stopped, run it again to go on " +
-      "(every label given is kept)";
+    $("message").textContent = "no connection to the command: it ended or was stopped. Run it again and open the " +
+      "URL it prints (every label given is kept).";
     document.body.dataset.status = "offline";
   }
   if (view && view.status === "done") return;  // the command ends now: the page keeps its last words
-  setTimeout(poll, view && view.status === "asking" ? 400 : 700);
+  const every = view && view.status === "asking" ? view.poll * 1000 : 700;
+  setTimeout(poll, every);
+}
+
+// Tell the command which state this page shows now ("" for none); kept alive while the page closes.
+function tell(state) {
+  if (ended) return;
+  fetch(api("view", { shows: state }), { keepalive: true }).catch(() => {});
+}
+
+function end(message) {
+  document.body.dataset.status = "ended";
+  $("message").textContent = message;
+  clearState();
+}
+
+function clearState() {
+  const box = $("state");
+  box.dataset.ready = "0";
+  box.dataset.round = box.dataset.step = "";
+  $("frame").removeAttribute("src");
+  $("overview").removeAttribute("src");
+  $("where").textContent = "";
+  $("around").replaceChildren();
 }
 
 function show(v) {
@@ -35,28 +73,29 @@ function show(v) {
   $("message").textContent = v.status === "paused" ? "paused: press Space to go on" : v.message;
   buildForm(v.form);
   showClip(v.clip);
+  $("overviewbox").hidden = !v.overview;
+  $("overviewcaption").textContent = v.overview || "";
   const state = v.state;
   const key = state ? `${state.round}/${state.step}` : "";
   if (key === shown) return;
   shown = key;
-  const box = $("state");
-  box.dataset.ready = "0";
   if (!state) {
-    box.dataset.round = box.dataset.step = "";
-    $("frame").removeAttribute("src");
-    $("where").textContent = "";
-    $("around").replaceChildren();
+    clearState();
     return;
   }
+  const box = $("state");
+  box.dataset.ready = "0";
   $("error").textContent = "";
   $("frame").onload = () => {
     box.dataset.round = String(state.round);
     box.dataset.step = String(state.step);
     box.dataset.ready = "1";
+    tell(showing());  // the state is on screen: its clock starts now, not at the next poll
   };
-  // a URL of its own: the browser would reuse a frame it loaded among the steps around, and the command
-  // starts the state's clock when it serves the state's frame
+  // a URL of its own: the browser would reuse a frame it loaded among the steps around
   $("frame").src = api("frame", { round: state.round, step: state.step, shown: 1 });
+  if (state.overview) $("overview").src = api("overview", { round: state.round, step: state.step });
+  else $("overview").removeAttribute("src");
   $("where").textContent = `step ${state.step} of ${state.steps} (0-based)`;
   if ($("around").classList.contains("open")) showAround();
 }
@@ -65,17 +104,24 @@ function buildForm(form) {
   const kind = form.classes ? "classes" : "sliders";
   if (kind === formKind) return;
   formKind = kind;
+  $("asks").textContent = form.asks;
   const box = $("form");
   box.replaceChildren();
   if (form.classes) {
     const row = document.createElement("div");
     row.id = "classes";
     form.classes.forEach((name, index) => {
+      const column = document.createElement("div");
+      column.className = "class";
       const button = document.createElement("button");
       button.textContent = name;
       button.dataset.label = String(index);
       button.addEventListener("click", () => { button.blur(); choose(index); give(index); });
-      row.append(button);
+      const mark = document.createElement("span");
+      mark.className = "mark";
+      mark.textContent = form.marks[String(index)] || "";
+      column.append(button, mark);
+      row.append(column);
     });
     box.append(row);
     choose(Math.floor(form.classes.length / 2));
@@ -148,8 +194,7 @@ function showAround() {
   const box = $("around");
   box.replaceChildren();
   if (!state) return;
-  const half = Math.min(4, state.neighbours);
-  for (let step = state.step - half; step <= state.step + half; step++) {
+  for (let step = state.step - state.neighbours; step <= state.step + state.neighbours; step++) {
     if (step < 0 || step >= state.steps) continue;
     const figure = document.createElement("figure");
     if (step === state.step) figure.className = "now";
@@ -203,6 +248,10 @@ document.addEventListener("keydown", (event) => {
     giveSliders();
   }
 });
+
+// a hidden or closed page shows no state: its clock stops at once, not after the command's wait for a silent page
+document.addEventListener("visibilitychange", () => tell(showing()));
+window.addEventListener("pagehide", () => tell(""));
 
 poll();
 playClip();

@@ -6,7 +6,8 @@ with the rounds' labels answered by :class:`Answers`: the labels kept from an ea
 then the scripted expert's, or a person's at the page (:class:`~metadagger.label.desk.Desk`). Every
 rollout and refit is a function of the seed and the labels, so a resumed session replays the
 rounds already labelled and asks only for what is missing. After each round it writes the head
-(``heads/<round>.safetensors``) and the benchmark's row after that round (``rows.jsonl``).
+(``heads/<round>.safetensors``) and the benchmark's row after that round (``rows.jsonl``); a
+session whose last round's row is written is finished, and running it again changes nothing.
 """
 
 from __future__ import annotations
@@ -25,10 +26,18 @@ from metadagger.evaluation.benchmark.ledger import PERSON, SCRIPTED, demonstrati
 from metadagger.evaluation.benchmark.methods import GateKey
 from metadagger.evaluation.benchmark.seed_chains import benchmark_row
 from metadagger.imitation.bc import BCConfig
-from metadagger.imitation.gate_registry import GATED_PREFIX, check_gates_serve, get_gate, make_gate
+from metadagger.imitation.gate_registry import (
+    GATED_PREFIX,
+    check_gates_serve,
+    gate_declarations,
+    gated_names,
+    get_gate,
+    make_gate,
+)
 from metadagger.imitation.rollouts import Trajectory, stack_labels
 from metadagger.label.desk import Desk
 from metadagger.label.forms import LabelForm, label_form
+from metadagger.label.overview import OverviewRecorder, overview_of
 from metadagger.label.server import PageServer
 from metadagger.label.store import LabelStore
 from metadagger.metal_dagger.method import Labeller, SeedLearner, bc_head, dagger_rounds, demonstration, seeded
@@ -40,7 +49,7 @@ from metadagger.runfolder.stamps import describe_changes, file_fingerprint, stam
 from metadagger.tasks.base import Task
 from metadagger.tasks.identity import task_stamp
 from metadagger.utils.io import read_json, save_tensors, write_json
-from metadagger.utils.jsonl import write_lines
+from metadagger.utils.jsonl import read_lines, write_lines
 from metadagger.utils.kernels import kernel_stamp
 
 #: Who may answer a session's queries.
@@ -115,10 +124,19 @@ class Answers:
         form: how the task is labelled (the kind and size of a label).
         seed: the session's seed.
         desk: the page's desk, for a person; None for the scripted expert.
+        recorder: the snapshots of the rolled-out episodes the page's overview is drawn from
+            (:mod:`~metadagger.label.overview`); None: the page shows the frames alone.
     """
 
-    def __init__(self, store: LabelStore, form: LabelForm, seed: int, desk: Desk | None = None) -> None:
-        self.store, self.form, self.seed, self.desk = store, form, seed, desk
+    def __init__(
+        self,
+        store: LabelStore,
+        form: LabelForm,
+        seed: int,
+        desk: Desk | None = None,
+        recorder: OverviewRecorder | None = None,
+    ) -> None:
+        self.store, self.form, self.seed, self.desk, self.recorder = store, form, seed, desk, recorder
 
     def __call__(self, index: int, rollout: Trajectory, asked: np.ndarray) -> np.ndarray:
         """The labels of ``asked`` steps of round ``index``'s ``rollout``, in the layout of its expert labels."""
@@ -136,7 +154,8 @@ class Answers:
                 label = self.form.check(_plain(rollout.expert_labels[step]))
                 self.store.add(label_record(self.seed, index, step, label, 0.0, SCRIPTED, step - 1 not in asked_set))
         elif waiting:
-            self.desk.ask(index, rollout, asked, waiting)
+            overview = None if self.recorder is None else self.recorder.pictures(rollout)
+            self.desk.ask(index, rollout, asked, waiting, overview)
         given = self.store.given(index)
         labels = stack_labels([given[int(s)]["label"] for s in asked], discrete=bool(self.form.classes))
         return labels.astype(rollout.expert_labels.dtype, copy=False)
@@ -154,11 +173,14 @@ def label_seed(
     """Run (or resume) ``plan``'s rounds with ``answers`` labelling them; the benchmark rows after each round.
 
     Writes, after each round, its head and every row so far into ``session``; ``desk`` (where a
-    person answers) is told where the loop is.
+    person answers) is told where the loop is, and ``answers``' recorder, where it has one, records
+    the learner's episodes for the page's overview.
     """
     key, seed = plan.key, plan.seed
     tell = desk.working if desk is not None else (lambda message, **_: None)
     with SeedLearner(plan.task, str(plan.pistar), seed, head_init_seed=plan.bc.head_init_seed(seed)) as learner:
+        if answers.recorder is not None:  # its episodes run one at a time in this env (no lane)
+            learner.env = answers.recorder.wrap(learner.env)
         fresh = learner.head()
         demo = demonstration(learner)
         w_bc = bc_head(learner, demo.to_dataset(), seeded(plan.bc, seed))
@@ -218,7 +240,8 @@ def plan_of_run(layout: RunLayout, config: RunConfig, *, seed: int, gate: str, s
         raise UserError(
             f"--seed {seed} was used for pi* or the pairs; label an unseen seed, e.g. one of benchmark.seeds"
         )
-    get_gate(gate)  # an unknown name lists the known ones
+    if gate not in gate_declarations():  # the gates a session takes: the references are refused by LabelPlan
+        raise UserError(f"unknown gate {gate!r}: expected one of {', '.join(gated_names())}")
     task = stage_inputs(layout, config).task
     check_gates_serve([GATED_PREFIX + gate], discrete=task.is_discrete, task=config.task)
     bench = config.benchmark if config.benchmark is not None else BenchmarkConfig()
@@ -236,6 +259,34 @@ def plan_of_run(layout: RunLayout, config: RunConfig, *, seed: int, gate: str, s
     )
 
 
+def benchmark_gap(config: RunConfig, plan: LabelPlan) -> str | None:
+    """Why the run's benchmark has no row of ``plan``'s method, setting and seed to hold the session
+    against (a gate, setting or seed it does not run); None where it has one."""
+    bench = config.benchmark if config.benchmark is not None else BenchmarkConfig()
+    method = plan.key.method
+    if method not in bench.methods:
+        return f"the run's benchmark does not run {method} (benchmark.methods), so it has no row to compare with"
+    grid = [f"{value:g}" for value in bench.grid(method)]
+    if plan.key.setting not in grid:
+        return (
+            f"--setting {plan.key.setting} is not in the run's grid of {method} ({', '.join(grid)}), so the benchmark "
+            "has no row to compare with; choose one of those"
+        )
+    if plan.seed not in (*bench.seeds, *bench.confirm_seeds):
+        return (
+            f"--seed {plan.seed} is not one of the run's benchmark.seeds (or confirm_seeds), so the benchmark has no "
+            "row to compare with; choose one of those"
+        )
+    return None
+
+
+def finished_rows(layout: RunLayout, plan: LabelPlan, expert: str = PERSON) -> list[dict[str, Any]] | None:
+    """The rows of ``plan``'s session where every round's is written (the session is finished), else None."""
+    rows = plan.session(layout, expert).rows
+    kept = read_lines(rows, called="row") if rows.is_file() else []
+    return kept if [r["round"] for r in kept] == list(range(1, plan.rounds + 1)) else None
+
+
 def run_label(
     layout: RunLayout,
     plan: LabelPlan,
@@ -248,7 +299,8 @@ def run_label(
 
     With ``expert`` ``person`` the page is served on the loopback address (``port``; 0: a free one)
     and ``announce`` is given its URL, token included, before the first round; with ``scripted``
-    the task's scripted expert answers, with no page.
+    the task's scripted expert answers, with no page. A finished session (:func:`finished_rows`)
+    is not run again: its rows are returned, and no page is served.
 
     Raises:
         UserError: another process holds the session, or its folder was begun from other inputs.
@@ -260,20 +312,29 @@ def run_label(
     with run_lock(session.root):
         stamp = plan.stamp(expert)
         _check_stamp(session, stamp)
+        done = finished_rows(layout, plan, expert)
+        if done is not None:
+            return done
         store = LabelStore(session.labels, plan.seed)
         if expert == SCRIPTED:
             write_json(session.stamp, stamp)
             return label_seed(plan, session, Answers(store, form, plan.seed))
         title = f"{plan.key.method} {plan.key.setting}, seed {plan.seed} ({plan.task.name})"
-        desk = Desk(store, form, seed=plan.seed, rounds=plan.rounds, title=title)
+        overview = overview_of(plan.task)
+        recorder = None if overview is None else OverviewRecorder(overview)
+        caption = None if overview is None else overview.caption
+        desk = Desk(store, form, seed=plan.seed, rounds=plan.rounds, title=title, overview=caption)
         page = PageServer(desk, port=port)  # a port in use is one line before the session begins
         write_json(session.stamp, stamp)
         with page as server:
             announce(server.url)
-            rows = label_seed(plan, session, Answers(store, form, plan.seed, desk), desk)
+            rows = label_seed(plan, session, Answers(store, form, plan.seed, desk, recorder), desk)
             last = rows[-1]
             outcome = "succeeded" if last["success"] else "failed"
-            desk.finish(f"done: {len(rows)} rounds, {last['expert_queries']} queries; the last rollout {outcome}")
+            desk.finish(
+                f"done: {len(rows)} rounds, {last['expert_queries']} queries; the last rollout {outcome}. The command "
+                f"has ended: `metadagger report --out {layout.root}` shows the session"
+            )
             time.sleep(LINGER)
         return rows
 

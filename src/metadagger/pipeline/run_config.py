@@ -40,7 +40,15 @@ from metadagger.tasks import check_task
 from metadagger.utils.device import resolve_device
 from metadagger.utils.io import write_text
 from metadagger.utils.kernels import pin_cpu_kernels
-from metadagger.utils.yaml_config import build, dump_yaml, read_run_data, read_yaml_mapping, to_dict, with_current_names
+from metadagger.utils.yaml_config import (
+    STAMPED_UNLESS_DEFAULT,
+    build,
+    dump_yaml,
+    read_run_data,
+    read_yaml_mapping,
+    to_dict,
+    with_current_names,
+)
 from metadagger.version import __version__
 
 LOGS = ("none", "tensorboard")
@@ -67,6 +75,9 @@ class RunConfig:
     """The preset this config came from (informational)."""
     max_episode_steps: int = 1000
     """Step limit of every episode of every stage."""
+    task_options: dict | None = field(default=None, metadata=STAMPED_UNLESS_DEFAULT)
+    """The task's own keyword arguments beyond its episode length, e.g. ``{echo_rows: 6}`` for
+    ``carracing-echo`` (a variant of a task); None: its defaults."""
     pistar: PiStarConfig = field(default_factory=PiStarConfig)
     """pi*: multi-seed BC + DAgger."""
     pairs: PairConfig = field(default_factory=PairConfig)
@@ -100,6 +111,13 @@ class RunConfig:
             require_tensorboard()  # a missing extra fails now, not after the first stage
         if self.max_episode_steps < 1:
             raise UserError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
+        if self.task_options is not None and (
+            not isinstance(self.task_options, dict) or "max_episode_steps" in self.task_options
+        ):
+            raise UserError(
+                f"task_options must be a mapping of the task's keyword arguments (its episode length is "
+                f"max_episode_steps), got {self.task_options!r}; e.g. --set 'task_options={{echo_rows: 6}}'"
+            )
         gt = self.pistar.used_seeds
         shared = sorted(gt & set(self.pairs.seeds))
         if shared:
@@ -166,7 +184,7 @@ class RunConfig:
     @property
     def task_kwargs(self) -> dict:
         """Keyword arguments of ``make_task`` for this run."""
-        return {"max_episode_steps": self.max_episode_steps}
+        return {"max_episode_steps": self.max_episode_steps, **(self.task_options or {})}
 
 
 @functools.lru_cache(maxsize=None)

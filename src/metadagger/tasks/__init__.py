@@ -23,6 +23,7 @@ _FACTORIES: dict[str, Callable[[], Task] | str] = {
     "carracing": "metadagger.tasks.carracing.task:CarRacingTask",
     "fetch": "metadagger.tasks.fetch.task:FetchTask",
     "carracing-family": "metadagger.tasks.carracing.family:CarRacingFamily",
+    "carracing-echo": "metadagger.tasks.carracing_echo.task:CarRacingEchoTask",
     "fetch-family": "metadagger.tasks.fetch.family:FetchFamily",
 }
 

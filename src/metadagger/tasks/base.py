@@ -69,6 +69,13 @@ class Task(abc.ABC):
             env.reset(seed=seed)
         return env
 
+    @property
+    def options(self) -> dict[str, Any]:
+        """The keyword arguments that make this task a variant of its kind, beyond its episode length
+        (a stage's stamp records them: artifacts of one variant are never read as another's); none
+        by default."""
+        return {}
+
     def pistar_task(self) -> "Task":
         """The task pi* is trained on: this one (a family returns its nominal member)."""
         return self

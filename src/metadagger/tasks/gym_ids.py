@@ -16,6 +16,7 @@ ENV_IDS = {
     "metadagger/FetchPickAndPlacePixels-v0": "metadagger.tasks.fetch.env:FetchPickAndPlacePixels",
     "metadagger/FetchPickAndPlaceXYZ-v0": "metadagger.tasks.fetch.task:make_xyz_env",
     "metadagger/CarRacingSteerFamily-v0": "metadagger.tasks.carracing.family:make_family_env",
+    "metadagger/CarRacingEcho-v0": "metadagger.tasks.carracing_echo.task:make_echo_env",
     "metadagger/FetchPickAndPlaceXYZFamily-v0": "metadagger.tasks.fetch.family:make_family_env",
 }
 _MAX_STEPS = {"metadagger/CarRacing-v0": 1000, "metadagger/FetchPickAndPlacePixels-v0": 50}

@@ -21,10 +21,13 @@ from metadagger.tasks.base import Task
 
 
 def task_stamp(task: Task) -> dict[str, Any]:
-    """The task's part of a stage's stamp: ``task``, ``max_episode_steps``, ``task_code_fingerprint``."""
+    """The task's part of a stage's stamp: ``task``, ``max_episode_steps``, ``task_code_fingerprint``,
+    and ``task_options`` where the task is a variant (:attr:`Task.options`)."""
+    options = {"task_options": dict(task.options)} if task.options else {}
     return {
         "task": task.name,
         "max_episode_steps": task.max_episode_steps,
+        **options,
         "task_code_fingerprint": code_fingerprint(type(task)),
     }
 

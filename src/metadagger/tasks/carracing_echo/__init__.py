@@ -1,0 +1,1 @@
+"""CarRacing whose frame echoes the steering just executed (docs/carracing-echo.md)."""
