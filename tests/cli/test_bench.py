@@ -50,6 +50,16 @@ def test_bench_env_times_our_env_beside_upstream_on_the_same_actions(tmp_path):
     assert machine["gymnasium"] == gym.__version__
 
 
+def test_bench_env_times_the_echo_band_beside_our_carracing():
+    """The echo task's env against our CarRacing on the same actions: the same physics and rewards,
+    frames that differ in the band alone."""
+    echo = bench_env("carracing-echo", seeds=(0,), steps=30, warmup_steps=0)
+    assert echo["ours"]["id"] == "metadagger/CarRacing-v0+echo" and echo["upstream"]["id"] == "metadagger/CarRacing-v0"
+    assert echo["identical_rewards"] is True
+    band = 96 * 6 / (96 * 96)  # the band's share of a frame: at most the whole band differs
+    assert 0 < echo["image_mae"]["0"] <= 255 * band
+
+
 def test_bench_env_rejects_unknown_task_and_empty_runs():
     with pytest.raises(UserError, match="unknown task 'pong'"):
         bench_env("pong")

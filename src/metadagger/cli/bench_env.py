@@ -14,7 +14,11 @@ from metadagger.errors import UserError
 from metadagger.tasks.gym_ids import register_envs
 
 #: task -> (our base env id, the upstream id it reproduces)
-ENV_PAIRS = {"carracing": ("metadagger/CarRacing-v0", "CarRacing-v3")}
+ENV_PAIRS = {
+    "carracing": ("metadagger/CarRacing-v0", "CarRacing-v3"),
+    # the echo band on our CarRacing, against our CarRacing: what the band costs a step
+    "carracing-echo": ("metadagger/CarRacing-v0+echo", "metadagger/CarRacing-v0"),
+}
 
 
 def smooth_actions(seed: int, steps: int) -> np.ndarray:
@@ -47,8 +51,10 @@ def bench_env(
     which any longer run keeps warm).
 
     Args:
-        task: the task whose base env to time: ``"carracing"`` (ours against upstream's), or
-            ``"fetch"`` (frames per second of our pixel env alone, random actions).
+        task: the task whose base env to time: ``"carracing"`` (ours against upstream's),
+            ``"carracing-echo"`` (our CarRacing with the echo band against our CarRacing; the
+            ``upstream`` entry is then ours without the band), or ``"fetch"`` (frames per second
+            of our pixel env alone, random actions).
         seeds: reset seeds, one episode each.
         steps: timed steps per seed.
         warmup_steps: untimed steps before timing.
@@ -122,7 +128,12 @@ class _TimedEnv:
 
     def __init__(self, env_id: str):
         self.env_id = env_id
-        self.env = gym.make(env_id)
+        base_id, _, wrapper = env_id.partition("+")
+        self.env = gym.make(base_id)
+        if wrapper == "echo":  # carracing-echo's band (its default height) on the base env
+            from metadagger.tasks.carracing_echo.task import CarRacingEchoTask, SteeringEcho
+
+            self.env = SteeringEcho(self.env, rows=CarRacingEchoTask().echo_rows)
         self.step_s = 0.0
         self.render_s = 0.0
         self.step_times: list[float] = []
