@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Calibrate a variant of a task on pair seeds, never on evaluation seeds (docs/carracing-echo.md,
 # "Calibration"): pi* as the quick preset trains it, then the benchmark's BC, BC refitted, DAgger
-# and DART at DAgger's labels on the quick preset's pair seeds 1000-1019, into OUT. The calibration
+# and DART at DAgger's labels on the quick preset's pair seeds 1000-1019, into OUT, every fifth step
+# of each demonstration held out to measure BC's and DAgger's loss on the expert's states. The calibration
 # makes no pairs, so pairs.seeds is moved out of the way (1500-1501) for the config to take the pair
 # seeds as the benchmark's. It resumes after a kill; another DART noise remakes the DART rows alone.
 #
@@ -13,6 +14,6 @@ cd "$(dirname "$0")/.."
 task=$1 out=$2 options=$3 noise=${4:-0.2}
 sets=(--set "task_options=$options" --set "pairs.seeds=1500-1501" --set "benchmark.seeds=1000-1019"
   --set "benchmark.methods=[bc, bc-refit, dagger, dart]" --set "benchmark.oracle=false"
-  --set "benchmark.confirm_seeds=[]" --set "benchmark.dart_noise=$noise")
+  --set "benchmark.confirm_seeds=[]" --set "benchmark.dart_noise=$noise" --set "benchmark.held_out_every=5")
 .venv/bin/metadagger pistar --task "$task" --preset quick --out "$out" "${sets[@]}"
 .venv/bin/metadagger benchmark --out "$out" "${sets[@]}" --rebuild

@@ -133,3 +133,31 @@ def test_a_dart_noise_above_one_on_classes_is_refused_naming_the_task():
     config.check_serves(discrete=False, task="fetch")  # a standard deviation on action vectors
     with pytest.raises(UserError, match="dart_noise is 1.5, but carracing acts with classes"):
         config.check_serves(discrete=True, task="carracing")
+
+
+def test_held_out_expert_states_leave_every_fit_and_measure_bc_and_dagger_there(toy_run, tmp_path):
+    """With ``held_out_every`` k, every k-th demonstration step is neither fitted nor charged, and
+    BC's and DAgger's rows carry their head's loss on those expert states, BC's as it refits by hand."""
+    import shutil
+
+    from metadagger.metal_dagger.method import expert_loss, held_out
+    from metadagger.runfolder.layout import RunLayout
+
+    shutil.copytree(toy_run.root, tmp_path / "run")
+    config = dataclasses.replace(CONFIG, held_out_every=3)
+    layout = RunLayout(tmp_path / "run")
+    with pytest.raises(UserError, match="held_out_every"):  # the rows made without it are not theirs
+        _run(layout, config)
+    rows = {(r["method"], r["setting"], r["seed"]): r for r in _run(layout, config, rebuild=True)}
+    seed = SEEDS[0]
+    with SeedLearner(CorridorTask(), str(toy_run.pistar), seed, head_init_seed=BC.head_init_seed(seed)) as learner:
+        kept, held = held_out(demonstration(learner), 3)
+        w_bc = bc_head(learner, kept.to_dataset(), seeded(BC, seed))
+        assert rows["bc", "", seed]["expert_loss"] == pytest.approx(expert_loss(learner, w_bc, held))
+        assert rows["bc", "", seed]["expert_queries"] == kept.steps == len(kept.obs)
+    assert len(held) == (kept.steps + len(held)) // 3
+    for r in range(1, ROUNDS + 1):
+        assert rows["dagger", str(r), seed]["expert_loss"] > 0
+        assert "expert_loss" not in rows["dart", str(r), seed]
+    with pytest.raises(UserError, match="held_out_every must be 0 \\(none\\) or an integer >= 2, got 1"):
+        dataclasses.replace(CONFIG, held_out_every=1)

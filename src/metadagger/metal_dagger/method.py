@@ -476,6 +476,46 @@ def _first_rows(data: Dataset, n: int) -> Dataset:
     )
 
 
+def held_out(demo: Trajectory, every: int) -> tuple[Trajectory, Dataset]:
+    """The demonstration without every ``every``-th step (steps ``every - 1``, ``2 every - 1``, ...),
+    as if the expert had not been asked there, and those steps as a dataset of the expert's own
+    states: a held-out set for :func:`expert_loss`. Its outcome stays the whole episode's."""
+    if every < 2 or demo.steps < every:
+        raise ValueError(f"holding out every {every}-th step needs every >= 2 and at least that many steps")
+    held = np.arange(demo.steps) % every == every - 1
+    keep = ~held
+    features = demo.features
+    kept = dataclasses.replace(
+        demo,
+        obs=take_rows(demo.obs, keep),
+        expert_labels=demo.expert_labels[keep],
+        learner_actions=demo.learner_actions[keep],
+        step_rewards=demo.step_rewards[keep],
+        steps=int(keep.sum()),
+        expert_queries=int(keep.sum()),
+        features=None if features is None else features[keep],
+    )
+    out = Dataset(
+        obs=take_rows(demo.obs, held),
+        labels=demo.expert_labels[held],
+        features=None if features is None else features[held],
+    )
+    return kept, out
+
+
+def expert_loss(learner: SeedLearner, head: np.ndarray, states: Dataset) -> float:
+    """``head``'s mean loss on ``states`` labelled by the expert: cross-entropy on classes, the
+    squared error on action vectors (the fits' own losses)."""
+    features = learner.cache.features_of(states)
+    outputs = head_outputs(
+        torch.from_numpy(np.ascontiguousarray(head)), features, int(learner.policy.net.head.out_features)
+    )
+    labels = torch.from_numpy(np.ascontiguousarray(states.labels))
+    if learner.policy.discrete:
+        return float(torch.nn.functional.cross_entropy(outputs.double(), labels))
+    return float(torch.nn.functional.mse_loss(outputs.double(), labels.double()))
+
+
 def one_shot(learner: SeedLearner, init: np.ndarray, demo: Dataset, fit: BCConfig) -> np.ndarray:
     """Step 5: the head ``init`` refitted by BC on the demonstration (no further query)."""
     learner.load(init)

@@ -62,6 +62,12 @@ class BenchmarkConfig:
     """DART's perturbation of the expert's executed action (method ``dart``): the probability of
     another class, drawn uniformly, with classes; the standard deviation of Gaussian noise on each
     coordinate with action vectors. Chosen per task on the pair seeds (docs/benchmark.md, "DART")."""
+    held_out_every: int = field(default=0, metadata=STAMPED_UNLESS_DEFAULT)
+    """0: none. k >= 2: every k-th step of each seed's demonstration (steps k-1, 2k-1, ...) is held
+    out of every fit and every query count of the seed, and BC's and plain DAgger's rows record
+    their head's mean loss on those expert states (``expert_loss``): whether BC fits the expert
+    where it was shown as well as DAgger does. For calibrating a task on pair seeds
+    (scripts/calibrate.sh), not for a benchmark's own numbers."""
     lanes: int = field(default=1, metadata=STAMPED_UNLESS_DEFAULT)
     """Episodes of a seed stepped in lockstep, one trunk forward per step for all of them, at this
     batch shape (:mod:`metadagger.imitation.lanes`); 1 rolls each episode out alone. The numbers
@@ -114,6 +120,11 @@ class BenchmarkConfig:
             or not (0.0 <= self.dart_noise < float("inf"))
         ):
             raise UserError(f"benchmark.dart_noise must be a number >= 0, got {self.dart_noise!r}; e.g. 0.2")
+        every = self.held_out_every
+        if isinstance(every, bool) or not isinstance(every, int) or every < 0 or every == 1:
+            raise UserError(
+                f"benchmark.held_out_every must be 0 (none) or an integer >= 2, got {self.held_out_every!r}; e.g. 5"
+            )
         if DART in self.methods and "dagger" not in self.methods:
             raise UserError(
                 "benchmark.methods has dart, whose budgets are plain DAgger's labels after each round; add dagger"

@@ -116,6 +116,8 @@ def benchmark_stamps(
         **task_stamp(task),
         **job_settings,
         "pistar_fingerprint": file_fingerprint(layout.pistar),
+        # every row of a seed starts from its demonstration less the held-out steps
+        **({"held_out_every": config.held_out_every} if config.held_out_every else {}),
     }
     stamps: dict[str, Stamp] = {}
     inputs = StampInputs(

@@ -39,6 +39,7 @@ from metadagger.evaluation.benchmark.methods import (
 )
 from metadagger.evaluation.mdi import MDIConfig, MDIJob, evaluate_mdi_seed
 from metadagger.imitation.bc import BCConfig
+from metadagger.imitation.data import Dataset
 from metadagger.imitation.gate_registry import GATED_PREFIX, make_gate
 from metadagger.imitation.gates import Gate
 from metadagger.imitation.head_fits import Prior
@@ -55,6 +56,8 @@ from metadagger.metal_dagger.method import (
     dart_rounds,
     demonstration,
     demonstration_share,
+    expert_loss,
+    held_out,
     map_head,
     run_steps,
     seed_context,
@@ -126,12 +129,15 @@ def benchmark_seed(job: BenchmarkJob) -> dict[str, Any]:
             lanes = stack.enter_context(Lanes(job.task, learner.policy.net, width=job.config.lanes))
         fresh = learner.head()
         [demo] = run_steps(learner, [demonstration], lanes)
+        held = None  # the expert's states held out of every fit (benchmark.held_out_every)
+        if job.config.held_out_every:
+            demo, held = held_out(demo, job.config.held_out_every)
         for fraction in sorted({key.demo_fraction for key in keys}, reverse=True):
             mine = [key for key in keys if key.demo_fraction == fraction and not isinstance(key, ShotKey)]
             if not mine:
                 continue
             share = demonstration_share(demo, fraction)
-            [start] = run_steps(learner, [partial(_start, job, fresh, share, mine)], lanes)
+            [start] = run_steps(learner, [partial(_start, job, fresh, share, held, mine)], lanes)
             for found in run_steps(learner, [*_chains(job, start, mine), *mdi], lanes):
                 rows.update(found)
             mdi = []
@@ -152,6 +158,8 @@ class _Start:
     """w_BC's rollout under the pairs' early stop: the BC row, the context's rollout and DAgger's first round."""
     context: np.ndarray | None
     """The seed's context, where a mapper reads one."""
+    held: Dataset | None = None
+    """The expert's states held out of every fit, where ``benchmark.held_out_every`` asks for them."""
 
     @property
     def queries(self) -> int:
@@ -164,7 +172,12 @@ class _Start:
 
 
 def _start(
-    job: BenchmarkJob, fresh: np.ndarray, demo: Trajectory, keys: list[MethodKey], learner: SeedLearner
+    job: BenchmarkJob,
+    fresh: np.ndarray,
+    demo: Trajectory,
+    held: Dataset | None,
+    keys: list[MethodKey],
+    learner: SeedLearner,
 ) -> _Start:
     """w_BC fitted on ``demo`` from the learner's fresh head, rolled out; the context if a mapper needs it."""
     data = demo.to_dataset()
@@ -177,7 +190,7 @@ def _start(
         if key.mapper_kind is not None and not isinstance(key, ShotKey)
     )
     context = seed_context(learner.cache, data, first.to_dataset()) if needs_context else None
-    return _Start(demo, fresh, w_bc, first, context)
+    return _Start(demo, fresh, w_bc, first, context, held)
 
 
 Chain = Callable[[SeedLearner], Rows]
@@ -193,7 +206,11 @@ def _chains(job: BenchmarkJob, start: _Start, keys: list[MethodKey]) -> list[Cha
 
 
 def _bc_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
-    return {key: benchmark_row(key, job.seed, start.first, start.queries, start.labels()) for key in keys}
+    rows = {key: benchmark_row(key, job.seed, start.first, start.queries, start.labels()) for key in keys}
+    if start.held is not None:
+        for row in rows.values():
+            row["expert_loss"] = expert_loss(learner, start.w_bc, start.held)
+    return rows
 
 
 def _mapper_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner: SeedLearner) -> Rows:
@@ -266,12 +283,15 @@ def _dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learne
     demo = learner.cache.features_of(start.demo.to_dataset())
     visited: list[torch.Tensor] = []
     budgets: list[int] = []
+    losses: list[float] = []  # each round's head on the held-out expert states, where there are some
 
     def with_gap(rounds: Iterator[Round]) -> Iterator[Round]:
         for r in rounds:
             assert r.labelled is not None  # plain DAgger labels every visited state
             visited.append(learner.cache.features_of(r.labelled))
             budgets.append(r.queries)
+            if start.held is not None:
+                losses.append(expert_loss(learner, r.head, start.held))
             yield r
 
     dart = [key for key in keys if isinstance(key, DartKey)]
@@ -279,6 +299,8 @@ def _dagger_rows(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learne
     rows = _round_rows(job, start, rounds, with_gap(_rounds(job, start, learner, None)))
     for key, row in rows.items():
         row["coverage_gap"] = coverage_gap(demo, torch.cat(visited[: key.round]))  # type: ignore[attr-defined]
+        if losses:
+            row["expert_loss"] = losses[key.round - 1]  # type: ignore[attr-defined]
     if dart:
         rows.update(_dart_rows(job, start, dart, budgets, learner))
     return rows

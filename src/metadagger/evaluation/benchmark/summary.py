@@ -52,7 +52,8 @@ AUC_POINTS = 16
 
 def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]) -> dict[str, Any]:
     """Per (method, setting, demonstration share): success rate with its 95% Wilson interval, mean
-    reward, mean queries, takeovers and episodes asked per seed; the queries spent on
+    reward, mean queries, takeovers and episodes asked per seed (and the loss on the held-out
+    expert states, where the rows have it: ``benchmark.held_out_every``); the queries spent on
     meta-training; the references (:func:`references`), every method's paired comparison with each
     (:func:`comparisons`), and the reading at equal budgets (:func:`budget_reading`)."""
     groups = _groups(rows)
@@ -73,7 +74,7 @@ def summarize_benchmark(rows: list[dict[str, Any]], meta_queries: dict[str, int]
                 "mean_queries": s["expert_queries"] / s["episodes"],
                 **{
                     f"mean_{name}": float(np.mean([r[name] for r in group]))
-                    for name in ("takeovers", "episodes_asked")
+                    for name in ("takeovers", "episodes_asked", "expert_loss")
                     if all(name in r for r in group)
                 },
             }
