@@ -19,6 +19,8 @@ from typing import Callable
 import torch
 from torch import nn
 
+from metadagger.utils.optim import fused_adam_step
+
 
 def _adam_steps(
     params: torch.Tensor,
@@ -38,9 +40,7 @@ def _adam_steps(
     """Adam steps on consecutive batches of ``order`` (rows of ``inputs`` and ``targets``), updating
     ``params`` (the head's weight, then its bias, flat), the moments and the step count ``step_t`` in
     place; returns each batch's loss before its step. Compiled by TorchScript (:func:`_compiled_adam_steps`)."""
-    # torch.optim.Adam's defaults, which fit_bc uses, and ATen's reduction code for "mean"
-    # (locals: TorchScript reads no module globals)
-    beta1, beta2, eps, mean = 0.9, 0.999, 1e-8, 1
+    mean = 1  # ATen's reduction code for "mean" (a local: TorchScript reads no module globals)
     n_weight = params.numel() - out_dim
     weight = params[:n_weight].view(out_dim, -1)
     bias = params[n_weight:]
@@ -65,25 +65,7 @@ def _adam_steps(
         torch.mm(grad_outputs.t(), features, out=grad_weight)
         torch.sum(grad_outputs, [0], out=grad_bias)
         step_t.add_(1)
-        # the functional form: TorchScript drops the in-place one, whose only effect is on its lists' tensors
-        new_params, _, new_exp_avg, new_exp_avg_sq, _ = torch.ops.aten._fused_adam(
-            [params],
-            [grad],
-            [exp_avg],
-            [exp_avg_sq],
-            [],
-            [step_t],
-            lr=lr,
-            beta1=beta1,
-            beta2=beta2,
-            weight_decay=weight_decay,
-            eps=eps,
-            amsgrad=False,
-            maximize=False,
-        )
-        params.copy_(new_params[0])
-        exp_avg.copy_(new_exp_avg[0])
-        exp_avg_sq.copy_(new_exp_avg_sq[0])
+        fused_adam_step(params, grad, exp_avg, exp_avg_sq, step_t, lr, weight_decay)
         losses[i] = loss
     return losses
 

@@ -32,6 +32,7 @@ import torch
 
 from metadagger.errors import DivergedError, check_finite_loss
 from metadagger.utils.device import compute_device
+from metadagger.utils.optim import fused_adam_step
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,6 @@ def _batched_adam_steps(
     (both None: no prior). Returns each step's per-row losses (T, B, batch), unweighted. Compiled
     by TorchScript (:func:`_compiled_steps`).
     """
-    beta1, beta2, eps = 0.9, 0.999, 1e-8  # torch.optim.Adam's defaults, as fit_bc's
     steps, n_heads, batch = rows.shape
     inputs = features.shape[1]
     size = out_dim * inputs
@@ -150,24 +150,8 @@ def _batched_adam_steps(
         grads[:k, :size].copy_(grad.view(k, size))
         # ATen's fused Adam step, as the one-head path takes (utils/optim.py): its square root is the
         # CPU's correctly rounded one, where Tensor.sqrt's is MKL's. Every live head is at step t + 1.
-        new_params, _, new_avg, new_avg_sq, _ = torch.ops.aten._fused_adam(
-            [params[:k]],
-            [grads[:k]],
-            [exp_avg[:k]],
-            [exp_avg_sq[:k]],
-            [],
-            [torch.full((), float(t + 1), device=params.device)],
-            lr=lr,
-            beta1=beta1,
-            beta2=beta2,
-            weight_decay=weight_decay,
-            eps=eps,
-            amsgrad=False,
-            maximize=False,
-        )
-        params[:k].copy_(new_params[0])
-        exp_avg[:k].copy_(new_avg[0])
-        exp_avg_sq[:k].copy_(new_avg_sq[0])
+        step = torch.full((), float(t + 1), device=params.device)
+        fused_adam_step(params[:k], grads[:k], exp_avg[:k], exp_avg_sq[:k], step, lr, weight_decay)
     return row_losses
 
 

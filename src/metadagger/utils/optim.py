@@ -26,6 +26,40 @@ def _lay_out_gradients_as_parameters(optimizer: torch.optim.Optimizer, args: Any
                 param.grad = torch.empty_like(param).copy_(param.grad)
 
 
+def fused_adam_step(
+    params: torch.Tensor,
+    grad: torch.Tensor,
+    exp_avg: torch.Tensor,
+    exp_avg_sq: torch.Tensor,
+    step: torch.Tensor,
+    lr: float,
+    weight_decay: float,
+) -> None:
+    """One step of the fused kernel on contiguous ``params`` (``torch.optim.Adam``'s defaults
+    otherwise), updating ``params`` and the moments in place; ``step`` (a float tensor) is the
+    step's count, from 1. The hand-written head fits call it inside TorchScript, which compiles it
+    with them; it takes the functional form, since TorchScript drops the in-place one, whose only
+    effect is on its lists' tensors."""
+    new_params, _, new_exp_avg, new_exp_avg_sq, _ = torch.ops.aten._fused_adam(
+        [params],
+        [grad],
+        [exp_avg],
+        [exp_avg_sq],
+        [],
+        [step],
+        lr=lr,
+        beta1=0.9,
+        beta2=0.999,
+        weight_decay=weight_decay,
+        eps=1e-8,
+        amsgrad=False,
+        maximize=False,
+    )
+    params.copy_(new_params[0])
+    exp_avg.copy_(new_exp_avg[0])
+    exp_avg_sq.copy_(new_exp_avg_sq[0])
+
+
 def adam(params: Iterable[torch.Tensor], *, lr: float, weight_decay: float = 0.0) -> torch.optim.Adam:
     """``torch.optim.Adam`` with its defaults otherwise, on the fused kernel."""
     optimizer = torch.optim.Adam(params, lr=lr, weight_decay=weight_decay, fused=True)
