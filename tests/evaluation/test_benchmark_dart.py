@@ -14,7 +14,8 @@ from metadagger.evaluation.benchmark.protocol import run_benchmark
 from metadagger.imitation.bc import BCConfig
 from metadagger.imitation.data import Aggregate
 from metadagger.imitation.rollouts import ActionNoise
-from metadagger.metal_dagger.method import SeedLearner, _first_rows, bc_head, demonstration, seeded
+from metadagger.metal_dagger.controls import _first_rows
+from metadagger.metal_dagger.method import SeedLearner, bc_head, demonstration, seeded
 from metadagger.runfolder.driver import StageOptions
 
 BC = BCConfig(lr=1e-2, batch_size=10, epochs=1, head_only=True)
@@ -140,7 +141,7 @@ def test_held_out_expert_states_leave_every_fit_and_measure_bc_and_dagger_there(
     BC's and DAgger's rows carry their head's loss on those expert states, BC's as it refits by hand."""
     import shutil
 
-    from metadagger.metal_dagger.method import expert_loss, held_out
+    from metadagger.metal_dagger.controls import expert_loss, held_out
     from metadagger.runfolder.layout import RunLayout
 
     shutil.copytree(toy_run.root, tmp_path / "run")

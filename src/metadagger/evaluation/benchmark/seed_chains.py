@@ -48,16 +48,14 @@ from metadagger.imitation.reading_gates import DisagreementGate
 from metadagger.imitation.rollouts import Trajectory
 from metadagger.mapping.mappers import MapperFile, cached_mapper
 from metadagger.mapping.priors import ZERO, HeadPrior, mean_head
+from metadagger.metal_dagger.controls import dart_rounds, expert_loss, held_out
 from metadagger.metal_dagger.method import (
     Round,
     SeedLearner,
     bc_head,
     dagger_rounds,
-    dart_rounds,
     demonstration,
     demonstration_share,
-    expert_loss,
-    held_out,
     map_head,
     run_steps,
     seed_context,
