@@ -136,16 +136,17 @@ def test_a_dart_noise_above_one_on_classes_is_refused_naming_the_task():
         config.check_serves(discrete=True, task="carracing")
 
 
-def test_held_out_expert_states_leave_every_fit_and_measure_bc_and_dagger_there(toy_run, tmp_path):
+def test_held_out_expert_states_leave_every_fit_and_measure_every_control_there(toy_run, tmp_path):
     """With ``held_out_every`` k, every k-th demonstration step is neither fitted nor charged, and
-    BC's and DAgger's rows carry their head's loss on those expert states, BC's as it refits by hand."""
+    the rows of BC, BC refitted, DAgger and DART carry their head's loss on those expert states,
+    BC's as it refits by hand."""
     import shutil
 
     from metadagger.metal_dagger.controls import expert_loss, held_out
     from metadagger.runfolder.layout import RunLayout
 
     shutil.copytree(toy_run.root, tmp_path / "run")
-    config = dataclasses.replace(CONFIG, held_out_every=3)
+    config = dataclasses.replace(CONFIG, methods=(*CONFIG.methods, "bc-refit"), held_out_every=3)
     layout = RunLayout(tmp_path / "run")
     with pytest.raises(UserError, match="held_out_every"):  # the rows made without it are not theirs
         _run(layout, config)
@@ -159,6 +160,7 @@ def test_held_out_expert_states_leave_every_fit_and_measure_bc_and_dagger_there(
     assert len(held) == (kept.steps + len(held)) // 3
     for r in range(1, ROUNDS + 1):
         assert rows["dagger", str(r), seed]["expert_loss"] > 0
-        assert "expert_loss" not in rows["dart", str(r), seed]
+        assert rows["dart", str(r), seed]["expert_loss"] > 0
+    assert rows["bc-refit", str(ROUNDS), seed]["expert_loss"] > 0
     with pytest.raises(UserError, match="held_out_every must be 0 \\(none\\) or an integer >= 2, got 1"):
         dataclasses.replace(CONFIG, held_out_every=1)

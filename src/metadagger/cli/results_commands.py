@@ -31,6 +31,22 @@ def results_add_cmd(
     typer.echo(f"wrote {target}")
 
 
+@results_app.command("calibration")
+@user_errors
+def results_calibration_cmd(
+    out: Path = OUT,
+    name: str = typer.Option(..., "--name", help="The variant's name in its task's calibration table."),
+    registry: Path = REGISTRY_OPTION,
+) -> None:
+    """Keep calibration run --out as a row of its task's calibration table.
+
+    The run is made by scripts/calibrate.sh on pair seeds; the table is the `calibration TASK` block of
+    the task's docs page."""
+    from metadagger.results.calibration import add_calibration
+
+    typer.echo(f"wrote {add_calibration(out, name, registry)}")
+
+
 @results_app.command("build")
 @user_errors
 def results_build_cmd(root: Path = ROOT_OPTION, registry: Path = REGISTRY_OPTION) -> None:

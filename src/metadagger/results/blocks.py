@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from metadagger.errors import UserError
-from metadagger.results import bench_blocks, tables
+from metadagger.results import bench_blocks, calibration, tables
 from metadagger.results.claims import claim
 from metadagger.results.registry import REGISTRY, load_registry
 from metadagger.results.staleness import registry_staleness
@@ -38,7 +38,8 @@ FENCE = re.compile(r"^```.*?^```", re.S | re.M)
 
 
 #: Block kinds by name (:mod:`metadagger.results.tables`, :mod:`metadagger.results.verdict`,
-#: :mod:`metadagger.results.claims`, :mod:`metadagger.results.bench_blocks`).
+#: :mod:`metadagger.results.claims`, :mod:`metadagger.results.bench_blocks`,
+#: :mod:`metadagger.results.calibration`).
 BLOCKS: dict[str, Callable[..., str]] = {
     "glance": tables.glance,
     "runs": tables.runs_table,
@@ -55,6 +56,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "bench-step": bench_blocks.step_table,
     "bench-lanes": bench_blocks.lanes_table,
     "bench-fit": bench_blocks.fit_table,
+    "calibration": lambda context, task: calibration.calibration_table(context.root, task),
 }
 
 #: The column at which generated prose is wrapped (tables, headings and images are never wrapped).

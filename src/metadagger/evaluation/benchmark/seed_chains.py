@@ -328,6 +328,8 @@ def _dart_rows(job: BenchmarkJob, start: _Start, keys: list[DartKey], budgets: l
                 round_record(index, np.arange(steps), None) for index, steps in zip(filed, r.episodes)
             ]
             rows[by_round[r.index]] = benchmark_row(by_round[r.index], job.seed, r.rollout, r.queries, labels)
+            if start.held is not None:
+                rows[by_round[r.index]]["expert_loss"] = expert_loss(learner, r.head, start.held)
     return rows
 
 
@@ -383,7 +385,10 @@ def _refit_row(job: BenchmarkJob, start: _Start, keys: list[MethodKey], learner:
     for index in range(1, key.rounds + 1):
         learner.start_refit(job.dagger_bc, start.fresh)
         bc_head(learner, data, seeded(job.dagger_bc, job.seed), called=f"BC's refit {index}")
-    return {key: benchmark_row(key, job.seed, learner.roll(early_stop=job.early_stop), len(data), start.labels())}
+    row = benchmark_row(key, job.seed, learner.roll(early_stop=job.early_stop), len(data), start.labels())
+    if start.held is not None:
+        row["expert_loss"] = expert_loss(learner, learner.head(), start.held)
+    return {key: row}
 
 
 #: The chain that makes each kind of key's rows (MDI's rows come from its own protocol); a method of

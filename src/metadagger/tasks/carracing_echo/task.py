@@ -20,16 +20,18 @@ import numpy as np
 
 from metadagger.errors import UserError
 from metadagger.tasks.base import LearnerEnv
+from metadagger.tasks.carracing.expert import STEER_LIMIT
 from metadagger.tasks.carracing.task import STEERING_VALUES, CarRacingTask
+from metadagger.tasks.carracing_echo.faults import SteeringFaults, check_faults
 
 #: Columns of the frame the mark of one steering class covers.
 MARK_WIDTH = 4
 
 
 def check_echo_rows(rows: Any) -> None:
-    """Raise a :class:`UserError` unless ``rows`` is a band height: an integer from 1 to 32."""
-    if isinstance(rows, bool) or not isinstance(rows, int) or not 1 <= rows <= 32:
-        raise UserError(f"echo_rows must be an integer from 1 to 32, got {rows!r}; e.g. 6")
+    """Raise a :class:`UserError` unless ``rows`` is a band height: an integer from 0 (no band) to 32."""
+    if isinstance(rows, bool) or not isinstance(rows, int) or not 0 <= rows <= 32:
+        raise UserError(f"echo_rows must be an integer from 0 (no band) to 32, got {rows!r}; e.g. 6")
 
 
 class SteeringEcho(gym.Wrapper):
@@ -39,7 +41,7 @@ class SteeringEcho(gym.Wrapper):
 
     Args:
         env: a CarRacing env whose action's first entry is the steering.
-        rows: the band's height in pixels, 1 to 32.
+        rows: the band's height in pixels, 0 (the frame unchanged) to 32.
     """
 
     def __init__(self, env: gym.Env, *, rows: int) -> None:
@@ -48,6 +50,8 @@ class SteeringEcho(gym.Wrapper):
         self.rows = rows
 
     def _echo(self, obs: np.ndarray, steer: float | None) -> np.ndarray:
+        if self.rows == 0:
+            return obs
         obs = np.array(obs, dtype=np.uint8, copy=True)
         obs[: self.rows] = 0
         if steer is not None:
@@ -67,31 +71,62 @@ class SteeringEcho(gym.Wrapper):
 
 class CarRacingEchoTask(CarRacingTask):
     """``carracing-echo``: CarRacing (the learner steers, the PID expert drives gas and brake) whose
-    frame marks the steering executed on the step before (:class:`SteeringEcho`).
+    frame marks the steering executed on the step before (:class:`SteeringEcho`), with steering
+    faults the expert steers against and the learner's frame does not show
+    (:class:`~metadagger.tasks.carracing_echo.faults.SteeringFaults`).
 
     Args:
         max_episode_steps: step limit of one episode.
-        echo_rows: the height of the band that marks the last steering (pixels).
+        echo_rows: the height of the band that marks the last steering (pixels; 0: no band).
+        fault_rate: the probability that a fault starts on a step without one (0: no faults).
+        fault_steps: a fault's length in steps.
+        fault_offset: the steering a fault adds to every command (its sign drawn per fault).
     """
 
     name = "carracing-echo"
     learner_env_id = "metadagger/CarRacingEcho-v0"
 
-    def __init__(self, *, max_episode_steps: int = 1000, echo_rows: int = 6) -> None:
+    def __init__(
+        self,
+        *,
+        max_episode_steps: int = 1000,
+        echo_rows: int = 6,
+        fault_rate: float = 0.0,
+        fault_steps: int = 20,
+        fault_offset: float = 0.3,
+    ) -> None:
         super().__init__(max_episode_steps=max_episode_steps)
         check_echo_rows(echo_rows)  # now, not when the first env is made
+        check_faults(fault_rate, fault_steps, fault_offset)
         self.echo_rows = echo_rows
+        self.fault_rate, self.fault_steps, self.fault_offset = fault_rate, fault_steps, fault_offset
 
     @property
     def options(self) -> dict[str, Any]:
-        """The band's height: a variant of the task."""
-        return {"echo_rows": self.echo_rows}
+        """The band's height and, where there are faults, their settings: a variant of the task."""
+        faults = {"fault_rate": self.fault_rate, "fault_steps": self.fault_steps, "fault_offset": self.fault_offset}
+        return {"echo_rows": self.echo_rows, **(faults if self.fault_rate > 0 else {})}
 
     def make_base_env(self, **kwargs: Any) -> gym.Env:
-        """The CarRacing env with the echo band (:class:`SteeringEcho`)."""
-        return SteeringEcho(super().make_base_env(**kwargs), rows=self.echo_rows)
+        """The CarRacing env with the faults (:class:`SteeringFaults`, where ``fault_rate`` > 0) and
+        the echo band (:class:`SteeringEcho`) of the command."""
+        env = super().make_base_env(**kwargs)
+        if self.fault_rate > 0:
+            env = SteeringFaults(env, rate=self.fault_rate, steps=self.fault_steps, offset=self.fault_offset)
+        return SteeringEcho(env, rows=self.echo_rows)
+
+    def expert(self, env: gym.Env) -> np.ndarray:
+        """The PID expert's ``[steer, gas, brake]``, its steering set against the coming step's fault."""
+        action = np.array(super().expert(env), dtype=np.float32, copy=True)
+        if self.fault_rate > 0:
+            offset = float(env.get_wrapper_attr("next_offset"))
+            action[0] = np.clip(action[0] - offset, -STEER_LIMIT, STEER_LIMIT)
+        return action
 
 
-def make_echo_env(*, max_episode_steps: int = 1000, echo_rows: int = 6, **kwargs: Any) -> LearnerEnv:
-    """Entry point of ``metadagger/CarRacingEcho-v0``: the learner-facing echo env."""
-    return CarRacingEchoTask(max_episode_steps=max_episode_steps, echo_rows=echo_rows).make_env(**kwargs)
+def make_echo_env(*, max_episode_steps: int = 1000, **options: Any) -> LearnerEnv:
+    """Entry point of ``metadagger/CarRacingEcho-v0``: the learner-facing env; ``options`` are
+    :class:`CarRacingEchoTask`'s variant settings, the rest :class:`CarRacingFast`'s."""
+    names = ("echo_rows", "fault_rate", "fault_steps", "fault_offset")
+    variant = {name: options.pop(name) for name in names if name in options}
+    return CarRacingEchoTask(max_episode_steps=max_episode_steps, **variant).make_env(**options)

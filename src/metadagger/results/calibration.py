@@ -1,0 +1,165 @@
+"""Calibration records: a variant of a task read on pair seeds, kept so its docs page can show why a
+variant was chosen (``scripts/calibrate.sh`` makes the run, ``results calibration`` keeps it).
+
+A record is ``results/calibration/<task>/<name>.json``: the settings in which the run departs from
+the task's quick preset (the calibration's own fixed settings left out), pi*'s success on its unseen
+seeds, BC, BC refitted, DART and DAgger after their last round (successes, labels, loss on the
+held-out expert states), DAgger paired against BC refitted and against DART at its label count, and
+the commit that made it. The ``calibration TASK`` block (:mod:`metadagger.results.blocks`) is the
+table of a task's records.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+from metadagger.errors import UserError
+from metadagger.evaluation.report.tables import markdown_table
+from metadagger.pipeline.run_config import load_run, resolve_config
+from metadagger.results.registry import REGISTRY
+from metadagger.utils.io import read_json, write_json
+
+#: Where the records lie in the registry folder.
+CALIBRATION = "calibration"
+
+#: Settings every calibration run sets (scripts/calibrate.sh): not what tells variants apart.
+FIXED = (
+    "pairs.seeds",
+    "benchmark.seeds",
+    "benchmark.methods",
+    "benchmark.oracle",
+    "benchmark.confirm_seeds",
+    "benchmark.held_out_every",
+    "preset",
+)
+
+#: The methods a calibration reads, each at its last round.
+METHODS = ("bc", "bc-refit", "dart", "dagger")
+
+
+def _flat(data: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+    for key, value in data.items():
+        if isinstance(value, Mapping) and value:
+            yield from _flat(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value
+
+
+def departures(run: Path) -> dict[str, Any]:
+    """The settings of run folder ``run`` that differ from its task's quick preset, the
+    calibration's fixed ones (:data:`FIXED`) left out."""
+    config = load_run(run)
+    ours = dict(_flat(dataclasses.asdict(config)))
+    preset = dict(_flat(dataclasses.asdict(resolve_config(config.task, "quick"))))
+    return {
+        key: value
+        for key, value in sorted(ours.items())
+        if preset.get(key) != value and not key.startswith(FIXED) and not key.endswith("metadagger_version")
+    }
+
+
+def _last(entries: list[dict[str, Any]], method: str) -> dict[str, Any]:
+    rows = [entry for entry in entries if entry["method"] == method and entry["demo_fraction"] == 1.0]
+    if not rows:
+        methods = ", ".join(METHODS)
+        raise UserError(
+            f"the benchmark has no {method!r} rows; calibrate with scripts/calibrate.sh, which runs {methods}"
+        )
+    last = max(rows, key=lambda entry: entry["mean_queries"])
+    keys = ("successes", "seeds", "mean_queries", "mean_expert_loss")
+    return {key: last.get(key) for key in keys}
+
+
+def _paired(comparisons: list[dict[str, Any]], method: str, against: str) -> dict[str, Any]:
+    rows = [row for row in comparisons if row["method"] == method and row["against"] == against]
+    if not rows:
+        raise UserError(f"the benchmark compares no {method!r} row with {against!r}; rerun its benchmark stage")
+    row = max(rows, key=lambda row: int(row["setting"] or 0))
+    return {key: row[key] for key in ("difference", "ci_low", "ci_high", "seeds")}
+
+
+def calibration_record(run: Path) -> dict[str, Any]:
+    """The record of calibration run folder ``run`` (see the module docstring)."""
+    config = load_run(run)
+    summary = read_json(run / "benchmark" / "summary.json", "benchmark summary")
+    pistar = read_json(run / "pistar" / "metrics.json", "pi* metrics")["unseen_seeds"]
+    commits = read_json(run / "stage_times.json", "stage times")["benchmark"]["commits"]
+    return {
+        "task": config.task,
+        "settings": departures(run),
+        "pistar_unseen": {"successes": pistar["successes"], "episodes": pistar["episodes"]},
+        "methods": {method: _last(summary["entries"], method) for method in METHODS},
+        "dagger_vs_refit": _paired(summary["comparisons"], "dagger", "bc-refit"),
+        "dagger_vs_dart": _paired(summary["comparisons"], "dagger", "dart"),
+        "commits": commits,
+    }
+
+
+def add_calibration(run: str | Path, name: str, registry: str | Path = REGISTRY) -> Path:
+    """Keep calibration run ``run`` as record ``name`` of its task (see the module docstring)."""
+    if not name.replace("-", "").replace("_", "").isalnum():
+        raise UserError(f"--name must be letters, digits, '-' and '_', got {name!r}; e.g. faults-10")
+    record = calibration_record(Path(run))
+    return write_json(Path(registry) / CALIBRATION / record["task"] / f"{name}.json", {"name": name, **record})
+
+
+def _setting(value: Any) -> str:
+    if isinstance(value, Mapping):
+        return ", ".join(f"{key} {item}" for key, item in value.items())
+    return str(value)
+
+
+def _share(method: Mapping[str, Any]) -> str:
+    return f"{method['successes']}/{method['seeds']}"
+
+
+def _difference(row: Mapping[str, Any]) -> str:
+    return f"{100 * row['difference']:+.0f} ({100 * row['ci_low']:+.0f} to {100 * row['ci_high']:+.0f})"
+
+
+def _loss(method: Mapping[str, Any]) -> str:
+    loss = method.get("mean_expert_loss")
+    return "-" if loss is None else f"{loss:.2f}"
+
+
+def calibration_table(root: Path, task: str) -> str:
+    """A row per calibration record of ``task``: its departures from the quick preset, pi*'s unseen
+    success, each method's success after its last round, DAgger's paired differences (points, with
+    their 95% intervals) and the held-out losses of BC and DAgger."""
+    folder = root / REGISTRY / CALIBRATION / task
+    records = [read_json(path, "calibration record") for path in sorted(folder.glob("*.json"))]
+    if not records:
+        how = "run `bash scripts/calibrate.sh`, then `metadagger results calibration`"
+        return f"No calibration of {task} is kept yet: {how}.\n"
+    header = [
+        "variant",
+        "settings",
+        "pi* unseen",
+        "BC",
+        "BC refitted",
+        "DART",
+        "DAgger",
+        "DAgger - refitted",
+        "DAgger - DART",
+        "loss BC / DAgger",
+        "labels",
+    ]
+    rows = []
+    for record in records:
+        methods = record["methods"]
+        settings = "; ".join(f"`{key}` {_setting(value)}" for key, value in record["settings"].items())
+        rows.append(
+            [
+                record["name"],
+                settings or "the quick preset's",
+                f"{record['pistar_unseen']['successes']}/{record['pistar_unseen']['episodes']}",
+                *(_share(methods[method]) for method in METHODS),
+                _difference(record["dagger_vs_refit"]),
+                _difference(record["dagger_vs_dart"]),
+                f"{_loss(methods['bc'])} / {_loss(methods['dagger'])}",
+                f"{methods['dagger']['mean_queries']:,.0f}",
+            ]
+        )
+    return "\n".join(markdown_table(header, rows)) + "\n"
