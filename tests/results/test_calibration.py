@@ -70,9 +70,15 @@ def _calibration_run(root: Path, *sets: str) -> Path:
 
 
 def test_a_record_names_what_sets_the_variant_apart_and_reads_each_method_after_its_last_round(tmp_path):
-    run = _calibration_run(tmp_path, "task_options={echo_rows: 0, fault_rate: 0.01}", "pairs.bc.lr=1.0e-3")
+    run = _calibration_run(tmp_path, "task_options={echo_rows: 3, fault_rate: 0.02}", "pairs.bc.lr=5.0e-4")
     record = calibration_record(run)
-    assert record["settings"] == {"pairs.bc.lr": 0.001, "task_options.echo_rows": 0, "task_options.fault_rate": 0.01}
+    assert record["settings"] == {  # the preset's faults settings the run leaves out are None
+        "pairs.bc.lr": 0.0005,
+        "task_options.echo_rows": 3,
+        "task_options.fault_rate": 0.02,
+        "task_options.fault_offset": None,
+        "task_options.fault_steps": None,
+    }
     assert record["methods"]["dagger"] == {"successes": 4, "seeds": 4, "mean_queries": 3000.0, "mean_expert_loss": 0.4}
     assert record["methods"]["bc"]["mean_expert_loss"] == 0.3
     assert record["dagger_vs_refit"]["difference"] == 0.75  # the last round's, not the first's
@@ -81,7 +87,7 @@ def test_a_record_names_what_sets_the_variant_apart_and_reads_each_method_after_
 
 
 def test_the_block_is_a_row_per_record_and_a_benchmark_without_dart_is_one_line(tmp_path):
-    run = _calibration_run(tmp_path, "task_options={echo_rows: 3}")
+    run = _calibration_run(tmp_path, "task_options={echo_rows: 3, fault_rate: 0.01, fault_steps: 10, fault_offset: 0.15}")
     add_calibration(run, "band-3", tmp_path / "results")
     page = tmp_path / "docs" / "page.md"
     page.parent.mkdir()
@@ -89,7 +95,7 @@ def test_the_block_is_a_row_per_record_and_a_benchmark_without_dart_is_one_line(
     build(root=tmp_path, registry=tmp_path / "results")
     text = page.read_text()
     assert "| band-3 | `task_options.echo_rows` 3 | 9/10 | 1/4 | 1/4 | 2/4 | 4/4 | +75 (+50 to +100) |" in text
-    assert "0.30 / 0.40" in text
+    assert "0.30 / - / - / 0.40" in text
     summary = run / "benchmark" / "summary.json"
     data = json.loads(summary.read_text())
     summary.write_text(json.dumps({**data, "entries": [e for e in data["entries"] if e["method"] != "dart"]}))

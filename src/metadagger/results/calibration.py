@@ -48,15 +48,15 @@ def _flat(data: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]
 
 
 def departures(run: Path) -> dict[str, Any]:
-    """The settings of run folder ``run`` that differ from its task's quick preset, the
-    calibration's fixed ones (:data:`FIXED`) left out."""
+    """The settings of run folder ``run`` that differ from its task's quick preset (None: one the
+    run does not have), the calibration's fixed ones (:data:`FIXED`) left out."""
     config = load_run(run)
     ours = dict(_flat(dataclasses.asdict(config)))
     preset = dict(_flat(dataclasses.asdict(resolve_config(config.task, "quick"))))
     return {
-        key: value
-        for key, value in sorted(ours.items())
-        if preset.get(key) != value and not key.startswith(FIXED) and not key.endswith("metadagger_version")
+        key: ours.get(key)
+        for key in sorted(ours.keys() | preset.keys())
+        if preset.get(key) != ours.get(key) and not key.startswith(FIXED) and not key.endswith("metadagger_version")
     }
 
 
@@ -106,8 +106,11 @@ def add_calibration(run: str | Path, name: str, registry: str | Path = REGISTRY)
 
 
 def _setting(value: Any) -> str:
-    if isinstance(value, Mapping):
-        return ", ".join(f"{key} {item}" for key, item in value.items())
+    """A setting as a row shows it: None as "none", a run of consecutive seeds as ``first-last``."""
+    if value is None:
+        return "none"
+    if isinstance(value, list) and len(value) > 1 and value == list(range(value[0], value[0] + len(value))):
+        return f"{value[0]}-{value[-1]}"
     return str(value)
 
 
@@ -127,7 +130,8 @@ def _loss(method: Mapping[str, Any]) -> str:
 def calibration_table(root: Path, task: str) -> str:
     """A row per calibration record of ``task``: its departures from the quick preset, pi*'s unseen
     success, each method's success after its last round, DAgger's paired differences (points, with
-    their 95% intervals) and the held-out losses of BC and DAgger."""
+    their 95% intervals) and each method's loss on the held-out expert states ("-" where the run
+    did not measure it)."""
     folder = root / REGISTRY / CALIBRATION / task
     records = [read_json(path, "calibration record") for path in sorted(folder.glob("*.json"))]
     if not records:
@@ -143,7 +147,7 @@ def calibration_table(root: Path, task: str) -> str:
         "DAgger",
         "DAgger - refitted",
         "DAgger - DART",
-        "loss BC / DAgger",
+        "held-out loss (same order)",
         "labels",
     ]
     rows = []
@@ -158,7 +162,7 @@ def calibration_table(root: Path, task: str) -> str:
                 *(_share(methods[method]) for method in METHODS),
                 _difference(record["dagger_vs_refit"]),
                 _difference(record["dagger_vs_dart"]),
-                f"{_loss(methods['bc'])} / {_loss(methods['dagger'])}",
+                " / ".join(_loss(methods[method]) for method in METHODS),
                 f"{methods['dagger']['mean_queries']:,.0f}",
             ]
         )

@@ -84,6 +84,12 @@ CANONICAL_RUNS = (
     CanonicalRun("fetch-quick", "fetch", "quick", shows="every stage on FetchPickAndPlace, small"),
     CanonicalRun("carracing-family-quick", "carracing-family", "quick", shows="a CarRacing task family, small"),
     CanonicalRun("fetch-family-quick", "fetch-family", "quick", shows="a Fetch task family, small"),
+    CanonicalRun(
+        "carracing-echo-quick",
+        "carracing-echo",
+        "quick",
+        shows="CarRacing with hidden steering faults (labels matter), small",
+    ),
     CanonicalRun("carracing-paper", "carracing", "paper", shows="the paper's CarRacing setup"),
     CanonicalRun("fetch-paper", "fetch", "paper", shows="the paper's FetchPickAndPlace setup"),
     CanonicalRun(
