@@ -87,7 +87,9 @@ def test_a_record_names_what_sets_the_variant_apart_and_reads_each_method_after_
 
 
 def test_the_block_is_a_row_per_record_and_a_benchmark_without_dart_is_one_line(tmp_path):
-    run = _calibration_run(tmp_path, "task_options={echo_rows: 3, fault_rate: 0.01, fault_steps: 10, fault_offset: 0.15}")
+    run = _calibration_run(
+        tmp_path, "task_options={echo_rows: 3, fault_rate: 0.01, fault_steps: 10, fault_offset: 0.15}"
+    )
     add_calibration(run, "band-3", tmp_path / "results")
     page = tmp_path / "docs" / "page.md"
     page.parent.mkdir()
