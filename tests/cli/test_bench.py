@@ -60,6 +60,14 @@ def test_bench_env_times_the_echo_band_beside_our_carracing():
     assert 0 < echo["image_mae"]["0"] <= 255 * band
 
 
+def test_bench_env_times_the_presets_faults_variant_beside_our_carracing():
+    """The variant carracing-echo's presets run: a fault moves the car, so its frames part from our
+    CarRacing's on the same actions once a fault has struck (the variant has no band)."""
+    faults = bench_env("carracing-echo-faults", seeds=(3,), steps=300, warmup_steps=0)
+    assert faults["ours"]["id"] == "metadagger/CarRacing-v0+faults"
+    assert faults["image_mae"]["3"] > 0 and faults["ratio"] > 0
+
+
 def test_bench_env_rejects_unknown_task_and_empty_runs():
     with pytest.raises(UserError, match="unknown task 'pong'"):
         bench_env("pong")

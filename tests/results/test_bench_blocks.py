@@ -297,3 +297,27 @@ def test_a_fit_record_without_its_step_is_one_error_line(tmp_path):
         _error_line(tmp_path, "bench-fit bare.json")
     )
     assert "bench-fit needs at least one record" in _error_line(tmp_path, "bench-fit")
+
+
+def test_an_env_block_has_a_row_per_record_with_each_step_time_over_the_others(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    record = {
+        "ours": {"id": "metadagger/CarRacing-v0+faults", "steps_per_s": 900.0},
+        "upstream": {"id": "metadagger/CarRacing-v0", "steps_per_s": 1000.0},
+        "ratio": 0.9,
+        "ratio_of_medians": 0.8,
+        "identical_rewards": False,
+        "machine": {"load_avg_1min": 2.04},
+    }
+    (bench / "faults.json").write_text(json.dumps(record))
+    page = _page(tmp_path, "bench-env faults.json")
+    build(tmp_path)
+    text = page.read_text()
+    assert (
+        "| `metadagger/CarRacing-v0+faults` | `metadagger/CarRacing-v0` | 900 / 1000 | 1.11x | 1.25x | no | 2.0 |"
+        in text
+    )
+    (bench / "faults.json").write_text(json.dumps({"ours": {}}))
+    result = runner.invoke(app, ["results", "build", "--root", str(tmp_path)])
+    assert result.exit_code == 2 and "results/bench/faults.json lacks one of ours, upstream, ratio" in result.output

@@ -18,6 +18,8 @@ ENV_PAIRS = {
     "carracing": ("metadagger/CarRacing-v0", "CarRacing-v3"),
     # the echo band on our CarRacing, against our CarRacing: what the band costs a step
     "carracing-echo": ("metadagger/CarRacing-v0+echo", "metadagger/CarRacing-v0"),
+    # the variant carracing-echo's presets run (its task_options), against our CarRacing
+    "carracing-echo-faults": ("metadagger/CarRacing-v0+faults", "metadagger/CarRacing-v0"),
 }
 
 
@@ -53,7 +55,9 @@ def bench_env(
     Args:
         task: the task whose base env to time: ``"carracing"`` (ours against upstream's),
             ``"carracing-echo"`` (our CarRacing with the echo band against our CarRacing; the
-            ``upstream`` entry is then ours without the band), or ``"fetch"`` (frames per second
+            ``upstream`` entry is then ours without the band), ``"carracing-echo-faults"`` (the
+            variant carracing-echo's presets run, its faults and band, against our CarRacing:
+            its rewards may differ, since a fault moves the car), or ``"fetch"`` (frames per second
             of our pixel env alone, random actions).
         seeds: reset seeds, one episode each.
         steps: timed steps per seed.
@@ -134,6 +138,14 @@ class _TimedEnv:
             from metadagger.tasks.carracing_echo.task import CarRacingEchoTask, SteeringEcho
 
             self.env = SteeringEcho(self.env, rows=CarRacingEchoTask().echo_rows)
+        if wrapper == "faults":  # the variant of carracing-echo's presets on the base env
+            from metadagger.pipeline.run_config import load_preset
+            from metadagger.tasks.carracing_echo.faults import SteeringFaults
+            from metadagger.tasks.carracing_echo.task import SteeringEcho
+
+            options = load_preset("carracing-echo", "quick")["task_options"]
+            faults = {key: options[f"fault_{key}"] for key in ("rate", "steps", "offset")}
+            self.env = SteeringEcho(SteeringFaults(self.env, **faults), rows=options["echo_rows"])
         self.step_s = 0.0
         self.render_s = 0.0
         self.step_times: list[float] = []

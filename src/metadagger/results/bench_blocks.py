@@ -287,3 +287,34 @@ def fit_table(context: BlockContext, *files: str) -> str:
         "profiler, at most 20 steps); the record's `machine` block holds the load.*"
     )
     return "\n".join(markdown_table(header, rows) + ["", note])
+
+
+def env_table(context: BlockContext, *files: str) -> str:
+    """``bench env`` records, a row each: the env timed and the one it is timed against, each one's
+    steps per second, the time of a step over the other's (by rate, and by median step time, which
+    the machine's other load moves less), whether both gave the same rewards on the same actions,
+    and the machine's 1-minute load average at the record's end."""
+    rows, links = [], []
+    for file in files:
+        path, record = _record(context, file, "env record")
+        record = _fields(record, file, ("ours", "upstream", "ratio", "ratio_of_medians", "identical_rewards"))
+        ours, other = record["ours"], record["upstream"]
+        rows.append(
+            (
+                f"`{ours['id']}`",
+                f"`{other['id']}`",
+                f"{ours['steps_per_s']:.0f} / {other['steps_per_s']:.0f}",
+                f"{1 / record['ratio']:.2f}x",
+                f"{1 / record['ratio_of_medians']:.2f}x",
+                "yes" if record["identical_rewards"] else "no",
+                _load((record.get("machine") or {}).get("load_avg_1min")),
+            )
+        )
+        links.append(_link(context, path))
+    header = ("env", "against", "steps per second", "step time, by rate", "by median", "same rewards", "load")
+    note = f"*From {', '.join(links)}: both envs on the same seeds and actions, taking turns of 50 steps.*"
+    return "\n".join(markdown_table(header, rows) + ["", note])
+
+
+def _load(value: Any) -> str:
+    return f"{value:.1f}" if isinstance(value, (int, float)) else "-"

@@ -56,6 +56,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "bench-step": bench_blocks.step_table,
     "bench-lanes": bench_blocks.lanes_table,
     "bench-fit": bench_blocks.fit_table,
+    "bench-env": bench_blocks.env_table,
     "calibration": lambda context, task: calibration.calibration_table(context.root, task),
 }
 
