@@ -188,6 +188,8 @@ def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the
         _entry("mdm-pistar-head", "", 5, 0),
         _entry("mdm-mean-da", "", 1, 0),
         _entry("dagger", "3", 4, 182),
+        _entry("dart", "2", 3, 120),
+        _entry("dart", "3", 5, 182),
         _entry("dagger-thrifty", "0.025", 6, 55),
         _entry("dagger-mdi", "two-shot", 8, 60),
         _entry("dagger-xavier", "two-shot", 9, 61),
@@ -197,7 +199,8 @@ def test_glance_puts_dagger_mdi_with_the_mappers_and_only_gated_dagger_among_the
     metal, queries = _glance_rows(glance(BlockContext({"fetch-quick": RegistryRun(run, CURRENT)}, tmp_path)))
     assert metal[2] == "DAgger-MDI two-shot: 8/10 (0-100%) at 60"
     assert metal[5] == "-"  # no bc-refit row
-    assert queries[2] == "DAgger, ThriftyDAgger gate 0.025: 6/10 (0-100%) at 55"
+    assert queries[2] == "5/10 (0-100%) at 182"  # DART after DAgger's last round, at its labels
+    assert queries[3] == "DAgger, ThriftyDAgger gate 0.025: 6/10 (0-100%) at 55"
 
 
 def _glance_rows(text: str) -> list[list[str]]:

@@ -101,10 +101,11 @@ def whole_entries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [e for e in entries if float(e.get("demo_fraction", 1.0)) == 1.0]
 
 
-def last_dagger(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """Plain DAgger's entry after its last round, of ``entries``; None where it did not run."""
-    dagger = [e for e in entries if e["method"] == "dagger"]
-    return max(dagger, key=lambda e: int(e["setting"])) if dagger else None
+def last_dagger(entries: list[dict[str, Any]], method: str = "dagger") -> dict[str, Any] | None:
+    """Plain DAgger's entry after its last round, of ``entries`` (or that of another method whose
+    setting is DAgger's round, as DART's); None where it did not run."""
+    rows = [e for e in entries if e["method"] == method]
+    return max(rows, key=lambda e: int(e["setting"])) if rows else None
 
 
 def _labelled(entry: dict[str, Any] | None) -> str:
@@ -124,6 +125,7 @@ def _glance_entries(found: RegistryRun) -> dict[str, Any]:
         "mean-da": by_method.get(CONTROLS[1]),
         "refit": by_method.get(BC_REFIT),
         "dagger": last_dagger(entries),
+        "dart": last_dagger(entries, "dart"),
         "gate": best_entry([e for e in entries if e["method"] in gated_methods()]),
         "oracle": best_entry([e for e in entries if e["method"] in reference_methods()]),
         "seeds": max((e["seeds"] for e in entries), default=0),
@@ -138,19 +140,21 @@ def glance(context: BlockContext) -> str:
         found = context.runs.get(run.name)
         if found is None or not found.path("benchmark/summary.json").is_file():
             metal.append((f"`{run.name}`", "not run yet", "", "", "", ""))
-            queries.append((f"`{run.name}`", "not run yet", "", ""))
+            queries.append((f"`{run.name}`", "not run yet", "", "", ""))
             continue
         e = _glance_entries(found)
         name = _run_cell(context, run.name)
         controls = (_cell(e["pistar"], queries=False), _cell(e["mean-da"], queries=False), _cell(e["refit"]))
         metal.append((name, str(e["seeds"]), _labelled(e["metal"]), *controls))
         oracle = f"{e['oracle']['setting']}: {_cell(e['oracle'])}" if e["oracle"] else "-"
-        queries.append((name, _cell(e["dagger"]), _labelled(e["gate"]), oracle))
+        dart = _cell(e["dart"]) if e["dart"] else "-"
+        queries.append((name, _cell(e["dagger"]), dart, _labelled(e["gate"]), oracle))
     note = (
         "Seeds succeeded of the run's unseen seeds (95% Wilson interval) at mean expert queries per seed, "
         "demonstration included, one rollout per seed. Best MetaL DAgger: the best method that reads a learned "
         "mapper, or DAgger-MDI; pi*'s head and mean-DA use no query; BC refitted is w_BC refitted as DAgger refits "
-        "it, with no new label; the oracle labels the learner's mistakes (a reference, not a ceiling). Each best "
+        "it, with no new label; DART spends DAgger's labels on the expert's perturbed episodes (runs made before "
+        "it have none); the oracle labels the learner's mistakes (a reference, not a ceiling). Each best "
         "is chosen on these seeds, which favours it: paired comparisons are in each run's report, what a 'stale' "
         "run departs from in docs/results.md."
     )
@@ -163,7 +167,9 @@ def glance(context: BlockContext) -> str:
             "",
             f"The paper reports {paper}.",
             "",
-            *markdown_table(("run", "DAgger (last round)", "best gate", "reference: oracle"), queries),
+            *markdown_table(
+                ("run", "DAgger (last round)", "DART at its labels", "best gate", "reference: oracle"), queries
+            ),
             *_stale_names(context),
         ]
     )
