@@ -225,3 +225,17 @@ def test_stage_mdi_skips_runs_without_mdi_and_checks_seeds(tmp_path):
     assert stage_mdi(RunLayout(tmp_path / "cr"), init_run(tmp_path / "cr", "carracing", "ci")) == []
     with pytest.raises(UserError, match="evaluation seeds must be unseen, but \\[1000\\]"):
         stage_mdi(RunLayout(tmp_path / "fetch"), init_run(tmp_path / "fetch", "fetch", "ci"), seeds=[1000, 5000])
+
+
+@pytest.mark.slow  # about a minute on two cores: the suite's ten minutes have no room left for it
+def test_the_labels_matter_task_runs_every_stage_with_its_controls_on_the_ci_preset(tmp_path):
+    """carracing-echo's smoke test: its presets' variant (faults, no band) through every stage, with
+    BC refitted, DART and the disagreement gate in the benchmark."""
+    run = tmp_path / "echo"
+    result = runner.invoke(app, ["reproduce", "--task", "carracing-echo", "--preset", "ci", "--out", str(run)])
+    assert result.exit_code == 0, result.output
+    config = load_run(run)
+    assert config.task_options["fault_rate"] > 0 and config.task_options["echo_rows"] == 0
+    methods = {row["method"] for row in read_csv(run / "benchmark" / "queries.csv")}
+    assert {"bc-refit", "dart", "dagger", "dagger-oracle", "disagree-dm", "disagree-mean-da"} <= methods
+    assert (run / "report" / "report.md").is_file()
