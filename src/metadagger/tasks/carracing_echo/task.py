@@ -126,7 +126,8 @@ class CarRacingEchoTask(CarRacingTask):
 
 def make_echo_env(*, max_episode_steps: int = 1000, **options: Any) -> LearnerEnv:
     """Entry point of ``metadagger/CarRacingEcho-v0``: the learner-facing env; ``options`` are
-    :class:`CarRacingEchoTask`'s variant settings, the rest :class:`CarRacingFast`'s."""
+    :class:`CarRacingEchoTask`'s variant settings, the rest
+    :class:`~metadagger.tasks.carracing.env.CarRacingFast`'s."""
     names = ("echo_rows", "fault_rate", "fault_steps", "fault_offset")
     variant = {name: options.pop(name) for name in names if name in options}
     return CarRacingEchoTask(max_episode_steps=max_episode_steps, **variant).make_env(**options)
