@@ -134,18 +134,12 @@ class _TimedEnv:
         self.env_id = env_id
         base_id, _, wrapper = env_id.partition("+")
         self.env = gym.make(base_id)
-        if wrapper == "echo":  # carracing-echo's band (its default height) on the base env
-            from metadagger.tasks.carracing_echo.task import CarRacingEchoTask, SteeringEcho
-
-            self.env = SteeringEcho(self.env, rows=CarRacingEchoTask().echo_rows)
-        if wrapper == "faults":  # the variant of carracing-echo's presets on the base env
+        if wrapper:  # carracing-echo's wrappers: its default band (echo), or its presets' variant (faults)
             from metadagger.pipeline.run_config import load_preset
-            from metadagger.tasks.carracing_echo.faults import SteeringFaults
-            from metadagger.tasks.carracing_echo.task import SteeringEcho
+            from metadagger.tasks.carracing_echo.task import CarRacingEchoTask
 
-            options = load_preset("carracing-echo", "quick")["task_options"]
-            faults = {key: options[f"fault_{key}"] for key in ("rate", "steps", "offset")}
-            self.env = SteeringEcho(SteeringFaults(self.env, **faults), rows=options["echo_rows"])
+            options = load_preset("carracing-echo", "quick")["task_options"] if wrapper == "faults" else {}
+            self.env = CarRacingEchoTask(**options).wrap(self.env)
         self.step_s = 0.0
         self.render_s = 0.0
         self.step_times: list[float] = []

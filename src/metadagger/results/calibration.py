@@ -16,9 +16,11 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 from metadagger.errors import UserError
+from metadagger.evaluation.benchmark.summary import last_round
 from metadagger.evaluation.report.tables import markdown_table
-from metadagger.pipeline.run_config import load_run, resolve_config
+from metadagger.pipeline.run_config import RunConfig, load_run, resolve_config
 from metadagger.results.registry import REGISTRY
+from metadagger.results.tables import whole_entries
 from metadagger.utils.io import read_json, write_json
 
 #: Where the records lie in the registry folder.
@@ -47,10 +49,9 @@ def _flat(data: Mapping[str, Any], prefix: str = "") -> Iterator[tuple[str, Any]
             yield f"{prefix}{key}", value
 
 
-def departures(run: Path) -> dict[str, Any]:
-    """The settings of run folder ``run`` that differ from its task's quick preset (None: one the
+def departures(config: RunConfig) -> dict[str, Any]:
+    """The settings of a run's ``config`` that differ from its task's quick preset (None: one the
     run does not have), the calibration's fixed ones (:data:`FIXED`) left out."""
-    config = load_run(run)
     ours = dict(_flat(dataclasses.asdict(config)))
     preset = dict(_flat(dataclasses.asdict(resolve_config(config.task, "quick"))))
     return {
@@ -61,13 +62,12 @@ def departures(run: Path) -> dict[str, Any]:
 
 
 def _last(entries: list[dict[str, Any]], method: str) -> dict[str, Any]:
-    rows = [entry for entry in entries if entry["method"] == method and entry["demo_fraction"] == 1.0]
-    if not rows:
+    last = last_round(whole_entries(entries), method)
+    if last is None:
         methods = ", ".join(METHODS)
         raise UserError(
             f"the benchmark has no {method!r} rows; calibrate with scripts/calibrate.sh, which runs {methods}"
         )
-    last = max(rows, key=lambda entry: entry["mean_queries"])
     keys = ("successes", "seeds", "mean_queries", "mean_expert_loss")
     return {key: last.get(key) for key in keys}
 
@@ -88,7 +88,7 @@ def calibration_record(run: Path) -> dict[str, Any]:
     commits = read_json(run / "stage_times.json", "stage times")["benchmark"]["commits"]
     return {
         "task": config.task,
-        "settings": departures(run),
+        "settings": departures(config),
         "pistar_unseen": {"successes": pistar["successes"], "episodes": pistar["episodes"]},
         "methods": {method: _last(summary["entries"], method) for method in METHODS},
         "dagger_vs_refit": _paired(summary["comparisons"], "dagger", "bc-refit"),

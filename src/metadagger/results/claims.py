@@ -28,7 +28,7 @@ from typing import Any, Callable
 from metadagger.evaluation.benchmark.coverage import rank_interval
 from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.benchmark.methods import BC_REFIT, MDM_PREFIX, gated_methods, reference_methods
-from metadagger.evaluation.benchmark.summary import refit_check
+from metadagger.evaluation.benchmark.summary import last_round, refit_check
 from metadagger.evaluation.paired import verdict
 from metadagger.evaluation.rows import read_csv
 from metadagger.results.names import CONTROLS, SHORT_NAMES, difference_points, reference_label, with_share
@@ -37,7 +37,6 @@ from metadagger.results.tables import (
     SEED_SETS,
     BlockContext,
     best_entry,
-    last_dagger,
     run_names,
     seed_set_item,
     whole_entries,
@@ -154,7 +153,7 @@ def _refits(found: RegistryRun, folder: str) -> str | None:
 
 def _labels(found: RegistryRun, folder: str) -> str | None:
     summary = found.json(f"{folder}/summary.json")
-    dagger = last_dagger(whole_entries(summary["entries"]))
+    dagger = last_round(whole_entries(summary["entries"]))
     refit = [e for e in whole_entries(summary["entries"]) if e["method"] == BC_REFIT]
     c = _found(summary, dagger, BC_REFIT) if dagger else None
     if c is None or not refit:

@@ -30,8 +30,15 @@ from typing import Any, Mapping, Sequence
 
 from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.evaluation.benchmark.methods import BC_REFIT, MDI_METHODS, gated_methods, metal_twins, reference_methods
-from metadagger.evaluation.benchmark.summary import budget_reading
+from metadagger.evaluation.benchmark.methods import (
+    BC_REFIT,
+    DART,
+    MDI_METHODS,
+    gated_methods,
+    metal_twins,
+    reference_methods,
+)
+from metadagger.evaluation.benchmark.summary import budget_reading, last_round
 from metadagger.evaluation.report.tables import markdown_table, pct
 from metadagger.evaluation.rows import read_csv
 from metadagger.results.names import CONTROLS, difference_points, with_share
@@ -101,13 +108,6 @@ def whole_entries(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return [e for e in entries if float(e.get("demo_fraction", 1.0)) == 1.0]
 
 
-def last_dagger(entries: list[dict[str, Any]], method: str = "dagger") -> dict[str, Any] | None:
-    """Plain DAgger's entry after its last round, of ``entries`` (or that of another method whose
-    setting is DAgger's round, as DART's); None where it did not run."""
-    rows = [e for e in entries if e["method"] == method]
-    return max(rows, key=lambda e: int(e["setting"])) if rows else None
-
-
 def _labelled(entry: dict[str, Any] | None) -> str:
     if entry is None:
         return "-"
@@ -124,8 +124,8 @@ def _glance_entries(found: RegistryRun) -> dict[str, Any]:
         "pistar": by_method.get(CONTROLS[0]),
         "mean-da": by_method.get(CONTROLS[1]),
         "refit": by_method.get(BC_REFIT),
-        "dagger": last_dagger(entries),
-        "dart": last_dagger(entries, "dart"),
+        "dagger": last_round(entries),
+        "dart": last_round(entries, DART),
         "gate": best_entry([e for e in entries if e["method"] in gated_methods()]),
         "oracle": best_entry([e for e in entries if e["method"] in reference_methods()]),
         "seeds": max((e["seeds"] for e in entries), default=0),

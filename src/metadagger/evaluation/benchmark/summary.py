@@ -120,14 +120,21 @@ def _controls() -> set[str]:
     return {MDM_PREFIX + name for name in control_names()} | {BC_REFIT, DART}
 
 
+def last_round(entries: list[dict[str, Any]], method: str = "dagger") -> dict[str, Any] | None:
+    """``method``'s entry after its last round (DAgger's, or DART's at DAgger's last labels), of
+    ``entries``, whose setting is the round (none: a method of one row, as BC); None where it did
+    not run."""
+    rows = [e for e in entries if e["method"] == method]
+    return max(rows, key=lambda e: int(e["setting"] or 0)) if rows else None
+
+
 def references(entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """What every method is compared with: each MDM control, BC refitted as DAgger (``bc-refit``),
     DART at DAgger's final labels (its last round), and the best gate (the gated DAgger setting with
     the highest success, the fewest queries on a tie; the oracle is a reference, not a gate), as
     ``method``/``setting``/``demo_fraction``."""
     controls, gated = _controls(), gated_methods()
-    dart = [e for e in entries if e["method"] == DART]
-    last_dart = max(dart, key=lambda e: int(e["setting"])) if dart else None
+    last_dart = last_round(entries, DART)
     refs = [e for e in entries if e["method"] in controls and (e["method"] != DART or e is last_dart)]
     gates = [e for e in entries if e["method"] in gated]
     if gates:

@@ -15,7 +15,7 @@ from metadagger.evaluation.benchmark.coverage_figure import has_twins, plot_cove
 from metadagger.evaluation.benchmark.figure import plot_queries
 from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.benchmark.methods import MDI_METHODS, MDM_PREFIX, metal_family, reference_methods
-from metadagger.evaluation.benchmark.summary import refit_check
+from metadagger.evaluation.benchmark.summary import last_round, refit_check
 from metadagger.evaluation.paired import smallest_shown_difference, verdict
 from metadagger.evaluation.report.tables import figure_lines, markdown_table, pct
 from metadagger.evaluation.rows import read_csv
@@ -388,14 +388,9 @@ def _budget_comparisons(comparisons: list[dict[str, Any]]) -> str:
     )
 
 
-def _dagger_final(entries: list[dict[str, Any]]) -> dict[str, Any] | None:
-    dagger = [e for e in entries if e["method"] == "dagger"]
-    return max(dagger, key=lambda e: int(e["setting"])) if dagger else None
-
-
 def _matching(entries: list[dict[str, Any]]) -> list[str]:
     """Each method's cheapest setting whose success reaches 90% of DAgger's final success."""
-    final = _dagger_final(entries)
+    final = last_round(entries)
     if final is None:
         return []
     if final["success_rate"] == 0:
@@ -437,7 +432,7 @@ def _amortisation(entries: list[dict[str, Any]], meta: dict[str, int]) -> list[s
     without a MetaL DAgger method (gates alone, say): there is no meta-training to repay."""
     if not any(_reads_meta_training(e["method"]) for e in entries):
         return []
-    final = _dagger_final(entries)
+    final = last_round(entries)
     spent = int(meta.get("pistar", 0)) + int(meta.get("pairs", 0))
     lines = [
         "### Amortised cost of MetaL DAgger",

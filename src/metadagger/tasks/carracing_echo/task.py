@@ -108,9 +108,12 @@ class CarRacingEchoTask(CarRacingTask):
         return {"echo_rows": self.echo_rows, **(faults if self.fault_rate > 0 else {})}
 
     def make_base_env(self, **kwargs: Any) -> gym.Env:
-        """The CarRacing env with the faults (:class:`SteeringFaults`, where ``fault_rate`` > 0) and
-        the echo band (:class:`SteeringEcho`) of the command."""
-        env = super().make_base_env(**kwargs)
+        """The CarRacing env in this variant's wrappers (:meth:`wrap`)."""
+        return self.wrap(super().make_base_env(**kwargs))
+
+    def wrap(self, env: gym.Env) -> gym.Env:
+        """``env`` (a CarRacing env) with the faults (:class:`SteeringFaults`, where ``fault_rate`` > 0)
+        and the echo band (:class:`SteeringEcho`) of the command."""
         if self.fault_rate > 0:
             env = SteeringFaults(env, rate=self.fault_rate, steps=self.fault_steps, offset=self.fault_offset)
         return SteeringEcho(env, rows=self.echo_rows)
