@@ -230,7 +230,7 @@ def test_stage_mdi_skips_runs_without_mdi_and_checks_seeds(tmp_path):
 @pytest.mark.slow  # about a minute on two cores: the suite's ten minutes have no room left for it
 def test_the_labels_matter_task_runs_every_stage_with_its_controls_on_the_ci_preset(tmp_path):
     """carracing-echo's smoke test: its presets' variant (faults, no band) through every stage, with
-    BC refitted, DART and the disagreement gate in the benchmark."""
+    BC refitted, DART, DAgger-MDI, the priors and the disagreement gate in the benchmark."""
     run = tmp_path / "echo"
     result = runner.invoke(app, ["reproduce", "--task", "carracing-echo", "--preset", "ci", "--out", str(run)])
     assert result.exit_code == 0, result.output
@@ -238,4 +238,6 @@ def test_the_labels_matter_task_runs_every_stage_with_its_controls_on_the_ci_pre
     assert config.task_options["fault_rate"] > 0 and config.task_options["echo_rows"] == 0
     methods = {row["method"] for row in read_csv(run / "benchmark" / "queries.csv")}
     assert {"bc-refit", "dart", "dagger", "dagger-oracle", "disagree-dm", "disagree-mean-da"} <= methods
+    assert {"dagger-mdi", "dagger-xavier", "prior-dm", "prior-zero", "prior-dagger-mean-da"} <= methods
+    assert {row["method"] for row in read_csv(run / "eval" / "mdi.csv")} >= {"dagger-mdi", "dagger-mdi-mean-da"}
     assert (run / "report" / "report.md").is_file()

@@ -101,6 +101,12 @@ CANONICAL_RUNS = (
     ),
     CanonicalRun("fetch-family-paper", "fetch-family", "paper", shows="the Fetch family at paper scale"),
     CanonicalRun(
+        "carracing-echo-paper",
+        "carracing-echo",
+        "paper",
+        shows="CarRacing with hidden steering faults (labels matter), judged on two seed sets",
+    ),
+    CanonicalRun(
         "carracing-family-paper-per-seed-init",
         "carracing-family",
         "paper",
