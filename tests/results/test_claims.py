@@ -63,6 +63,15 @@ def test_refits_and_labels_read_against_bc_and_bc_refitted(tmp_path, run_rows):
     assert labels.endswith("the labels add to the training.")
 
 
+def test_the_labels_claim_reads_dagger_against_dart_at_its_labels_where_the_run_has_dart(tmp_path, run_rows):
+    made = [*run_rows, *rows("dart", "3", 8, 3000)]
+    labels = _line(registry_context(tmp_path, NAME, made), "labels")
+    assert "the labels add to the training; DART at DAgger's labels 8/20: +60 (+" in labels
+    assert labels.endswith("the learner's states above more demonstrations.")
+    same = _line(registry_context(tmp_path / "tie", NAME, [*run_rows, *rows("dart", "3", 20, 3000)]), "labels")
+    assert same.endswith("DART at DAgger's labels 20/20: +0 (+0 to +0), not shown above more demonstrations.")
+
+
 def test_a_refit_that_loses_what_bc_had_is_said_so(tmp_path, run_rows):
     made = [r for r in run_rows if r["method"] != "dagger"] + rows("dagger", "3", 0, 3000)
     line = _line(registry_context(tmp_path, NAME, made), "refits")

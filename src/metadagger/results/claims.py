@@ -9,7 +9,8 @@ what they show, worded from the intervals alone:
 - ``refits``: BC refitted and DAgger, each after its last round, against BC: does a refit keep
   what BC had?
 - ``labels``: DAgger after its last round against BC refitted: what DAgger's labels add over its
-  refits' training alone.
+  refits' training alone; where the run has DART, also against DART at DAgger's labels: asking on
+  the learner's states against asking for more (perturbed) demonstrations.
 - ``oracle``: the learner's-mistakes rule (the oracle, a reference) against the best gate.
 - ``coverage``: whether the seeds' coverage gap predicts a MetaL method's gain over its constant
   twin (Spearman's rho with its 95% interval): how many comparisons have an interval above 0 and
@@ -27,7 +28,7 @@ from typing import Any, Callable
 
 from metadagger.evaluation.benchmark.coverage import rank_interval
 from metadagger.evaluation.benchmark.labels import method_label
-from metadagger.evaluation.benchmark.methods import BC_REFIT, MDM_PREFIX, gated_methods, reference_methods
+from metadagger.evaluation.benchmark.methods import BC_REFIT, DART, MDM_PREFIX, gated_methods, reference_methods
 from metadagger.evaluation.benchmark.summary import last_round, refit_check
 from metadagger.evaluation.paired import verdict
 from metadagger.evaluation.rows import read_csv
@@ -53,6 +54,11 @@ SAYS = {
         "better": "the labels add to the training",
         "worse": "below BC refitted",
         "no difference shown": "the labels not shown to add",
+    },
+    "dart": {
+        "better": "the learner's states above more demonstrations",
+        "worse": "below DART",
+        "no difference shown": "not shown above more demonstrations",
     },
     "oracle": {
         "better": "the rule above the best gate",
@@ -158,10 +164,18 @@ def _labels(found: RegistryRun, folder: str) -> str | None:
     c = _found(summary, dagger, BC_REFIT) if dagger else None
     if c is None or not refit:
         return None
-    return (
+    line = (
         f"DAgger after {dagger['setting']} rounds {_count(dagger)}, BC refitted {_count(refit[0])}: "
-        f"{difference_points(c)}, {SAYS['labels'][verdict(c)]}."
+        f"{difference_points(c)}, {SAYS['labels'][verdict(c)]}"
     )
+    dart = last_round(whole_entries(summary["entries"]), method=DART)
+    against_dart = _found(summary, dagger, DART) if dart else None
+    if against_dart is not None:
+        line += (
+            f"; DART at DAgger's labels {_count(dart, queries=False)}: {difference_points(against_dart)}, "
+            f"{SAYS['dart'][verdict(against_dart)]}"
+        )
+    return line + "."
 
 
 def _oracle(found: RegistryRun, folder: str) -> str | None:
