@@ -72,6 +72,27 @@ def test_the_labels_claim_reads_dagger_against_dart_at_its_labels_where_the_run_
     assert same.endswith("DART at DAgger's labels 20/20: +0 (+0 to +0), not shown above more demonstrations.")
 
 
+def test_the_gates_claim_reads_the_cheapest_gate_at_daggers_success_against_random_spending_no_fewer(
+    tmp_path, run_rows
+):
+    random = [*rows("dagger-random", "0.05", 4, 1100), *rows("dagger-random", "0.2", 6, 1300)]
+    made = [*run_rows, *rows("dagger-ensemble", "0.5", 20, 1250), *rows("dagger-ensemble", "0.8", 19, 900), *random]
+    line = _line(registry_context(tmp_path, NAME, made), "gates")
+    assert "DAgger, ensemble gate 0.5 reaches DAgger's 20/20 with the fewest labels, 20/20 at 1,250 queries" in line
+    # the random setting at 1,100 spends fewer labels than the gate: the one at 1,300 is its match
+    assert "against the random gate spending no fewer (0.2: 6/20 at 1,300 queries) +70 (+" in line
+    assert line.endswith("above random.")
+    none_reach = _line(registry_context(tmp_path / "short", NAME, [*run_rows, *random]), "gates")
+    assert "no gate reaches DAgger's 20/20; the closest, DAgger, SafeDAgger gate 0.5, has 14/20" in none_reach
+    assert none_reach.endswith("(0.2: 6/20 at 1,300 queries) +40 (+20 to +60), above random.")
+    cheapest = _line(
+        registry_context(tmp_path / "cheap", NAME, [*run_rows, *rows("dagger-random", "0.05", 20, 900)]), "gates"
+    )
+    assert cheapest.endswith(", the random gate itself.")
+    no_random = _line(registry_context(tmp_path / "alone", NAME, run_rows), "gates")
+    assert no_random.endswith("no setting of the random gate spends as many labels.")
+
+
 def test_a_refit_that_loses_what_bc_had_is_said_so(tmp_path, run_rows):
     made = [r for r in run_rows if r["method"] != "dagger"] + rows("dagger", "3", 0, 3000)
     line = _line(registry_context(tmp_path, NAME, made), "refits")

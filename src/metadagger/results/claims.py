@@ -12,6 +12,10 @@ what they show, worded from the intervals alone:
   refits' training alone; where the run has DART, also against DART at DAgger's labels: asking on
   the learner's states against asking for more (perturbed) demonstrations.
 - ``oracle``: the learner's-mistakes rule (the oracle, a reference) against the best gate.
+- ``gates``: the gate setting that reaches DAgger's success (its last round) with the fewest mean
+  labels, and it against the random gate's cheapest setting that spends no fewer, paired: does
+  choosing where to ask beat asking anywhere? (Read at each seed's own budget, a random setting
+  just above the gate's labels would count as BC and flatter the gate.)
 - ``coverage``: whether the seeds' coverage gap predicts a MetaL method's gain over its constant
   twin (Spearman's rho with its 95% interval): how many comparisons have an interval above 0 and
   below, how many each way chance alone would give, the highest rho and, where some lie below 0,
@@ -30,7 +34,7 @@ from metadagger.evaluation.benchmark.coverage import rank_interval
 from metadagger.evaluation.benchmark.labels import method_label
 from metadagger.evaluation.benchmark.methods import BC_REFIT, DART, MDM_PREFIX, gated_methods, reference_methods
 from metadagger.evaluation.benchmark.summary import last_round, refit_check
-from metadagger.evaluation.paired import verdict
+from metadagger.evaluation.paired import paired_comparison, verdict
 from metadagger.evaluation.rows import read_csv
 from metadagger.results.names import CONTROLS, SHORT_NAMES, difference_points, reference_label, with_share
 from metadagger.results.registry import RegistryRun
@@ -59,6 +63,11 @@ SAYS = {
         "better": "the learner's states above more demonstrations",
         "worse": "below DART",
         "no difference shown": "not shown above more demonstrations",
+    },
+    "gates": {
+        "better": "above random",
+        "worse": "below random",
+        "no difference shown": "not shown above random",
     },
     "oracle": {
         "better": "the rule above the best gate",
@@ -196,6 +205,49 @@ def _oracle(found: RegistryRun, folder: str) -> str | None:
     )
 
 
+#: The gate that asks anywhere: the one every other gate must beat at equal labels.
+RANDOM_GATE = "dagger-random"
+
+
+def _gates(found: RegistryRun, folder: str) -> str | None:
+    summary = found.json(f"{folder}/summary.json")
+    entries = whole_entries(summary["entries"])
+    dagger = last_round(entries)
+    gates = [e for e in entries if e["method"] in gated_methods()]
+    if dagger is None or not gates or not found.path(f"{folder}/queries.csv").is_file():
+        return None
+    reaching = [e for e in gates if e["successes"] >= dagger["successes"]]
+    # the cheapest setting that reaches DAgger's success; else the most successful, cheapest first
+    gate = min(
+        reaching or gates,
+        key=lambda e: (0 if reaching else -e["successes"], e["mean_queries"], e["method"], e["setting"]),
+    )
+    reach = (
+        f"{_named(gate)} reaches DAgger's {_count(dagger, queries=False)} with the fewest labels, "
+        if reaching
+        else f"no gate reaches DAgger's {_count(dagger, queries=False)}; the closest, {_named(gate)}, has "
+    )
+    line = f"{reach}{_count(gate)} (DAgger at {dagger['mean_queries']:,.0f})"
+    if gate["method"] == RANDOM_GATE:
+        return line + ", the random gate itself."
+    no_fewer = [e for e in gates if e["method"] == RANDOM_GATE and e["mean_queries"] >= gate["mean_queries"]]
+    if not no_fewer:
+        return line + "; no setting of the random gate spends as many labels."
+    random = min(no_fewer, key=lambda e: e["mean_queries"])
+    rows = [r for r in read_csv(found.path(f"{folder}/queries.csv")) if float(r["demo_fraction"]) == 1.0]
+    by_seed = [
+        {r["seed"]: r for r in rows if (r["method"], str(r["setting"])) == (e["method"], e["setting"])}
+        for e in (gate, random)
+    ]
+    seeds = sorted(set(by_seed[0]) & set(by_seed[1]))
+    a, b = ({key: [side[s][key] for s in seeds] for key in ("success", "reward")} for side in by_seed)
+    c = paired_comparison(a["success"], b["success"], a["reward"], b["reward"])
+    return (
+        f"{line}; against the random gate spending no fewer ({random['setting']}: {_count(random)}) "
+        f"{difference_points(c)}, {SAYS['gates'][verdict(c)]}."
+    )
+
+
 def _coverage(found: RegistryRun, folder: str) -> str | None:
     compared = _compared(found, folder)
     ranked = _ranked(compared)
@@ -254,6 +306,7 @@ CLAIMS: dict[str, Reader] = {
     "refits": _refits,
     "labels": _labels,
     "oracle": _oracle,
+    "gates": _gates,
     "coverage": _coverage,
 }
 
