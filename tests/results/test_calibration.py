@@ -66,6 +66,16 @@ def _calibration_run(root: Path, *sets: str) -> Path:
     (run / "benchmark" / "summary.json").write_text(json.dumps({"entries": entries, "comparisons": comparisons}))
     (run / "pistar" / "metrics.json").write_text(json.dumps({"unseen_seeds": {"successes": 9, "episodes": 10}}))
     (run / "stage_times.json").write_text(json.dumps({"benchmark": {"commits": ["abc"]}}))
+    losses = {("bc", ""): 0.5, ("bc-refit", "2"): 0.45, ("dagger", "1"): 0.6, ("dagger", "2"): 0.4}
+    with open(run / "benchmark" / "rows.jsonl", "w") as log:  # the benchmark's per-seed rows
+        for seed in range(1000, 1004):
+            rows = {m: [] for m, _ in losses}
+            for (method, setting), loss in losses.items():
+                rows[method].append(
+                    {"method": method, "setting": setting, "seed": seed, "expert_loss": loss + seed % 2 / 10}
+                )
+            entries = {m: {"stamp": {"method": m}, "rows": made} for m, made in rows.items()}
+            log.write(json.dumps({"seed": seed, "entries": entries}) + "\n")
     return run
 
 
@@ -84,6 +94,11 @@ def test_a_record_names_what_sets_the_variant_apart_and_reads_each_method_after_
     assert record["dagger_vs_refit"]["difference"] == 0.75  # the last round's, not the first's
     assert record["dagger_vs_dart"]["ci_low"] == 0.25
     assert record["pistar_unseen"] == {"successes": 9, "episodes": 10}
+    # held-out losses paired with DAgger's after its last round (0.4, not the first round's 0.6)
+    assert record["loss_vs_dagger"]["bc"]["difference"] == pytest.approx(0.1)
+    assert record["loss_vs_dagger"]["bc-refit"]["ci_low"] == pytest.approx(0.05)
+    (run / "benchmark" / "rows.jsonl").write_text("")
+    assert calibration_record(run)["loss_vs_dagger"] == {}
 
 
 def test_the_block_is_a_row_per_record_and_a_benchmark_without_dart_is_one_line(tmp_path):
@@ -97,7 +112,7 @@ def test_the_block_is_a_row_per_record_and_a_benchmark_without_dart_is_one_line(
     build(root=tmp_path, registry=tmp_path / "results")
     text = page.read_text()
     assert "| band-3 | `task_options.echo_rows` 3 | 9/10 | 1/4 | 1/4 | 2/4 | 4/4 | +75 (+50 to +100) |" in text
-    assert "0.30 / - / - / 0.40" in text
+    assert "0.30 / - / - / 0.40 | +0.10 (+0.10 to +0.10); +0.05 (+0.05 to +0.05) | 3,000 |" in text
     summary = run / "benchmark" / "summary.json"
     data = json.loads(summary.read_text())
     summary.write_text(json.dumps({**data, "entries": [e for e in data["entries"] if e["method"] != "dart"]}))

@@ -4,9 +4,9 @@ variant was chosen (``scripts/calibrate.sh`` makes the run, ``results calibratio
 A record is ``results/calibration/<task>/<name>.json``: the settings in which the run departs from
 the task's quick preset (the calibration's own fixed settings left out), pi*'s success on its unseen
 seeds, BC, BC refitted, DART and DAgger after their last round (successes, labels, loss on the
-held-out expert states), DAgger paired against BC refitted and against DART at its label count, and
-the commit that made it. The ``calibration TASK`` block (:mod:`metadagger.results.blocks`) is the
-table of a task's records.
+held-out expert states), DAgger paired against BC refitted and against DART at its label count, each
+method's held-out loss paired with DAgger's, and the commit that made it. The ``calibration TASK``
+block (:mod:`metadagger.results.blocks`) is the table of a task's records.
 """
 
 from __future__ import annotations
@@ -17,10 +17,13 @@ from typing import Any, Iterator, Mapping
 
 from metadagger.errors import UserError
 from metadagger.evaluation.benchmark.summary import last_round
+from metadagger.evaluation.paired import paired_difference
 from metadagger.evaluation.report.tables import markdown_table
 from metadagger.pipeline.run_config import RunConfig, load_run, resolve_config
 from metadagger.results.registry import REGISTRY
 from metadagger.results.tables import whole_entries
+from metadagger.runfolder.driver import RowLog
+from metadagger.runfolder.layout import RunLayout
 from metadagger.utils.io import read_json, write_json
 
 #: Where the records lie in the registry folder.
@@ -80,6 +83,27 @@ def _paired(comparisons: list[dict[str, Any]], method: str, against: str) -> dic
     return {key: row[key] for key in ("difference", "ci_low", "ci_high", "seeds")}
 
 
+def _held_out_losses(run: Path) -> dict[str, dict[str, float]]:
+    """Each method's loss on the held-out expert states after its last round, minus DAgger's after
+    its last, paired over the seeds (mean with its 95% interval); {} where the run held none out."""
+    log = RowLog(RunLayout(run).benchmark_log)
+    last: dict[str, dict[int, tuple[int, float]]] = {}
+    for seed, stamps in log.stamps().items():
+        for row in log.rows([seed], stamps):
+            if row.get("expert_loss") is None or row["method"] not in METHODS:
+                continue
+            held = last.setdefault(row["method"], {})
+            made = int(row["setting"] or 0)
+            if seed not in held or made >= held[seed][0]:
+                held[seed] = (made, float(row["expert_loss"]))
+    dagger = last.get("dagger", {})
+    return {
+        method: paired_difference([losses[s][1] for s in seeds], [dagger[s][1] for s in seeds])
+        for method, losses in last.items()
+        if method != "dagger" and (seeds := sorted(set(losses) & set(dagger)))
+    }
+
+
 def calibration_record(run: Path) -> dict[str, Any]:
     """The record of calibration run folder ``run`` (see the module docstring)."""
     config = load_run(run)
@@ -93,6 +117,7 @@ def calibration_record(run: Path) -> dict[str, Any]:
         "methods": {method: _last(summary["entries"], method) for method in METHODS},
         "dagger_vs_refit": _paired(summary["comparisons"], "dagger", "bc-refit"),
         "dagger_vs_dart": _paired(summary["comparisons"], "dagger", "dart"),
+        "loss_vs_dagger": _held_out_losses(run),
         "commits": commits,
     }
 
@@ -127,11 +152,16 @@ def _loss(method: Mapping[str, Any]) -> str:
     return "-" if loss is None else f"{loss:.2f}"
 
 
+def _loss_difference(record: Mapping[str, Any], method: str) -> str:
+    row = record.get("loss_vs_dagger", {}).get(method)
+    return "-" if row is None else f"{row['difference']:+.2f} ({row['ci_low']:+.2f} to {row['ci_high']:+.2f})"
+
+
 def calibration_table(root: Path, task: str) -> str:
     """A row per calibration record of ``task``: its departures from the quick preset, pi*'s unseen
     success, each method's success after its last round, DAgger's paired differences (points, with
-    their 95% intervals) and each method's loss on the held-out expert states ("-" where the run
-    did not measure it)."""
+    their 95% intervals), each method's loss on the held-out expert states and BC's and BC
+    refitted's minus DAgger's, paired ("-" where the run did not measure it)."""
     folder = root / REGISTRY / CALIBRATION / task
     records = [read_json(path, "calibration record") for path in sorted(folder.glob("*.json"))]
     if not records:
@@ -148,6 +178,7 @@ def calibration_table(root: Path, task: str) -> str:
         "DAgger - refitted",
         "DAgger - DART",
         "held-out loss (same order)",
+        "loss - DAgger's: BC; BC refitted",
         "labels",
     ]
     rows = []
@@ -163,6 +194,7 @@ def calibration_table(root: Path, task: str) -> str:
                 _difference(record["dagger_vs_refit"]),
                 _difference(record["dagger_vs_dart"]),
                 " / ".join(_loss(methods[method]) for method in METHODS),
+                "; ".join(_loss_difference(record, method) for method in ("bc", "bc-refit")),
                 f"{methods['dagger']['mean_queries']:,.0f}",
             ]
         )
