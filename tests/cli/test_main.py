@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -483,3 +484,16 @@ def test_a_signal_while_the_command_line_loads_is_one_line(signame, exit_code, s
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == exit_code
     assert done.stderr == f"error: stopped by {said} while the command line loaded: no work had started\n"
+
+
+def test_expert_builds_the_task_as_a_preset_does_and_keeps_a_record(tmp_path):
+    out = tmp_path / "expert.json"
+    result = runner.invoke(
+        app, ["expert", "--task", "carracing-echo", "--preset", "ci", "--seeds", "3", "--out", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    record = json.loads(out.read_text())
+    assert record["task_kwargs"]["max_episode_steps"] == 40 and record["task_kwargs"]["fault_rate"] > 0
+    assert [(row["seed"], row["steps"]) for row in record["rows"]] == [(3, 40)]  # the preset's 40 steps
+    assert record["command"] == "metadagger expert --task carracing-echo --preset ci --seeds 3"
+    _fails_cleanly(["expert", "--task", "carracing-echo", "--preset", "nope", "--seeds", "0"], "unknown preset 'nope'")

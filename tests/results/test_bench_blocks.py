@@ -321,3 +321,21 @@ def test_an_env_block_has_a_row_per_record_with_each_step_time_over_the_others(t
     (bench / "faults.json").write_text(json.dumps({"ours": {}}))
     result = runner.invoke(app, ["results", "build", "--root", str(tmp_path)])
     assert result.exit_code == 2 and "results/bench/faults.json lacks one of ours, upstream, ratio" in result.output
+
+
+def test_an_expert_block_names_the_command_and_reads_the_records_rows(tmp_path):
+    bench = tmp_path / "results" / "bench"
+    bench.mkdir(parents=True)
+    rows = [
+        {"seed": 0, "success": True, "reward": 900.0, "steps": 800},
+        {"seed": 1, "success": True, "reward": 920.0, "steps": 700},
+    ]
+    command = "metadagger expert --task carracing-echo --preset paper --seeds 0-1"
+    (bench / "expert.json").write_text(json.dumps({"command": command, "rows": rows}))
+    page = _page(tmp_path, "bench-expert expert.json")
+    build(tmp_path)
+    text = page.read_text()
+    assert f"`{command}` ([`expert.json`](../results/bench/expert.json)):" in " ".join(text.split())
+    assert "| 2 | 2 | 100.0% (34%-100%) | 910.0 | 700 / 750.0 / 800 |" in text
+    (bench / "expert.json").write_text(json.dumps({"rows": rows}))
+    assert "results/bench/expert.json lacks one of command, rows" in _error_line(tmp_path, "bench-expert expert.json")

@@ -42,20 +42,31 @@ def demo(
 def expert(
     task: str = TASK,
     seeds: str = typer.Option("0-9", "--seeds", help="Seeds: a range '0-99', a list '1,5,9' or one seed."),
-    out: Optional[Path] = typer.Option(None, "--out", help="Also write the per-seed rows as JSON here."),
+    out: Optional[Path] = typer.Option(
+        None, "--out", help="Also write a record here (JSON): the task as built, the seeds and the per-seed rows."
+    ),
+    preset: Optional[str] = typer.Option(
+        None,
+        "--preset",
+        help="Build the task as this preset of pipeline/presets/<task>.yaml does (its task_options and "
+        "max_episode_steps: a variant's expert); default: the task's own defaults.",
+    ),
 ) -> None:
     """Measure the task's expert (acting through the learner's action space) on seeds."""
-    from metadagger.evaluation.expert import evaluate_expert, expert_table
+    from metadagger.evaluation.expert import evaluate_expert, expert_record, expert_table
+    from metadagger.pipeline.run_config import resolve_config
     from metadagger.tasks import make_task
     from metadagger.utils.io import check_output_file, write_json
     from metadagger.utils.yaml_config import parse_seeds
 
     if out is not None:
         check_output_file(out, "--out")
-    rows = evaluate_expert(make_task(task), parse_seeds(seeds))
+    seed_list = parse_seeds(seeds)
+    kwargs = {} if preset is None else resolve_config(task, preset).task_kwargs
+    rows = evaluate_expert(make_task(task, **kwargs), seed_list)
     typer.echo(expert_table(rows))
     if out is not None:
-        write_json(out, rows)
+        write_json(out, expert_record(task, preset, kwargs, seeds, rows))
         typer.echo(f"wrote {out}")
 
 

@@ -12,11 +12,30 @@ from typing import Any
 from metadagger.imitation.episodes import evaluate_policy
 from metadagger.imitation.metrics import summarize
 from metadagger.tasks.base import Task
+from metadagger.version import source_revision
 
 
 def evaluate_expert(task: Task, seeds: Iterable[int], *, progress: bool = True) -> list[dict[str, Any]]:
     """One row per seed (``seed``, ``success``, ``reward``, ``steps``), the expert acting."""
     return evaluate_policy(task, None, list(seeds), label=f"expert {task.name}", progress=progress)
+
+
+def expert_record(
+    task: str, preset: str | None, task_kwargs: dict[str, Any], seeds: str, rows: list[dict[str, Any]]
+) -> dict[str, Any]:
+    """What ``metadagger expert --out`` keeps: the task, the preset it was built as (None: its own
+    defaults) with the keyword arguments that gave, the seeds as given, the per-seed rows, the
+    command that makes it again and the source revision."""
+    flag = "" if preset is None else f" --preset {preset}"
+    return {
+        "task": task,
+        "preset": preset,
+        "task_kwargs": dict(task_kwargs),
+        "seeds": seeds,
+        "rows": rows,
+        "command": f"metadagger expert --task {task}{flag} --seeds {seeds}",
+        "commit": source_revision() or "unknown",
+    }
 
 
 def expert_table(rows: list[dict[str, Any]], seconds: float | None = None) -> str:

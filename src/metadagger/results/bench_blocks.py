@@ -1,12 +1,13 @@
-"""Generated blocks from the records kept in ``results/bench/`` (``metadagger bench ...`` and
-``results compare`` JSON), so that a page states a measured time, ratio or count only as its record
-holds it."""
+"""Generated blocks from the records kept in ``results/bench/`` (``metadagger bench ...``, ``results
+compare`` and ``metadagger expert --out`` JSON), so that a page states a measured time, ratio, count
+or success only as its record holds it."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
+from metadagger.evaluation.expert import expert_table
 from metadagger.evaluation.report.run import STAGE_ORDER, duration
 from metadagger.evaluation.report.tables import markdown_table
 from metadagger.results.compare import GROUP_COLUMNS
@@ -318,3 +319,11 @@ def env_table(context: BlockContext, *files: str) -> str:
 
 def _load(value: Any) -> str:
     return f"{value:.1f}" if isinstance(value, (int, float)) else "-"
+
+
+def expert_block(context: BlockContext, file: str) -> str:
+    """A record of ``metadagger expert --out``: the command that made it, then the expert's success
+    on its seeds (95% Wilson interval), mean reward and episode lengths."""
+    path, record = _record(context, file, "expert record")
+    record = _fields(record, file, ("command", "rows"))
+    return f"`{record['command']}` ({_link(context, path)}):\n\n{expert_table(record['rows'])}"

@@ -57,6 +57,7 @@ BLOCKS: dict[str, Callable[..., str]] = {
     "bench-lanes": bench_blocks.lanes_table,
     "bench-fit": bench_blocks.fit_table,
     "bench-env": bench_blocks.env_table,
+    "bench-expert": bench_blocks.expert_block,
     "calibration": lambda context, task: calibration.calibration_table(context.root, task),
 }
 
