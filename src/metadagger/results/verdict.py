@@ -2,7 +2,7 @@
 
 Each run's benchmark rows (``queries.csv``) read every MetaL DAgger curve that reads a learned mapper against its
 references, on the same seeds and at the same spend: its constant twins (the same method with a
-control's head, or zero, in the mapper's place), BC refitted and the best gate; at each budget and
+control's head, or zero, in the mapper's place), BC refitted, DART where it ran, and the best gate; at each budget and
 by the area under the curve (:func:`~metadagger.evaluation.benchmark.summary.budget_reading`). A
 curve beats its references at a reading when every one of those paired 95% intervals lies above 0
 there. For each run, on its unseen seeds and (in an item nested under the run's) on its
