@@ -497,3 +497,10 @@ def test_expert_builds_the_task_as_a_preset_does_and_keeps_a_record(tmp_path):
     assert [(row["seed"], row["steps"]) for row in record["rows"]] == [(3, 40)]  # the preset's 40 steps
     assert record["command"] == "metadagger expert --task carracing-echo --preset ci --seeds 3"
     _fails_cleanly(["expert", "--task", "carracing-echo", "--preset", "nope", "--seeds", "0"], "unknown preset 'nope'")
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("presets:\n  short:\n    max_episode_steps: 12\n    task_options: {fault_rate: 0.01}\n")
+    short = ["expert", "--task", "carracing-echo", "--presets", str(mine), "--seeds", "2", "--out", str(out)]
+    _fails_cleanly(short, "no --preset says which")
+    assert runner.invoke(app, [*short, "--preset", "short"]).exit_code == 0
+    record = json.loads(out.read_text())
+    assert record["rows"][0]["steps"] == 12 and record["command"].endswith(f"--presets {mine} --preset short --seeds 2")

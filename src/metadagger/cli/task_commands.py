@@ -7,7 +7,8 @@ from typing import Optional
 
 import typer
 
-from metadagger.cli.options import BUILTIN_PRESET, TASK, user_errors
+from metadagger.cli.options import BUILTIN_PRESET, PRESETS_FILE, TASK, user_errors
+from metadagger.errors import UserError
 
 #: Merged into the top-level command line (no group name of its own).
 task_app = typer.Typer()
@@ -48,9 +49,10 @@ def expert(
     preset: Optional[str] = typer.Option(
         None,
         "--preset",
-        help="Build the task as this preset of pipeline/presets/<task>.yaml does (its task_options and "
-        "max_episode_steps: a variant's expert); default: the task's own defaults.",
+        help="Build the task as this preset of pipeline/presets/<task>.yaml (or of --presets) does: its "
+        "task_options and max_episode_steps, a variant's expert; default: the task's own defaults.",
     ),
+    presets: Optional[Path] = PRESETS_FILE,
 ) -> None:
     """Measure the task's expert (acting through the learner's action space) on seeds."""
     from metadagger.evaluation.expert import evaluate_expert, expert_record, expert_table
@@ -62,11 +64,13 @@ def expert(
     if out is not None:
         check_output_file(out, "--out")
     seed_list = parse_seeds(seeds)
-    kwargs = {} if preset is None else resolve_config(task, preset).task_kwargs
+    if presets is not None and preset is None:
+        raise UserError(f"--presets {presets} names presets, but no --preset says which; add --preset NAME")
+    kwargs = {} if preset is None else resolve_config(task, preset, presets).task_kwargs
     rows = evaluate_expert(make_task(task, **kwargs), seed_list)
     typer.echo(expert_table(rows))
     if out is not None:
-        write_json(out, expert_record(task, preset, kwargs, seeds, rows))
+        write_json(out, expert_record(task, preset, kwargs, seeds, rows, None if presets is None else str(presets)))
         typer.echo(f"wrote {out}")
 
 

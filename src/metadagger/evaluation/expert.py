@@ -21,12 +21,17 @@ def evaluate_expert(task: Task, seeds: Iterable[int], *, progress: bool = True) 
 
 
 def expert_record(
-    task: str, preset: str | None, task_kwargs: dict[str, Any], seeds: str, rows: list[dict[str, Any]]
+    task: str,
+    preset: str | None,
+    task_kwargs: dict[str, Any],
+    seeds: str,
+    rows: list[dict[str, Any]],
+    presets: str | None = None,
 ) -> dict[str, Any]:
     """What ``metadagger expert --out`` keeps: the task, the preset it was built as (None: its own
-    defaults) with the keyword arguments that gave, the seeds as given, the per-seed rows, the
-    command that makes it again and the source revision."""
-    flag = "" if preset is None else f" --preset {preset}"
+    defaults; from the file ``presets`` where given) with the keyword arguments that gave, the
+    seeds as given, the per-seed rows, the command that makes it again and the source revision."""
+    flag = ("" if presets is None else f" --presets {presets}") + ("" if preset is None else f" --preset {preset}")
     return {
         "task": task,
         "preset": preset,
