@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Iterator, Mapping
 
 from metadagger.errors import UserError
-from metadagger.evaluation.benchmark.summary import last_round
+from metadagger.evaluation.benchmark.summary import last_round, last_rows
 from metadagger.evaluation.paired import paired_difference
 from metadagger.evaluation.report.tables import markdown_table
 from metadagger.pipeline.run_config import RunConfig, load_run, resolve_config
@@ -87,20 +87,18 @@ def _held_out_losses(run: Path) -> dict[str, dict[str, float]]:
     """Each method's loss on the held-out expert states after its last round, minus DAgger's after
     its last, paired over the seeds (mean with its 95% interval); {} where the run held none out."""
     log = RowLog(RunLayout(run).benchmark_log)
-    last: dict[str, dict[int, tuple[int, float]]] = {}
-    for seed, stamps in log.stamps().items():
-        for row in log.rows([seed], stamps):
-            if row.get("expert_loss") is None or row["method"] not in METHODS:
-                continue
-            held = last.setdefault(row["method"], {})
-            made = int(row["setting"] or 0)
-            if seed not in held or made >= held[seed][0]:
-                held[seed] = (made, float(row["expert_loss"]))
-    dagger = last.get("dagger", {})
+    held = [
+        row
+        for seed, stamps in log.stamps().items()
+        for row in log.rows([seed], stamps)
+        if row.get("expert_loss") is not None
+    ]
+    last = {method: last_rows(held, method) for method in METHODS}
+    dagger = last["dagger"]
     return {
-        method: paired_difference([losses[s][1] for s in seeds], [dagger[s][1] for s in seeds])
-        for method, losses in last.items()
-        if method != "dagger" and (seeds := sorted(set(losses) & set(dagger)))
+        method: paired_difference([by_seed[s]["expert_loss"] for s in seeds], [dagger[s]["expert_loss"] for s in seeds])
+        for method, by_seed in last.items()
+        if method != "dagger" and (seeds := sorted(set(by_seed) & set(dagger)))
     }
 
 

@@ -290,7 +290,7 @@ def coverage_reading(rows: list[dict[str, Any]], reading: dict[str, Any] | None)
     """Each seed's coverage gap (plain DAgger's last row's, :mod:`metadagger.evaluation.benchmark.coverage`),
     and for each MetaL DAgger curve and constant twin, the per-seed gain in the area under the
     curve and its rank correlation with the gap; None without gaps or a budget reading."""
-    last = {seed: r for seed, r in _dagger_last(rows).items() if "coverage_gap" in r}
+    last = {seed: r for seed, r in last_rows(rows).items() if "coverage_gap" in r}
     if not last or reading is None:
         return None
     seeds = [s for s in reading["seeds"] if s in last]
@@ -309,18 +309,21 @@ def coverage_reading(rows: list[dict[str, Any]], reading: dict[str, Any] | None)
     return {"variance_share": VARIANCE_SHARE, "seeds": seeds, "gaps": gaps, "methods": methods}
 
 
-def _dagger_last(rows: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
-    """Plain DAgger's row after its last round, per seed."""
+def last_rows(rows: list[dict[str, Any]], method: str = "dagger") -> dict[int, dict[str, Any]]:
+    """``method``'s row after its last round, per seed (the rows' twin of :func:`last_round`; a
+    method of one row, as BC, gives that row)."""
     last: dict[int, dict[str, Any]] = {}
     for r in rows:
-        if r["method"] == "dagger" and (r["seed"] not in last or int(r["setting"]) > int(last[r["seed"]]["setting"])):
+        if r["method"] == method and (
+            r["seed"] not in last or int(r["setting"] or 0) > int(last[r["seed"]]["setting"] or 0)
+        ):
             last[r["seed"]] = r
     return last
 
 
 def _dagger_final(rows: list[dict[str, Any]]) -> dict[int, int]:
     """Plain DAgger's queries after its last round, per seed."""
-    return {seed: int(r["expert_queries"]) for seed, r in _dagger_last(rows).items()}
+    return {seed: int(r["expert_queries"]) for seed, r in last_rows(rows).items()}
 
 
 def _rate(outcomes: list[dict[str, Any]]) -> float:
